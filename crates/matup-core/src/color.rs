@@ -1,0 +1,81 @@
+//! Colour transfer functions: sRGB encoding and the display transform renders are compared in.
+
+/// sRGB-encoded value in [0, 1] → linear.
+#[inline]
+pub fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Linear value → sRGB-encoded, for values in [0, 1].
+#[inline]
+pub fn linear_to_srgb(v: f32) -> f32 {
+    let v = v.max(0.0);
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Derivative of [`linear_to_srgb`].
+#[inline]
+pub fn linear_to_srgb_derivative(v: f32) -> f32 {
+    if v <= 0.003_130_8 {
+        12.92
+    } else {
+        1.055 / 2.4 * v.powf(1.0 / 2.4 - 1.0)
+    }
+}
+
+/// The display transform of METHOD.md: Reinhard tone mapping `t / (1 + t)`, then the sRGB
+/// transfer curve, per channel. Renders are compared after it.
+#[inline]
+pub fn display(radiance: f32) -> f32 {
+    let t = radiance.max(0.0);
+    linear_to_srgb(t / (1.0 + t))
+}
+
+/// [`display`] and its derivative with respect to the radiance.
+#[inline]
+pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
+    if radiance <= 0.0 {
+        // Radiance is never negative in practice; below 0 the clamp has no gradient.
+        return (0.0, 0.0);
+    }
+    let inv = 1.0 / (1.0 + radiance);
+    let tone = radiance * inv;
+    (
+        linear_to_srgb(tone),
+        linear_to_srgb_derivative(tone) * inv * inv,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trips() {
+        for i in 0..=100 {
+            let v = i as f32 / 100.0;
+            assert!((linear_to_srgb(srgb_to_linear(v)) - v).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn display_derivative_matches_finite_differences() {
+        for &t in &[1e-4f32, 0.002, 0.01, 0.3, 1.0, 5.0, 40.0] {
+            let h = t * 1e-3;
+            let fd = (display(t + h) as f64 - display(t - h) as f64) / (2.0 * h as f64);
+            let (_, d) = display_with_derivative(t);
+            assert!(
+                ((d as f64 - fd) / fd).abs() < 1e-2,
+                "t={t}: analytic {d}, numeric {fd}"
+            );
+        }
+    }
+}

@@ -1,0 +1,309 @@
+//! Reading and writing single image files (PNG 8/16-bit, JPEG, EXR half/float): formats live
+//! at this edge; everything inside is a planar f32 [`Map`].
+
+use std::io::Cursor;
+use std::path::Path;
+
+use exr::prelude as ex;
+use exr::prelude::traits::*;
+use image::{DynamicImage, ImageFormat, ImageReader};
+
+use crate::map::Map;
+use crate::material::FileFormat;
+use crate::{Error, Result};
+
+/// An image as stored: its values (integers scaled to [0, 1], EXR as is) and its format.
+pub(crate) struct ImageFile {
+    pub map: Map,
+    pub format: FileFormat,
+}
+
+/// The file extensions matup reads.
+pub const IMAGE_EXTENSIONS: [&str; 4] = ["png", "jpg", "jpeg", "exr"];
+
+fn is_exr(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+}
+
+/// Reads an image, refusing (from the header, before decoding) images with more than
+/// `max_texels` texels. Alpha channels are dropped; grey stays one channel.
+pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
+    if !path.is_file() {
+        return Err(Error::file(path, "no such file"));
+    }
+    if is_exr(path) {
+        read_exr(path, max_texels)
+    } else {
+        read_png_or_jpeg(path, max_texels)
+    }
+}
+
+fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::file(path, format!("image is empty ({width}×{height})")));
+    }
+    if (width as u64) * (height as u64) > max_texels {
+        return Err(Error::file(
+            path,
+            format!(
+                "image is {width}×{height} = {} texels, over the limit of {max_texels} \
+                 (raise it with --max-texels)",
+                width as u64 * height as u64
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn read_png_or_jpeg(path: &Path, max_texels: u64) -> Result<ImageFile> {
+    let open = || -> Result<ImageReader<_>> {
+        ImageReader::open(path)
+            .map_err(|e| Error::io(path, e))?
+            .with_guessed_format()
+            .map_err(|e| Error::io(path, e))
+    };
+    let header = open()?;
+    let kind = header.format();
+    let (w, h) = header
+        .into_dimensions()
+        .map_err(|e| Error::file(path, format!("not a readable image: {e}")))?;
+    check_size(path, w as usize, h as usize, max_texels)?;
+
+    let mut reader = open()?;
+    reader.no_limits(); // the texel limit above is ours; the decoder's would refuse big maps
+    let image = reader
+        .decode()
+        .map_err(|e| Error::file(path, format!("cannot decode: {e}")))?;
+    let sixteen = matches!(
+        image,
+        DynamicImage::ImageLuma16(_)
+            | DynamicImage::ImageLumaA16(_)
+            | DynamicImage::ImageRgb16(_)
+            | DynamicImage::ImageRgba16(_)
+    );
+    let format = match kind {
+        Some(ImageFormat::Jpeg) => FileFormat::Jpeg,
+        Some(ImageFormat::Png) if sixteen => FileFormat::Png16,
+        Some(ImageFormat::Png) => FileFormat::Png8,
+        other => {
+            return Err(Error::file(
+                path,
+                format!("unsupported image format {other:?}; use PNG, JPEG or EXR"),
+            ))
+        }
+    };
+    let channels = image.color().channel_count() as usize;
+    let keep = match channels {
+        1 | 2 => 1, // grey, grey + alpha
+        3 | 4 => 3, // RGB, RGBA
+        n => {
+            return Err(Error::file(
+                path,
+                format!("unsupported channel layout ({n} channels)"),
+            ))
+        }
+    };
+    let (w, h) = (w as usize, h as usize);
+    let interleaved: Vec<f32> = match &image {
+        DynamicImage::ImageLuma8(b) => b.as_raw().iter().map(|&v| v as f32 / 255.0).collect(),
+        DynamicImage::ImageLumaA8(b) => b.as_raw().iter().map(|&v| v as f32 / 255.0).collect(),
+        DynamicImage::ImageRgb8(b) => b.as_raw().iter().map(|&v| v as f32 / 255.0).collect(),
+        DynamicImage::ImageRgba8(b) => b.as_raw().iter().map(|&v| v as f32 / 255.0).collect(),
+        DynamicImage::ImageLuma16(b) => b.as_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
+        DynamicImage::ImageLumaA16(b) => b.as_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
+        DynamicImage::ImageRgb16(b) => b.as_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
+        DynamicImage::ImageRgba16(b) => b.as_raw().iter().map(|&v| v as f32 / 65535.0).collect(),
+        other => {
+            return Err(Error::file(
+                path,
+                format!("unsupported channel layout {:?}", other.color()),
+            ))
+        }
+    };
+    let map = Map::from_fn(w, h, keep, |c, y, x| interleaved[(y * w + x) * channels + c]);
+    Ok(ImageFile { map, format })
+}
+
+fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
+    let bad = |e: exr::error::Error| Error::file(path, format!("not a readable EXR file: {e}"));
+    let meta = ex::MetaData::read_from_file(path, false).map_err(bad)?;
+    let header = meta
+        .headers
+        .first()
+        .ok_or_else(|| Error::file(path, "EXR file has no layers"))?;
+    check_size(
+        path,
+        header.layer_size.width(),
+        header.layer_size.height(),
+        max_texels,
+    )?;
+
+    let image = ex::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(bad)?;
+    let layer = &image.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let channels = &layer.channel_data.list;
+    let find = |name: &str| {
+        channels
+            .iter()
+            .find(|c| c.name.to_string().eq_ignore_ascii_case(name))
+    };
+    let picked: Vec<_> = match (find("R"), find("G"), find("B"), find("Y")) {
+        (Some(r), Some(g), Some(b), _) => vec![r, g, b],
+        (_, _, _, Some(y)) => vec![y],
+        _ if channels.len() == 1 => vec![&channels[0]],
+        _ => {
+            let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
+            return Err(Error::file(
+                path,
+                format!(
+                    "unsupported channel layout: channels {}; expected R, G, B or a single grey channel",
+                    names.join(", ")
+                ),
+            ));
+        }
+    };
+    let half = picked
+        .iter()
+        .all(|c| matches!(c.sample_data, ex::FlatSamples::F16(_)));
+    let mut data = Vec::with_capacity(w * h * picked.len());
+    for channel in &picked {
+        let start = data.len();
+        data.extend(channel.sample_data.values_as_f32());
+        if let Some(i) = data[start..].iter().position(|v| !v.is_finite()) {
+            return Err(Error::file(
+                path,
+                format!(
+                    "channel {} holds a non-finite value ({}) at texel ({}, {})",
+                    channel.name,
+                    data[start + i],
+                    i % w,
+                    i / w
+                ),
+            ));
+        }
+    }
+    Ok(ImageFile {
+        map: Map::from_planar(w, h, picked.len(), data),
+        format: if half {
+            FileFormat::ExrHalf
+        } else {
+            FileFormat::ExrFloat
+        },
+    })
+}
+
+/// Encodes a 1- or 3-channel map (values already in the file's encoding: [0, 1] for
+/// integer formats) and writes it atomically: to a temporary file beside `path`, then renamed.
+pub(crate) fn write_image(path: &Path, map: &Map, format: FileFormat) -> Result<()> {
+    let bytes = encode(map, format).map_err(|message| Error::file(path, message))?;
+    write_atomic(path, &bytes)
+}
+
+fn encode(map: &Map, format: FileFormat) -> std::result::Result<Vec<u8>, String> {
+    let (w, h, ch) = (map.width(), map.height(), map.channels());
+    assert!(ch == 1 || ch == 3, "only grey and RGB maps are written");
+    let interleaved = |c_y_x: &dyn Fn(usize, usize, usize) -> f32| -> Vec<f32> {
+        let mut v = Vec::with_capacity(w * h * ch);
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..ch {
+                    v.push(c_y_x(c, y, x));
+                }
+            }
+        }
+        v
+    };
+    let values = interleaved(&|c, y, x| map.get(c, y, x));
+    let mut out = Cursor::new(Vec::new());
+    match format {
+        FileFormat::Png8 | FileFormat::Jpeg => {
+            // Round, do not truncate: truncation drifts flat normals and dark colours.
+            let raw: Vec<u8> = values
+                .iter()
+                .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+                .collect();
+            let image = if ch == 1 {
+                DynamicImage::ImageLuma8(image::GrayImage::from_raw(w as u32, h as u32, raw).unwrap())
+            } else {
+                DynamicImage::ImageRgb8(image::RgbImage::from_raw(w as u32, h as u32, raw).unwrap())
+            };
+            if format == FileFormat::Jpeg {
+                let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95);
+                image.write_with_encoder(encoder).map_err(|e| e.to_string())?;
+            } else {
+                image
+                    .write_to(&mut out, ImageFormat::Png)
+                    .map_err(|e| e.to_string())?;
+            }
+        }
+        FileFormat::Png16 => {
+            let raw: Vec<u16> = values
+                .iter()
+                .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
+                .collect();
+            let image = if ch == 1 {
+                DynamicImage::ImageLuma16(image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap())
+            } else {
+                DynamicImage::ImageRgb16(image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap())
+            };
+            image
+                .write_to(&mut out, ImageFormat::Png)
+                .map_err(|e| e.to_string())?;
+        }
+        FileFormat::ExrHalf | FileFormat::ExrFloat => {
+            let names: &[&str] = if ch == 1 { &["Y"] } else { &["R", "G", "B"] };
+            let list: ex::SmallVec<[ex::AnyChannel<ex::FlatSamples>; 4]> = names
+                .iter()
+                .enumerate()
+                .map(|(c, name)| {
+                    let plane = map.plane(c);
+                    let samples = if format == FileFormat::ExrHalf {
+                        ex::FlatSamples::F16(plane.iter().map(|&v| ex::f16::from_f32(v)).collect())
+                    } else {
+                        ex::FlatSamples::F32(plane.to_vec())
+                    };
+                    ex::AnyChannel::new(*name, samples)
+                })
+                .collect();
+            let layer = ex::Layer::new(
+                (w, h),
+                ex::LayerAttributes::default(),
+                ex::Encoding::SMALL_LOSSLESS,
+                ex::AnyChannels::sort(list),
+            );
+            ex::Image::from_layer(layer)
+                .write()
+                .to_buffered(&mut out)
+                .map_err(|e| e.to_string())?;
+        }
+    }
+    Ok(out.into_inner())
+}
+
+/// Writes `bytes` to `path` so that readers see the old file or the whole new one, never a
+/// part: a temporary file in the same folder, synced, then renamed over `path`.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".matup-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(path, e))?;
+    tmp.write_all(bytes).map_err(|e| Error::io(path, e))?;
+    tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
+    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    Ok(())
+}

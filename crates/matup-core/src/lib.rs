@@ -1,0 +1,31 @@
+//! matup's core: the material model and its I/O, the plugin traits (`RgbUpsampler`,
+//! `ShadingModel`) with their registries, lights, resampling and rendering.
+
+pub mod color;
+mod error;
+pub mod io;
+pub mod lights;
+pub mod loss;
+pub mod map;
+pub mod material;
+pub mod op;
+pub mod plugin;
+pub mod render;
+pub mod resample;
+pub mod shading;
+pub mod upsample;
+
+pub use error::{Error, Result};
+pub use lights::{Light, LightSample, LightSetSpec};
+pub use loss::LossNorm;
+pub use io::{load_material, save_material, LoadOptions, MaterialPaths, SaveOptions};
+pub use map::Map;
+pub use material::{FileFormat, MapKind, Material, NormalConvention};
+pub use plugin::{PluginOption, PluginSpec};
+pub use render::{render, RenderOptions};
+pub use resample::{Border, Kernel};
+pub use shading::{shading_model, shading_models, ShadingModel, ShadingModelRegistration, Svbrdf, Texel};
+pub use upsample::{upsampler, upsamplers, RgbUpsampler, UpsamplerRegistration};
+
+// Re-exported so plugin crates register without naming the same `inventory` version.
+pub use inventory;

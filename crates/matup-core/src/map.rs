@@ -1,0 +1,156 @@
+//! [`Map`]: the one in-memory image representation (planar f32).
+
+/// A 2D image of `channels` planes of `width × height` f32 values, stored plane after plane,
+/// each plane row-major. Every texture, render and intermediate image in matup is a `Map`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Map {
+    width: usize,
+    height: usize,
+    channels: usize,
+    data: Vec<f32>,
+}
+
+impl Map {
+    /// A map filled with `value`.
+    pub fn filled(width: usize, height: usize, channels: usize, value: f32) -> Self {
+        Map {
+            width,
+            height,
+            channels,
+            data: vec![value; width * height * channels],
+        }
+    }
+
+    /// Wraps planar data (`channels` planes of `width × height`).
+    ///
+    /// # Panics
+    /// If `data.len() != width * height * channels` (a programming error, not bad input).
+    pub fn from_planar(width: usize, height: usize, channels: usize, data: Vec<f32>) -> Self {
+        assert_eq!(
+            data.len(),
+            width * height * channels,
+            "planar data of {width}×{height}×{channels} has the wrong length"
+        );
+        Map {
+            width,
+            height,
+            channels,
+            data,
+        }
+    }
+
+    /// Builds a map from a function of (channel, row, column).
+    pub fn from_fn(
+        width: usize,
+        height: usize,
+        channels: usize,
+        f: impl Fn(usize, usize, usize) -> f32,
+    ) -> Self {
+        let mut data = Vec::with_capacity(width * height * channels);
+        for c in 0..channels {
+            for y in 0..height {
+                for x in 0..width {
+                    data.push(f(c, y, x));
+                }
+            }
+        }
+        Map::from_planar(width, height, channels, data)
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+    pub fn height(&self) -> usize {
+        self.height
+    }
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+    /// Texels per plane.
+    pub fn texels(&self) -> usize {
+        self.width * self.height
+    }
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+    pub fn data_mut(&mut self) -> &mut [f32] {
+        &mut self.data
+    }
+    pub fn into_data(self) -> Vec<f32> {
+        self.data
+    }
+
+    /// One channel plane, row-major.
+    pub fn plane(&self, c: usize) -> &[f32] {
+        let n = self.texels();
+        &self.data[c * n..(c + 1) * n]
+    }
+    pub fn plane_mut(&mut self, c: usize) -> &mut [f32] {
+        let n = self.texels();
+        &mut self.data[c * n..(c + 1) * n]
+    }
+
+    #[inline]
+    pub fn get(&self, c: usize, y: usize, x: usize) -> f32 {
+        self.data[(c * self.height + y) * self.width + x]
+    }
+    #[inline]
+    pub fn set(&mut self, c: usize, y: usize, x: usize, v: f32) {
+        self.data[(c * self.height + y) * self.width + x] = v;
+    }
+
+    /// The value of every channel at one texel.
+    pub fn texel<const C: usize>(&self, index: usize) -> [f32; C] {
+        debug_assert_eq!(C, self.channels);
+        let n = self.texels();
+        std::array::from_fn(|c| self.data[c * n + index])
+    }
+
+    /// Applies `f` to every value.
+    pub fn map_values(mut self, f: impl Fn(f32) -> f32) -> Self {
+        self.data.iter_mut().for_each(|v| *v = f(*v));
+        self
+    }
+
+    /// A map holding only the listed channels, in that order.
+    pub fn select_channels(&self, channels: &[usize]) -> Map {
+        let mut data = Vec::with_capacity(self.texels() * channels.len());
+        for &c in channels {
+            data.extend_from_slice(self.plane(c));
+        }
+        Map::from_planar(self.width, self.height, channels.len(), data)
+    }
+
+    /// Stacks maps of the same size channel-wise.
+    pub fn stack(maps: &[&Map]) -> Map {
+        let (w, h) = (maps[0].width, maps[0].height);
+        let mut data = Vec::new();
+        for m in maps {
+            assert_eq!((m.width, m.height), (w, h), "stacked maps differ in size");
+            data.extend_from_slice(&m.data);
+        }
+        let channels = data.len() / (w * h);
+        Map::from_planar(w, h, channels, data)
+    }
+
+    /// Whether every value of a channel lies within `tolerance` of its first value.
+    pub fn is_constant(&self, c: usize, tolerance: f32) -> bool {
+        let plane = self.plane(c);
+        let first = plane[0];
+        plane.iter().all(|v| (v - first).abs() <= tolerance)
+    }
+
+    /// The mean of one channel.
+    pub fn mean(&self, c: usize) -> f32 {
+        let plane = self.plane(c);
+        (plane.iter().map(|&v| v as f64).sum::<f64>() / plane.len() as f64) as f32
+    }
+
+    /// A copy of the rectangle starting at (`x0`, `y0`).
+    pub fn crop(&self, x0: usize, y0: usize, width: usize, height: usize) -> Map {
+        assert!(x0 + width <= self.width && y0 + height <= self.height);
+        Map::from_fn(width, height, self.channels, |c, y, x| {
+            self.get(c, y0 + y, x0 + x)
+        })
+    }
+}

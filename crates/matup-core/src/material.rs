@@ -1,0 +1,364 @@
+//! [`Material`]: an SVBRDF as planar f32 maps with every convention resolved.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::PathBuf;
+use std::str::FromStr;
+
+use crate::map::Map;
+use crate::resample::{box_downsample, upsample, Border, Kernel};
+use crate::shading::{Svbrdf, Texel};
+use crate::{Error, Result};
+
+/// Perceptual roughness is clamped to at least this on load (METHOD.md).
+pub const MIN_ROUGHNESS: f32 = 0.045;
+/// `alpha = r²` is clamped to `[MIN_ALPHA, 1]`.
+pub const MIN_ALPHA: f32 = 2e-3;
+/// Height displaces the shading point by `DISPLACEMENT · (h − ½)`.
+pub const DISPLACEMENT: f32 = 0.01;
+
+/// How a normal map's green channel is oriented.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
+pub enum NormalConvention {
+    /// Green points down the image (Y−): matup's default and its internal frame.
+    #[default]
+    DirectX,
+    /// Green points up the image (Y+).
+    OpenGl,
+}
+
+impl FromStr for NormalConvention {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "directx" | "dx" => Ok(NormalConvention::DirectX),
+            "opengl" | "gl" => Ok(NormalConvention::OpenGl),
+            _ => Err(Error::Invalid(format!(
+                "unknown normal convention '{s}'; use directx or opengl"
+            ))),
+        }
+    }
+}
+
+impl fmt::Display for NormalConvention {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            NormalConvention::DirectX => "directx",
+            NormalConvention::OpenGl => "opengl",
+        })
+    }
+}
+
+/// The maps a material can have.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum MapKind {
+    BaseColor,
+    Normal,
+    Roughness,
+    Metallic,
+    Height,
+    Anisotropy,
+    AnisotropyAngle,
+}
+
+impl MapKind {
+    pub const ALL: [MapKind; 7] = [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+        MapKind::Height,
+        MapKind::Anisotropy,
+        MapKind::AnisotropyAngle,
+    ];
+
+    /// The file stem matup writes this map under.
+    pub fn file_stem(self) -> &'static str {
+        match self {
+            MapKind::BaseColor => "baseColor",
+            MapKind::Normal => "normal",
+            MapKind::Roughness => "roughness",
+            MapKind::Metallic => "metallic",
+            MapKind::Height => "height",
+            MapKind::Anisotropy => "anisotropy",
+            MapKind::AnisotropyAngle => "anisotropyAngle",
+        }
+    }
+}
+
+impl fmt::Display for MapKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            MapKind::BaseColor => "base colour",
+            MapKind::Normal => "normal",
+            MapKind::Roughness => "roughness",
+            MapKind::Metallic => "metallic",
+            MapKind::Height => "height",
+            MapKind::Anisotropy => "anisotropy",
+            MapKind::AnisotropyAngle => "anisotropy direction",
+        })
+    }
+}
+
+/// An image file format and bit depth.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum FileFormat {
+    Png8,
+    Png16,
+    Jpeg,
+    ExrHalf,
+    ExrFloat,
+}
+
+impl FileFormat {
+    pub fn extension(self) -> &'static str {
+        match self {
+            FileFormat::Png8 | FileFormat::Png16 => "png",
+            FileFormat::Jpeg => "jpg",
+            FileFormat::ExrHalf | FileFormat::ExrFloat => "exr",
+        }
+    }
+
+    /// Whether values are stored linearly (EXR) rather than display-encoded integers.
+    pub fn is_float(self) -> bool {
+        matches!(self, FileFormat::ExrHalf | FileFormat::ExrFloat)
+    }
+}
+
+impl FromStr for FileFormat {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "png" | "png8" => Ok(FileFormat::Png8),
+            "png16" => Ok(FileFormat::Png16),
+            "jpg" | "jpeg" => Ok(FileFormat::Jpeg),
+            "exr" | "exr-half" | "exr16" => Ok(FileFormat::ExrHalf),
+            "exr-float" | "exr32" => Ok(FileFormat::ExrFloat),
+            _ => Err(Error::Invalid(format!(
+                "unknown format '{s}'; use png, png16, jpg, exr-half or exr-float"
+            ))),
+        }
+    }
+}
+
+impl fmt::Display for FileFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            FileFormat::Png8 => "png",
+            FileFormat::Png16 => "png16",
+            FileFormat::Jpeg => "jpg",
+            FileFormat::ExrHalf => "exr-half",
+            FileFormat::ExrFloat => "exr-float",
+        })
+    }
+}
+
+/// Where a loaded material came from, so it can be saved the way it was given.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MaterialOrigin {
+    /// The folder it was loaded from (outputs never go there).
+    pub folder: PathBuf,
+    /// The file and format each map was read from.
+    pub files: BTreeMap<MapKind, (PathBuf, FileFormat)>,
+    pub normal_convention: NormalConvention,
+}
+
+/// A physically based material: planar f32 maps of one size, conventions resolved.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    /// Linear RGB base colour.
+    pub base_color: Map,
+    /// Unit tangent-space normals (3 channels) in the geometry frame: x right, y down the rows
+    /// (the DirectX convention), z out of the surface.
+    pub normal: Map,
+    /// Perceptual roughness `r` (1 channel); shading uses `alpha = r²`.
+    pub roughness: Map,
+    /// Metallic in [0, 1] (1 channel); constant 0 when the input has none.
+    pub metallic: Map,
+    /// Height in [0, 1] (1 channel), if the input has one.
+    pub height: Option<Map>,
+    /// Anisotropy strength in [−1, 1], if any.
+    pub anisotropy: Option<Map>,
+    /// Anisotropy direction in radians from +x, if any.
+    pub anisotropy_angle: Option<Map>,
+    pub origin: Option<MaterialOrigin>,
+}
+
+impl Material {
+    /// A flat material of constant values (tests, examples).
+    pub fn uniform(size: usize, base_color: [f32; 3], roughness: f32, metallic: f32) -> Self {
+        Material {
+            base_color: Map::from_fn(size, size, 3, |c, _, _| base_color[c]),
+            normal: Map::from_fn(size, size, 3, |c, _, _| if c == 2 { 1.0 } else { 0.0 }),
+            roughness: Map::filled(size, size, 1, roughness),
+            metallic: Map::filled(size, size, 1, metallic),
+            height: None,
+            anisotropy: None,
+            anisotropy_angle: None,
+            origin: None,
+        }
+    }
+
+    pub fn width(&self) -> usize {
+        self.base_color.width()
+    }
+    pub fn height_px(&self) -> usize {
+        self.base_color.height()
+    }
+
+    /// The map of a kind, if the material has it.
+    pub fn map(&self, kind: MapKind) -> Option<&Map> {
+        match kind {
+            MapKind::BaseColor => Some(&self.base_color),
+            MapKind::Normal => Some(&self.normal),
+            MapKind::Roughness => Some(&self.roughness),
+            MapKind::Metallic => Some(&self.metallic),
+            MapKind::Height => self.height.as_ref(),
+            MapKind::Anisotropy => self.anisotropy.as_ref(),
+            MapKind::AnisotropyAngle => self.anisotropy_angle.as_ref(),
+        }
+    }
+
+    fn map_mut(&mut self, kind: MapKind) -> Option<&mut Map> {
+        match kind {
+            MapKind::BaseColor => Some(&mut self.base_color),
+            MapKind::Normal => Some(&mut self.normal),
+            MapKind::Roughness => Some(&mut self.roughness),
+            MapKind::Metallic => Some(&mut self.metallic),
+            MapKind::Height => self.height.as_mut(),
+            MapKind::Anisotropy => self.anisotropy.as_mut(),
+            MapKind::AnisotropyAngle => self.anisotropy_angle.as_mut(),
+        }
+    }
+
+    /// The position of texel `index` on the material's square [−1, 1]², displaced by height.
+    #[inline]
+    pub fn position(&self, index: usize) -> [f32; 3] {
+        let (w, h) = (self.width(), self.height_px());
+        let (i, j) = (index / w, index % w);
+        let z = self
+            .height
+            .as_ref()
+            .map_or(0.0, |m| DISPLACEMENT * (m.data()[index] - 0.5));
+        [
+            2.0 * (j as f32 + 0.5) / w as f32 - 1.0,
+            2.0 * (i as f32 + 0.5) / h as f32 - 1.0,
+            z,
+        ]
+    }
+
+    /// The shading parameters of texel `index`.
+    #[inline]
+    pub fn texel(&self, index: usize) -> Texel {
+        let r = self.roughness.data()[index];
+        Texel {
+            params: Svbrdf {
+                base_color: self.base_color.texel(index),
+                metallic: self.metallic.data()[index],
+                normal: self.normal.texel(index),
+                alpha: alpha_from_roughness(r),
+                anisotropy: self.anisotropy.as_ref().map_or(0.0, |m| m.data()[index]),
+                anisotropy_angle: self
+                    .anisotropy_angle
+                    .as_ref()
+                    .map_or(0.0, |m| m.data()[index]),
+            },
+            position: self.position(index),
+        }
+    }
+
+    /// Applies a map-wise operation to every map, then restores the invariants (unit
+    /// normals, value ranges).
+    fn map_every(&self, f: impl Fn(&Map) -> Map) -> Material {
+        let mut out = self.clone();
+        for kind in MapKind::ALL {
+            if let Some(m) = out.map_mut(kind) {
+                *m = f(m);
+            }
+        }
+        out.origin = self.origin.clone();
+        out.restore_invariants();
+        out
+    }
+
+    /// Upsamples every map by `scale` with `kernel` (normals renormalised, values clamped
+    /// to their ranges: interpolation overshoots).
+    pub fn upsample(&self, scale: usize, kernel: Kernel, border: Border) -> Material {
+        self.map_every(|m| upsample(m, scale, kernel, border))
+    }
+
+    /// Averages `factor × factor` blocks of every map: linear base colour, averaged then
+    /// renormalised normals, averaged roughness, metallic and height.
+    pub fn box_downsample(&self, factor: usize) -> Material {
+        self.map_every(|m| box_downsample(m, factor))
+    }
+
+    /// Clamps values to their valid ranges and renormalises normals.
+    pub fn restore_invariants(&mut self) {
+        for v in self.base_color.data_mut() {
+            *v = v.clamp(0.0, 1.0);
+        }
+        for v in self.metallic.data_mut() {
+            *v = v.clamp(0.0, 1.0);
+        }
+        for v in self.roughness.data_mut() {
+            *v = v.clamp(MIN_ROUGHNESS, 1.0);
+        }
+        normalize_normals(&mut self.normal);
+    }
+}
+
+/// `alpha = r²`, clamped to `[MIN_ALPHA, 1]`.
+#[inline]
+pub fn alpha_from_roughness(r: f32) -> f32 {
+    (r * r).clamp(MIN_ALPHA, 1.0)
+}
+
+/// Renormalises a 3-channel normal map in place; a zero vector becomes (0, 0, 1).
+pub fn normalize_normals(normal: &mut Map) {
+    let n = normal.texels();
+    let data = normal.data_mut();
+    for i in 0..n {
+        let v = [data[i], data[n + i], data[2 * n + i]];
+        let len2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+        let u = if len2 > 1e-12 {
+            let inv = 1.0 / len2.sqrt();
+            v.map(|c| c * inv)
+        } else {
+            [0.0, 0.0, 1.0]
+        };
+        data[i] = u[0];
+        data[n + i] = u[1];
+        data[2 * n + i] = u[2];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn positions_follow_method_convention() {
+        let m = Material::uniform(4, [0.5; 3], 0.5, 0.0);
+        assert_eq!(m.position(0), [-0.75, -0.75, 0.0]);
+        assert_eq!(m.position(4 * 4 - 1), [0.75, 0.75, 0.0]);
+        assert_eq!(m.position(1)[0], -0.25, "column index moves x");
+        assert_eq!(m.position(4)[1], -0.25, "row index moves y");
+    }
+
+    #[test]
+    fn height_displaces_z() {
+        let mut m = Material::uniform(2, [0.5; 3], 0.5, 0.0);
+        m.height = Some(Map::from_planar(2, 2, 1, vec![0.0, 0.5, 1.0, 0.75]));
+        assert!((m.position(0)[2] + 0.005).abs() < 1e-7);
+        assert_eq!(m.position(1)[2], 0.0);
+        assert!((m.position(2)[2] - 0.005).abs() < 1e-7);
+    }
+
+    #[test]
+    fn alpha_is_squared_roughness_clamped() {
+        assert_eq!(alpha_from_roughness(0.5), 0.25);
+        assert_eq!(alpha_from_roughness(0.0), MIN_ALPHA);
+        assert_eq!(alpha_from_roughness(2.0), 1.0);
+    }
+}

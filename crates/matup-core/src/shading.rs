@@ -1,0 +1,185 @@
+//! The `ShadingModel` plugin trait, the texel parameters it shades, and its registry.
+
+use crate::color::{display, display_with_derivative};
+use crate::lights::{Light, LightSample};
+use crate::loss::LossNorm;
+use crate::plugin::{find_registration, sorted_registry, PluginOption, PluginSpec, Registration};
+use crate::Result;
+
+/// The view direction: the camera is orthographic and looks down −z.
+pub const VIEW: [f32; 3] = [0.0, 0.0, 1.0];
+
+/// The differentiable parameters of one texel, and (with the same layout) a gradient with
+/// respect to them.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Svbrdf {
+    /// Linear base colour.
+    pub base_color: [f32; 3],
+    pub metallic: f32,
+    /// Tangent-space normal in the geometry frame (y grows with the row index). Shading models
+    /// normalise it themselves, so it need not be unit length.
+    pub normal: [f32; 3],
+    /// GGX roughness `alpha = r²` (r: perceptual roughness).
+    pub alpha: f32,
+    /// Anisotropy strength in [−1, 1] (0: isotropic); only anisotropic models read it.
+    pub anisotropy: f32,
+    /// Tangent direction, radians from +x, in the tangent plane; only anisotropic models read it.
+    pub anisotropy_angle: f32,
+}
+
+impl Svbrdf {
+    /// Number of parameters.
+    pub const LEN: usize = 10;
+    /// Parameter names, in [`Svbrdf::to_array`] order.
+    pub const NAMES: [&'static str; Self::LEN] = [
+        "base_color.r",
+        "base_color.g",
+        "base_color.b",
+        "metallic",
+        "normal.x",
+        "normal.y",
+        "normal.z",
+        "alpha",
+        "anisotropy",
+        "anisotropy_angle",
+    ];
+
+    pub fn to_array(&self) -> [f32; Self::LEN] {
+        let [r, g, b] = self.base_color;
+        let [nx, ny, nz] = self.normal;
+        [
+            r,
+            g,
+            b,
+            self.metallic,
+            nx,
+            ny,
+            nz,
+            self.alpha,
+            self.anisotropy,
+            self.anisotropy_angle,
+        ]
+    }
+
+    pub fn from_array(a: [f32; Self::LEN]) -> Self {
+        Svbrdf {
+            base_color: [a[0], a[1], a[2]],
+            metallic: a[3],
+            normal: [a[4], a[5], a[6]],
+            alpha: a[7],
+            anisotropy: a[8],
+            anisotropy_angle: a[9],
+        }
+    }
+
+    /// `self += scale * other`, parameter-wise.
+    #[inline]
+    pub fn add_scaled(&mut self, other: &Svbrdf, scale: f32) {
+        for c in 0..3 {
+            self.base_color[c] += scale * other.base_color[c];
+            self.normal[c] += scale * other.normal[c];
+        }
+        self.metallic += scale * other.metallic;
+        self.alpha += scale * other.alpha;
+        self.anisotropy += scale * other.anisotropy;
+        self.anisotropy_angle += scale * other.anisotropy_angle;
+    }
+}
+
+/// A texel to shade: its parameters and its position on the material's square (x, y in
+/// [−1, 1], z the displacement).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Texel {
+    pub params: Svbrdf,
+    pub position: [f32; 3],
+}
+
+/// A shading model: outgoing radiance towards the viewer for a texel lit by a point light,
+/// with its analytic derivatives. Implementations are plain Rust, called per texel and light
+/// from parallel loops; the provided methods fuse them with the display transform and the
+/// loss, so nothing of size texels × lights is ever stored.
+pub trait ShadingModel: Send + Sync {
+    /// Linear RGB radiance towards [`VIEW`].
+    fn shade(&self, texel: &Svbrdf, light: &LightSample) -> [f32; 3];
+
+    /// The radiance and its Jacobian: `jacobian[c]` holds `d radiance[c] / d parameter` for
+    /// every parameter of [`Svbrdf`].
+    fn shade_jacobian(&self, texel: &Svbrdf, light: &LightSample) -> ([f32; 3], [Svbrdf; 3]);
+
+    /// Display-space colour of one texel under each light (`out[i]` for `lights[i]`).
+    fn render_texel(&self, texel: &Texel, lights: &[Light], out: &mut [[f32; 3]]) {
+        for (light, o) in lights.iter().zip(out.iter_mut()) {
+            let rgb = self.shade(&texel.params, &light.sample_at(texel.position));
+            *o = rgb.map(display);
+        }
+    }
+
+    /// The fused render + loss of one texel: `Σ_ω norm(display(render_ω) − target_ω)` over the
+    /// lights, and, when `grad` is given, its gradient with respect to the texel's parameters
+    /// added into `grad`. One pass, no temporaries.
+    fn texel_loss(
+        &self,
+        texel: &Texel,
+        lights: &[Light],
+        targets: &[[f32; 3]],
+        norm: &LossNorm,
+        grad: Option<&mut Svbrdf>,
+    ) -> f32 {
+        debug_assert_eq!(lights.len(), targets.len());
+        let mut total = 0.0;
+        match grad {
+            None => {
+                for (light, target) in lights.iter().zip(targets) {
+                    let rgb = self.shade(&texel.params, &light.sample_at(texel.position));
+                    let e = std::array::from_fn(|c| display(rgb[c]) - target[c]);
+                    total += norm.eval(e).0;
+                }
+            }
+            Some(grad) => {
+                for (light, target) in lights.iter().zip(targets) {
+                    let (rgb, jacobian) =
+                        self.shade_jacobian(&texel.params, &light.sample_at(texel.position));
+                    let shown = rgb.map(display_with_derivative);
+                    let e = std::array::from_fn(|c| shown[c].0 - target[c]);
+                    let (loss, de) = norm.eval(e);
+                    total += loss;
+                    for c in 0..3 {
+                        grad.add_scaled(&jacobian[c], de[c] * shown[c].1);
+                    }
+                }
+            }
+        }
+        total
+    }
+}
+
+/// A shading model's entry in the registry; submit one with `inventory::submit!`.
+pub struct ShadingModelRegistration {
+    pub name: &'static str,
+    pub description: &'static str,
+    pub options: &'static [PluginOption],
+    /// Builds the model from the spec's argument (its options).
+    pub create: fn(argument: Option<&str>) -> Result<Box<dyn ShadingModel>>,
+}
+
+inventory::collect!(ShadingModelRegistration);
+
+impl Registration for ShadingModelRegistration {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+}
+
+/// Every registered shading model, sorted by name.
+pub fn shading_models() -> Result<Vec<&'static ShadingModelRegistration>> {
+    sorted_registry(
+        "shading model",
+        inventory::iter::<ShadingModelRegistration>.into_iter(),
+    )
+}
+
+/// Builds the shading model a spec names (`ggx`, `ggx-aniso`, …).
+pub fn shading_model(spec: &PluginSpec) -> Result<Box<dyn ShadingModel>> {
+    let registration = find_registration("shading model", shading_models()?, &spec.name)?;
+    (registration.create)(spec.argument.as_deref())
+}

@@ -1,0 +1,47 @@
+//! `lambert`: diffuse only, for ablations and fast previews.
+
+use std::f32::consts::PI;
+
+use matup_core::shading::{ShadingModel, ShadingModelRegistration, Svbrdf};
+use matup_core::{LightSample, Result};
+
+use crate::vec3::*;
+
+/// Lambertian reflection of the base colour: `I · N·L · base / π`. Metallic and roughness
+/// are ignored.
+pub struct Lambert;
+
+impl ShadingModel for Lambert {
+    fn shade(&self, p: &Svbrdf, light: &LightSample) -> [f32; 3] {
+        let (n, _) = normalize(p.normal);
+        let (nol, _) = clamp_dot(dot(n, light.direction));
+        p.base_color.map(|b| light.intensity * nol * b / PI)
+    }
+
+    fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> ([f32; 3], [Svbrdf; 3]) {
+        let (n, len) = normalize(p.normal);
+        let (nol, free) = clamp_dot(dot(n, light.direction));
+        let mut jac = [Svbrdf::default(); 3];
+        for (c, j) in jac.iter_mut().enumerate() {
+            let b = p.base_color[c];
+            j.base_color[c] = light.intensity * nol / PI;
+            let g_unit = scale(light.direction, light.intensity * b / PI * free);
+            j.normal = normalize_backward(g_unit, n, len);
+        }
+        (p.base_color.map(|b| light.intensity * nol * b / PI), jac)
+    }
+}
+
+fn create(argument: Option<&str>) -> Result<Box<dyn ShadingModel>> {
+    matup_core::plugin::parse_options("lambert", argument, &[])?;
+    Ok(Box::new(Lambert))
+}
+
+inventory::submit! {
+    ShadingModelRegistration {
+        name: "lambert",
+        description: "Lambertian diffuse only (base colour / π); for ablations and fast previews",
+        options: &[],
+        create,
+    }
+}

@@ -1,0 +1,8 @@
+//! matup upsamples physically based materials (SVBRDF maps) by fitting them to
+//! super-resolved renders. This facade re-exports the libraries and links every built-in
+//! plugin, so its registries list them all.
+
+pub use matup_core as core;
+pub use matup_core::*;
+pub use matup_shading as shading_models;
+pub use matup_upsamplers as upsamplers;
