@@ -48,9 +48,8 @@ fn smooth_case(rng: &mut StdRng) -> Option<(Svbrdf, LightSample)> {
     Some((params, light))
 }
 
-/// Fourth-order central difference of `f` along parameter `k`, in f64.
-fn finite_difference(f: &dyn Fn(&Svbrdf) -> f64, p: &Svbrdf, k: usize) -> f64 {
-    let h = 1e-3f32;
+/// Fourth-order central difference of `f` along parameter `k` with step `h`, in f64.
+fn finite_difference(f: &dyn Fn(&Svbrdf) -> f64, p: &Svbrdf, k: usize, h: f32) -> f64 {
     let at = |steps: f32| {
         let mut a = p.to_array();
         a[k] += steps * h;
@@ -84,7 +83,7 @@ fn every_model_gradient_matches_finite_differences() {
                 let rgb = model.shade(q, &light);
                 (0..3).map(|c| w[c] * rgb[c] as f64).sum::<f64>()
             };
-            let numeric: Vec<f64> = (0..Svbrdf::LEN).map(|k| finite_difference(&f, &p, k)).collect();
+            let numeric: Vec<f64> = (0..Svbrdf::LEN).map(|k| finite_difference(&f, &p, k, 1e-3)).collect();
             let err = relative_error(&analytic, &numeric);
             assert!(
                 err < 1e-3,
@@ -108,23 +107,39 @@ fn away_from_kinks(p: &Svbrdf, position: &[f32; 3], lights: &[Light]) -> bool {
         let h = unit([l[0], l[1], l[2] + 1.0]);
         [dot(n, l), dot(n, h)]
             .iter()
-            .all(|c| c.abs() > 0.01 && *c < 0.99)
+            .all(|c| c.abs() > 0.05 && *c < 0.99)
     })
 }
 
 #[test]
 fn fused_loss_gradient_matches_finite_differences() {
     let model = shading_model(&PluginSpec::new("ggx")).unwrap();
-    let lights = matup::LightSetSpec::default().build();
+    // The training lights above 35° elevation (about half of them): with grazing lights too,
+    // almost every tilted normal puts some light at a clamp's kink.
+    let lights: Vec<Light> = matup::LightSetSpec::default()
+        .build()
+        .into_iter()
+        .filter(|l| l.position[2] / 1.4 > 0.57)
+        .collect();
+    assert!(lights.len() > 30);
     let mut rng = StdRng::seed_from_u64(5);
-    let targets: Vec<[f32; 3]> = (0..lights.len()).map(|_| std::array::from_fn(|_| rng.random_range(0.1..0.9))).collect();
     for norm in [LossNorm::L21, LossNorm::L11, LossNorm::L22, LossNorm::Lpq { p: 1.5, q: 1.2 }] {
         let mut checked = 0;
-        while checked < 20 {
+        for _ in 0..100_000 {
+            if checked == 20 {
+                break;
+            }
             let Some((p, _)) = smooth_case(&mut rng) else { continue };
             let texel = Texel { params: p, position: [0.2, -0.3, 0.001] };
             if !away_from_kinks(&p, &texel.position, &lights) {
                 continue;
+            }
+            // The norms have kinks where an error is zero: targets sit 0.1–0.3 away from the
+            // texel's renders in every channel.
+            let mut targets = vec![[0f32; 3]; lights.len()];
+            model.render_texel(&texel, &lights, &mut targets);
+            for t in targets.iter_mut().flatten() {
+                *t += if rng.random_bool(0.5) { 1.0 } else { -1.0 } * rng.random_range(0.1..0.3);
             }
             let mut grad = Svbrdf::default();
             model.texel_loss(&texel, &lights, &targets, &norm, Some(&mut grad));
@@ -133,14 +148,15 @@ fn fused_loss_gradient_matches_finite_differences() {
                 model.texel_loss(&t, &lights, &targets, &norm, None) as f64
             };
             let analytic: Vec<f64> = grad.to_array().iter().map(|&g| g as f64).collect();
-            let numeric: Vec<f64> = (0..Svbrdf::LEN).map(|k| finite_difference(&f, &p, k)).collect();
-            // f32 sums over 100 lights and the norm's own kink at zero error (a light whose
-            // render happens to match its target) cost a little precision: 5e-3, where a wrong
-            // derivative shows up at 1e-1.
+            // The loss sums 100 lights in f32: a wider step keeps its rounding out of the quotient.
+            let numeric: Vec<f64> = (0..Svbrdf::LEN).map(|k| finite_difference(&f, &p, k, 1e-2)).collect();
+            // The per-light Jacobians meet 1e-3 above; this f32 sum over ~50 lights has a noise
+            // floor near 1e-3 of its own, so 3e-3 (a wrong derivative shows at 1e-1).
             let err = relative_error(&analytic, &numeric);
-            assert!(err < 5e-3, "{norm}: relative error {err:.2e}\n{analytic:?}\n{numeric:?}");
+            assert!(err < 3e-3, "{norm}: relative error {err:.2e}\n{analytic:?}\n{numeric:?}");
             checked += 1;
         }
+        assert_eq!(checked, 20, "{norm}: too few texels clear of every kink");
     }
 }
 
