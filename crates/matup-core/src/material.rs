@@ -293,6 +293,11 @@ impl Material {
         self.map_every(|m| box_downsample(m, factor))
     }
 
+    /// The rectangle of every map starting at (`x0`, `y0`).
+    pub fn crop(&self, x0: usize, y0: usize, width: usize, height: usize) -> Material {
+        self.map_every(|m| m.crop(x0, y0, width, height))
+    }
+
     /// Clamps values to their valid ranges and renormalises normals.
     pub fn restore_invariants(&mut self) {
         for v in self.base_color.data_mut() {
