@@ -17,8 +17,15 @@ fn sample() -> Material {
 }
 
 fn max_abs_diff(a: &Map, b: &Map) -> f32 {
-    assert_eq!((a.width(), a.height(), a.channels()), (b.width(), b.height(), b.channels()));
-    a.data().iter().zip(b.data()).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    assert_eq!(
+        (a.width(), a.height(), a.channels()),
+        (b.width(), b.height(), b.channels())
+    );
+    a.data()
+        .iter()
+        .zip(b.data())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 /// Mean angle between two unit normal maps, in degrees.
@@ -34,12 +41,19 @@ fn mean_angle_degrees(a: &Map, b: &Map) -> f64 {
 }
 
 /// Saves `material` in `format` / `convention` into a fresh folder and returns it.
-fn saved(material: &Material, format: FileFormat, convention: NormalConvention) -> tempfile::TempDir {
+fn saved(
+    material: &Material,
+    format: FileFormat,
+    convention: NormalConvention,
+) -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
     save_material(
         material,
         dir.path(),
-        &SaveOptions { format: Some(format), normal_convention: Some(convention) },
+        &SaveOptions {
+            format: Some(format),
+            normal_convention: Some(convention),
+        },
     )
     .unwrap();
     dir
@@ -71,18 +85,28 @@ fn loads_every_shared_material_with_method_conventions() {
         let size = if name.starts_with("matup") { 128 } else { 1024 };
         assert_eq!((m.width(), m.height_px()), (size, size), "{name}");
         assert!(m.base_color.data().iter().all(|v| (0.0..=1.0).contains(v)));
-        assert!(m.roughness.data().iter().all(|v| (0.045..=1.0).contains(v)), "{name}: roughness clamped");
+        assert!(
+            m.roughness.data().iter().all(|v| (0.045..=1.0).contains(v)),
+            "{name}: roughness clamped"
+        );
         for i in 0..m.normal.texels() {
             let n: [f32; 3] = m.normal.texel(i);
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             assert!((len - 1.0).abs() < 1e-5, "{name}: normals are unit length");
         }
         assert!(m.height.is_some(), "{name} has a height map");
-        assert_eq!(m.origin.as_ref().unwrap().normal_convention, NormalConvention::DirectX);
+        assert_eq!(
+            m.origin.as_ref().unwrap().normal_convention,
+            NormalConvention::DirectX
+        );
     }
     // The metallic statistics ../shared/materials/README.md gives.
     let metal = load(&common::shared_material("ambientcg_Metal053C")).unwrap();
-    assert!((metal.metallic.mean(0) - 0.54).abs() < 0.01, "{}", metal.metallic.mean(0));
+    assert!(
+        (metal.metallic.mean(0) - 0.54).abs() < 0.01,
+        "{}",
+        metal.metallic.mean(0)
+    );
     let denim = load(&common::shared_material("polyhaven_denim_fabric")).unwrap();
     assert!(denim.metallic.data().iter().all(|&v| v == 0.0));
 }
@@ -106,29 +130,72 @@ fn ambientcg_names_with_both_normal_conventions() {
     let jpg = saved(&m, FileFormat::Jpeg, NormalConvention::DirectX);
     let dir = tempfile::tempdir().unwrap();
     let p = "Wood066_1K-JPG";
-    copy(&jpg.path().join("baseColor.jpg"), dir.path(), &format!("{p}_Color.jpg"));
-    copy(&gl.path().join("normal.png"), dir.path(), &format!("{p}_NormalGL.png"));
-    copy(&dx.path().join("normal.png"), dir.path(), &format!("{p}_NormalDX.png"));
-    copy(&jpg.path().join("roughness.jpg"), dir.path(), &format!("{p}_Roughness.jpg"));
-    copy(&jpg.path().join("metallic.jpg"), dir.path(), &format!("{p}_Metalness.jpg"));
-    copy(&dx.path().join("height.png"), dir.path(), &format!("{p}_Displacement.png"));
-    copy(&dx.path().join("height.png"), dir.path(), &format!("{p}_AmbientOcclusion.png"));
+    copy(
+        &jpg.path().join("baseColor.jpg"),
+        dir.path(),
+        &format!("{p}_Color.jpg"),
+    );
+    copy(
+        &gl.path().join("normal.png"),
+        dir.path(),
+        &format!("{p}_NormalGL.png"),
+    );
+    copy(
+        &dx.path().join("normal.png"),
+        dir.path(),
+        &format!("{p}_NormalDX.png"),
+    );
+    copy(
+        &jpg.path().join("roughness.jpg"),
+        dir.path(),
+        &format!("{p}_Roughness.jpg"),
+    );
+    copy(
+        &jpg.path().join("metallic.jpg"),
+        dir.path(),
+        &format!("{p}_Metalness.jpg"),
+    );
+    copy(
+        &dx.path().join("height.png"),
+        dir.path(),
+        &format!("{p}_Displacement.png"),
+    );
+    copy(
+        &dx.path().join("height.png"),
+        dir.path(),
+        &format!("{p}_AmbientOcclusion.png"),
+    );
     copy(&dx.path().join("baseColor.png"), dir.path(), "Wood066.png"); // the preview
 
     let default = load(dir.path()).unwrap();
     let origin = default.origin.as_ref().unwrap();
-    assert_eq!(origin.files[&MapKind::Normal].0.file_name().unwrap(), "Wood066_1K-JPG_NormalDX.png");
-    assert_eq!(origin.files[&MapKind::BaseColor].0.file_name().unwrap(), "Wood066_1K-JPG_Color.jpg");
-    assert_eq!(origin.files[&MapKind::Height].0.file_name().unwrap(), "Wood066_1K-JPG_Displacement.png");
+    assert_eq!(
+        origin.files[&MapKind::Normal].0.file_name().unwrap(),
+        "Wood066_1K-JPG_NormalDX.png"
+    );
+    assert_eq!(
+        origin.files[&MapKind::BaseColor].0.file_name().unwrap(),
+        "Wood066_1K-JPG_Color.jpg"
+    );
+    assert_eq!(
+        origin.files[&MapKind::Height].0.file_name().unwrap(),
+        "Wood066_1K-JPG_Displacement.png"
+    );
     assert_eq!(origin.files[&MapKind::BaseColor].1, FileFormat::Jpeg);
 
     let opengl = load_material(
         Some(dir.path()),
-        &LoadOptions { normal_convention: Some(NormalConvention::OpenGl), ..Default::default() },
+        &LoadOptions {
+            normal_convention: Some(NormalConvention::OpenGl),
+            ..Default::default()
+        },
     )
     .unwrap();
     assert_eq!(
-        opengl.origin.as_ref().unwrap().files[&MapKind::Normal].0.file_name().unwrap(),
+        opengl.origin.as_ref().unwrap().files[&MapKind::Normal]
+            .0
+            .file_name()
+            .unwrap(),
         "Wood066_1K-JPG_NormalGL.png"
     );
     // Both files decode to the same geometry as the original.
@@ -151,19 +218,30 @@ fn normal_convention_comes_from_the_file_name_or_the_option() {
     let as_dx = load(dir.path()).unwrap();
     let as_gl = load_material(
         Some(dir.path()),
-        &LoadOptions { normal_convention: Some(NormalConvention::OpenGl), ..Default::default() },
+        &LoadOptions {
+            normal_convention: Some(NormalConvention::OpenGl),
+            ..Default::default()
+        },
     )
     .unwrap();
     assert!(mean_angle_degrees(&as_gl.normal, &m.normal) < 0.3);
-    let flipped = Map::from_fn(128, 128, 3, |c, y, x| if c == 1 { -as_dx.normal.get(c, y, x) } else { as_dx.normal.get(c, y, x) });
+    let flipped = Map::from_fn(128, 128, 3, |c, y, x| {
+        if c == 1 {
+            -as_dx.normal.get(c, y, x)
+        } else {
+            as_dx.normal.get(c, y, x)
+        }
+    });
     assert!(mean_angle_degrees(&flipped, &m.normal) < 0.3);
     // Saved in the input's convention by default.
     let out = tempfile::tempdir().unwrap();
     save_material(&as_gl, out.path(), &SaveOptions::default()).unwrap();
-    assert_eq!(fs::read(out.path().join("normal.png")).ok().map(|b| b.len() > 0), Some(true));
     let reread = load_material(
         Some(out.path()),
-        &LoadOptions { normal_convention: Some(NormalConvention::OpenGl), ..Default::default() },
+        &LoadOptions {
+            normal_convention: Some(NormalConvention::OpenGl),
+            ..Default::default()
+        },
     )
     .unwrap();
     assert!(mean_angle_degrees(&reread.normal, &m.normal) < 0.3);
@@ -175,9 +253,21 @@ fn polyhaven_names_with_packed_arm_and_exr_normal() {
     let exr = saved(&m, FileFormat::ExrHalf, NormalConvention::OpenGl);
     let png = saved(&m, FileFormat::Png8, NormalConvention::DirectX);
     let dir = tempfile::tempdir().unwrap();
-    copy(&png.path().join("baseColor.png"), dir.path(), "wood_cabinet_diff_1k.png");
-    copy(&exr.path().join("normal.exr"), dir.path(), "wood_cabinet_nor_gl_1k.exr");
-    copy(&png.path().join("height.png"), dir.path(), "wood_cabinet_disp_1k.png");
+    copy(
+        &png.path().join("baseColor.png"),
+        dir.path(),
+        "wood_cabinet_diff_1k.png",
+    );
+    copy(
+        &exr.path().join("normal.exr"),
+        dir.path(),
+        "wood_cabinet_nor_gl_1k.exr",
+    );
+    copy(
+        &png.path().join("height.png"),
+        dir.path(),
+        "wood_cabinet_disp_1k.png",
+    );
     // Packed occlusion / roughness / metallic.
     let arm: Vec<u8> = (0..128 * 128)
         .flat_map(|i| {
@@ -192,9 +282,16 @@ fn polyhaven_names_with_packed_arm_and_exr_normal() {
 
     let loaded = load(dir.path()).unwrap();
     let origin = loaded.origin.as_ref().unwrap();
-    assert_eq!(origin.normal_convention, NormalConvention::OpenGl, "nor_gl says OpenGL");
+    assert_eq!(
+        origin.normal_convention,
+        NormalConvention::OpenGl,
+        "nor_gl says OpenGL"
+    );
     assert_eq!(origin.files[&MapKind::Normal].1, FileFormat::ExrHalf);
-    assert_eq!(origin.files[&MapKind::Roughness].0.file_name().unwrap(), "wood_cabinet_arm_1k.png");
+    assert_eq!(
+        origin.files[&MapKind::Roughness].0.file_name().unwrap(),
+        "wood_cabinet_arm_1k.png"
+    );
     assert!(mean_angle_degrees(&loaded.normal, &m.normal) < 0.1);
     assert!(max_abs_diff(&loaded.roughness, &m.roughness) < 0.5 / 255.0 + 1e-6);
     assert!(max_abs_diff(&loaded.metallic, &m.metallic) < 0.5 / 255.0 + 1e-6);
@@ -205,10 +302,22 @@ fn gloss_becomes_roughness_and_explicit_paths_win() {
     let m = sample();
     let png = saved(&m, FileFormat::Png8, NormalConvention::DirectX);
     let dir = tempfile::tempdir().unwrap();
-    copy(&png.path().join("baseColor.png"), dir.path(), "baseColor.png");
+    copy(
+        &png.path().join("baseColor.png"),
+        dir.path(),
+        "baseColor.png",
+    );
     copy(&png.path().join("normal.png"), dir.path(), "normal.png");
-    let gloss: Vec<u8> = m.roughness.data().iter().map(|r| ((1.0 - r) * 255.0).round() as u8).collect();
-    image::GrayImage::from_raw(128, 128, gloss).unwrap().save(dir.path().join("gloss.png")).unwrap();
+    let gloss: Vec<u8> = m
+        .roughness
+        .data()
+        .iter()
+        .map(|r| ((1.0 - r) * 255.0).round() as u8)
+        .collect();
+    image::GrayImage::from_raw(128, 128, gloss)
+        .unwrap()
+        .save(dir.path().join("gloss.png"))
+        .unwrap();
     let loaded = load(dir.path()).unwrap();
     assert!(max_abs_diff(&loaded.roughness, &m.roughness) < 0.5 / 255.0 + 1e-6);
 
@@ -216,13 +325,23 @@ fn gloss_becomes_roughness_and_explicit_paths_win() {
     let other = tempfile::tempdir().unwrap();
     let flat: Vec<u8> = vec![128; 128 * 128];
     let flat_path = other.path().join("anything.png");
-    image::GrayImage::from_raw(128, 128, flat).unwrap().save(&flat_path).unwrap();
+    image::GrayImage::from_raw(128, 128, flat)
+        .unwrap()
+        .save(&flat_path)
+        .unwrap();
     let options = LoadOptions {
-        paths: MaterialPaths { roughness: Some(flat_path), ..Default::default() },
+        paths: MaterialPaths {
+            roughness: Some(flat_path),
+            ..Default::default()
+        },
         ..Default::default()
     };
     let loaded = load_material(Some(dir.path()), &options).unwrap();
-    assert!(loaded.roughness.data().iter().all(|&r| (r - 128.0 / 255.0).abs() < 1e-6));
+    assert!(loaded
+        .roughness
+        .data()
+        .iter()
+        .all(|&r| (r - 128.0 / 255.0).abs() < 1e-6));
 }
 
 #[test]
@@ -241,15 +360,27 @@ fn formats_round_trip_and_are_kept_on_save() {
             let d = max_abs_diff(back.map(kind).unwrap(), m.map(kind).unwrap());
             assert!(d <= tolerance, "{format} {kind}: {d}");
         }
-        assert!(mean_angle_degrees(&back.normal, &m.normal) < 0.3, "{format}");
-        assert_eq!(back.origin.as_ref().unwrap().files[&MapKind::Roughness].1, format);
+        assert!(
+            mean_angle_degrees(&back.normal, &m.normal) < 0.3,
+            "{format}"
+        );
+        assert_eq!(
+            back.origin.as_ref().unwrap().files[&MapKind::Roughness].1,
+            format
+        );
 
         // Saved again without a format: each map keeps its input's format and extension.
         let again = tempfile::tempdir().unwrap();
         let written = save_material(&back, again.path(), &SaveOptions::default()).unwrap();
-        assert!(written.iter().all(|p| p.extension().unwrap() == extension), "{written:?}");
+        assert!(
+            written.iter().all(|p| p.extension().unwrap() == extension),
+            "{written:?}"
+        );
         let reread = load(again.path()).unwrap();
-        assert_eq!(reread.origin.as_ref().unwrap().files[&MapKind::BaseColor].1, format);
+        assert_eq!(
+            reread.origin.as_ref().unwrap().files[&MapKind::BaseColor].1,
+            format
+        );
     }
 }
 
@@ -257,7 +388,9 @@ fn formats_round_trip_and_are_kept_on_save() {
 fn quantising_rounds_so_flat_normals_stay_flat() {
     let flat = Material::uniform(8, [0.5; 3], 0.5, 0.0);
     let dir = saved(&flat, FileFormat::Png8, NormalConvention::DirectX);
-    let pixels = image::open(dir.path().join("normal.png")).unwrap().to_rgb8();
+    let pixels = image::open(dir.path().join("normal.png"))
+        .unwrap()
+        .to_rgb8();
     // (0, 0, 1) → (127.5, 127.5, 255) rounds to 128, not 127.
     assert_eq!(pixels.get_pixel(3, 3).0, [128, 128, 255]);
 }
@@ -267,7 +400,13 @@ fn quantising_rounds_so_flat_normals_stay_flat() {
 /// A folder with the sample's maps as PNG, minus `skip`.
 fn folder_without(skip: &[&str]) -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
-    for f in ["baseColor.png", "normal.png", "roughness.png", "metallic.png", "height.png"] {
+    for f in [
+        "baseColor.png",
+        "normal.png",
+        "roughness.png",
+        "metallic.png",
+        "height.png",
+    ] {
         if !skip.contains(&f) {
             copy(&common::sample_material().join(f), dir.path(), f);
         }
@@ -278,11 +417,17 @@ fn folder_without(skip: &[&str]) -> tempfile::TempDir {
 #[test]
 fn missing_required_maps_list_the_names_looked_for() {
     let e = error_of(load(folder_without(&["baseColor.png"]).path()));
-    assert!(e.contains("no base colour map") && e.contains("albedo") && e.contains("basecolor"), "{e}");
+    assert!(
+        e.contains("no base colour map") && e.contains("albedo") && e.contains("basecolor"),
+        "{e}"
+    );
     let e = error_of(load(folder_without(&["normal.png"]).path()));
     assert!(e.contains("no normal map") && e.contains("nor"), "{e}");
     let e = error_of(load(folder_without(&["roughness.png"]).path()));
-    assert!(e.contains("no roughness map") && e.contains("gloss") && e.contains("arm"), "{e}");
+    assert!(
+        e.contains("no roughness map") && e.contains("gloss") && e.contains("arm"),
+        "{e}"
+    );
     // Metallic and height are optional.
     let m = load(folder_without(&["metallic.png", "height.png"]).path()).unwrap();
     assert!(m.height.is_none() && m.metallic.data().iter().all(|&v| v == 0.0));
@@ -291,43 +436,75 @@ fn missing_required_maps_list_the_names_looked_for() {
 #[test]
 fn maps_of_different_sizes_are_listed() {
     let dir = folder_without(&["roughness.png"]);
-    image::GrayImage::new(64, 64).save(dir.path().join("roughness.png")).unwrap();
+    image::GrayImage::new(64, 64)
+        .save(dir.path().join("roughness.png"))
+        .unwrap();
     let e = error_of(load(dir.path()));
-    assert!(e.contains("differ in size") && e.contains("roughness.png is 64×64") && e.contains("baseColor.png is 128×128"), "{e}");
+    assert!(
+        e.contains("differ in size")
+            && e.contains("roughness.png is 64×64")
+            && e.contains("baseColor.png is 128×128"),
+        "{e}"
+    );
 }
 
 #[test]
 fn corrupt_and_truncated_files_are_named() {
     let dir = folder_without(&["normal.png"]);
-    fs::write(dir.path().join("normal.png"), b"this is not a PNG file at all").unwrap();
+    fs::write(
+        dir.path().join("normal.png"),
+        b"this is not a PNG file at all",
+    )
+    .unwrap();
     let e = error_of(load(dir.path()));
-    assert!(e.contains("normal.png") && (e.contains("not a readable image") || e.contains("cannot decode")), "{e}");
+    assert!(
+        e.contains("normal.png")
+            && (e.contains("not a readable image") || e.contains("cannot decode")),
+        "{e}"
+    );
 
     let dir = folder_without(&["baseColor.png"]);
     let bytes = fs::read(common::sample_material().join("baseColor.png")).unwrap();
     fs::write(dir.path().join("baseColor.png"), &bytes[..bytes.len() / 3]).unwrap();
     let e = error_of(load(dir.path()));
-    assert!(e.contains("baseColor.png") && e.contains("cannot decode"), "{e}");
+    assert!(
+        e.contains("baseColor.png") && e.contains("cannot decode"),
+        "{e}"
+    );
 
     let dir = folder_without(&["height.png"]);
     fs::write(dir.path().join("height.exr"), b"garbage").unwrap();
     let e = error_of(load(dir.path()));
-    assert!(e.contains("height.exr") && e.contains("not a readable EXR"), "{e}");
+    assert!(
+        e.contains("height.exr") && e.contains("not a readable EXR"),
+        "{e}"
+    );
 }
 
 #[test]
 fn unsupported_channel_layouts_are_refused() {
     let dir = folder_without(&["normal.png"]);
-    image::GrayImage::new(128, 128).save(dir.path().join("normal.png")).unwrap();
+    image::GrayImage::new(128, 128)
+        .save(dir.path().join("normal.png"))
+        .unwrap();
     let e = error_of(load(dir.path()));
-    assert!(e.contains("normal.png") && e.contains("1 channel") && e.contains("needs RGB"), "{e}");
+    assert!(
+        e.contains("normal.png") && e.contains("1 channel") && e.contains("needs RGB"),
+        "{e}"
+    );
 }
 
 #[test]
 fn images_over_the_size_limit_are_refused_from_the_header() {
-    let options = LoadOptions { max_texels: 100 * 100, ..Default::default() };
+    let options = LoadOptions {
+        max_texels: 100 * 100,
+        ..Default::default()
+    };
     let e = error_of(load_material(Some(&common::sample_material()), &options));
-    assert!(e.contains("128×128") && e.contains("over the limit of 10000"), "{e}");
+    assert!(
+        e.contains("128×128") && e.contains("over the limit of 10000"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -337,10 +514,21 @@ fn non_finite_exr_values_are_refused() {
     let mut values = vec![0.5f32; 128 * 128];
     values[130] = f32::NAN;
     let channel = AnyChannel::new("Y", FlatSamples::F32(values));
-    let layer = Layer::new((128, 128), LayerAttributes::default(), Encoding::UNCOMPRESSED, AnyChannels::sort(smallvec::smallvec![channel]));
-    Image::from_layer(layer).write().to_file(dir.path().join("roughness.exr")).unwrap();
+    let layer = Layer::new(
+        (128, 128),
+        LayerAttributes::default(),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(smallvec::smallvec![channel]),
+    );
+    Image::from_layer(layer)
+        .write()
+        .to_file(dir.path().join("roughness.exr"))
+        .unwrap();
     let e = error_of(load(dir.path()));
-    assert!(e.contains("roughness.exr") && e.contains("non-finite") && e.contains("(2, 1)"), "{e}");
+    assert!(
+        e.contains("roughness.exr") && e.contains("non-finite") && e.contains("(2, 1)"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -356,9 +544,18 @@ fn empty_and_missing_folders_are_refused() {
 #[test]
 fn two_files_claiming_one_map_are_named() {
     let dir = folder_without(&[]);
-    copy(&common::sample_material().join("baseColor.png"), dir.path(), "albedo.png");
+    copy(
+        &common::sample_material().join("baseColor.png"),
+        dir.path(),
+        "albedo.png",
+    );
     let e = error_of(load(dir.path()));
-    assert!(e.contains("2 files claim the base colour map") && e.contains("albedo.png") && e.contains("baseColor.png"), "{e}");
+    assert!(
+        e.contains("2 files claim the base colour map")
+            && e.contains("albedo.png")
+            && e.contains("baseColor.png"),
+        "{e}"
+    );
 }
 
 fn listing(dir: &Path) -> Vec<(String, u64)> {
@@ -366,7 +563,10 @@ fn listing(dir: &Path) -> Vec<(String, u64)> {
         .unwrap()
         .map(|e| {
             let e = e.unwrap();
-            (e.file_name().to_string_lossy().into_owned(), e.metadata().unwrap().len())
+            (
+                e.file_name().to_string_lossy().into_owned(),
+                e.metadata().unwrap().len(),
+            )
         })
         .collect();
     v.sort();
@@ -378,10 +578,16 @@ fn never_writes_into_the_input_folder() {
     let dir = folder_without(&[]);
     let before = listing(dir.path());
     let m = load(dir.path()).unwrap();
-    let e = save_material(&m, dir.path(), &SaveOptions::default()).unwrap_err().to_string();
+    let e = save_material(&m, dir.path(), &SaveOptions::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("input folder"), "{e}");
     // Spelled differently, still the same folder.
-    let same = dir.path().join(".").join("..").join(dir.path().file_name().unwrap());
+    let same = dir
+        .path()
+        .join(".")
+        .join("..")
+        .join(dir.path().file_name().unwrap());
     assert!(save_material(&m, &same, &SaveOptions::default()).is_err());
     assert_eq!(listing(dir.path()), before);
 }
@@ -392,12 +598,23 @@ fn unwritable_output_is_an_error_and_writes_leave_no_temporaries() {
     let dir = tempfile::tempdir().unwrap();
     let blocker = dir.path().join("file");
     fs::write(&blocker, "x").unwrap();
-    let e = save_material(&m, &blocker, &SaveOptions::default()).unwrap_err().to_string();
+    let e = save_material(&m, &blocker, &SaveOptions::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("file"), "{e}");
 
     let out = dir.path().join("out");
     let written = save_material(&m, &out, &SaveOptions::default()).unwrap();
     assert_eq!(written.len(), 5);
     let names: Vec<String> = listing(&out).into_iter().map(|(n, _)| n).collect();
-    assert_eq!(names, ["baseColor.png", "height.png", "metallic.png", "normal.png", "roughness.png"]);
+    assert_eq!(
+        names,
+        [
+            "baseColor.png",
+            "height.png",
+            "metallic.png",
+            "normal.png",
+            "roughness.png"
+        ]
+    );
 }

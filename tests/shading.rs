@@ -5,7 +5,10 @@ use std::sync::Arc;
 
 use candle_core::{Device, Tensor, Var};
 use matup::op::RenderLoss;
-use matup::{shading_model, shading_models, Light, LightSample, LossNorm, PluginSpec, ShadingModel, Svbrdf, Texel};
+use matup::{
+    shading_model, shading_models, Light, LightSample, LossNorm, PluginSpec, ShadingModel, Svbrdf,
+    Texel,
+};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
@@ -26,7 +29,11 @@ fn smooth_case(rng: &mut StdRng) -> Option<(Svbrdf, LightSample)> {
     let length = rng.random_range(0.7..1.3);
     let elevation = rng.random_range(0.3..1.45f64);
     let azimuth = rng.random_range(0.0..std::f64::consts::TAU);
-    let l = [elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(), elevation.sin()];
+    let l = [
+        elevation.cos() * azimuth.cos(),
+        elevation.cos() * azimuth.sin(),
+        elevation.sin(),
+    ];
     let h = unit([l[0], l[1], l[2] + 1.0]);
     for cosine in [dot(n, l), n[2], dot(n, h)] {
         if !(0.02..0.98).contains(&cosine) {
@@ -59,7 +66,12 @@ fn finite_difference(f: &dyn Fn(&Svbrdf) -> f64, p: &Svbrdf, k: usize, h: f32) -
 }
 
 fn relative_error(analytic: &[f64], numeric: &[f64]) -> f64 {
-    let diff: f64 = analytic.iter().zip(numeric).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
+    let diff: f64 = analytic
+        .iter()
+        .zip(numeric)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        .sqrt();
     let scale: f64 = numeric.iter().map(|b| b * b).sum::<f64>().sqrt().max(1e-6);
     diff / scale
 }
@@ -73,17 +85,25 @@ fn every_model_gradient_matches_finite_differences() {
         let mut rng = StdRng::seed_from_u64(2024);
         let (mut checked, mut worst) = (0, 0f64);
         while checked < 400 {
-            let Some((p, light)) = smooth_case(&mut rng) else { continue };
+            let Some((p, light)) = smooth_case(&mut rng) else {
+                continue;
+            };
             let w: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.5..1.5));
             let (_, jacobian) = model.shade_jacobian(&p, &light);
             let analytic: Vec<f64> = (0..Svbrdf::LEN)
-                .map(|k| (0..3).map(|c| w[c] * jacobian[c].to_array()[k] as f64).sum())
+                .map(|k| {
+                    (0..3)
+                        .map(|c| w[c] * jacobian[c].to_array()[k] as f64)
+                        .sum()
+                })
                 .collect();
             let f = |q: &Svbrdf| {
                 let rgb = model.shade(q, &light);
                 (0..3).map(|c| w[c] * rgb[c] as f64).sum::<f64>()
             };
-            let numeric: Vec<f64> = (0..Svbrdf::LEN).map(|k| finite_difference(&f, &p, k, 1e-3)).collect();
+            let numeric: Vec<f64> = (0..Svbrdf::LEN)
+                .map(|k| finite_difference(&f, &p, k, 1e-3))
+                .collect();
             let err = relative_error(&analytic, &numeric);
             assert!(
                 err < 1e-3,
@@ -94,7 +114,10 @@ fn every_model_gradient_matches_finite_differences() {
             worst = worst.max(err);
             checked += 1;
         }
-        println!("{}: {checked} random texels, worst relative error {worst:.2e}", registration.name);
+        println!(
+            "{}: {checked} random texels, worst relative error {worst:.2e}",
+            registration.name
+        );
     }
 }
 
@@ -123,14 +146,24 @@ fn fused_loss_gradient_matches_finite_differences() {
         .collect();
     assert!(lights.len() > 30);
     let mut rng = StdRng::seed_from_u64(5);
-    for norm in [LossNorm::L21, LossNorm::L11, LossNorm::L22, LossNorm::Lpq { p: 1.5, q: 1.2 }] {
+    for norm in [
+        LossNorm::L21,
+        LossNorm::L11,
+        LossNorm::L22,
+        LossNorm::Lpq { p: 1.5, q: 1.2 },
+    ] {
         let mut checked = 0;
         for _ in 0..100_000 {
             if checked == 20 {
                 break;
             }
-            let Some((p, _)) = smooth_case(&mut rng) else { continue };
-            let texel = Texel { params: p, position: [0.2, -0.3, 0.001] };
+            let Some((p, _)) = smooth_case(&mut rng) else {
+                continue;
+            };
+            let texel = Texel {
+                params: p,
+                position: [0.2, -0.3, 0.001],
+            };
             if !away_from_kinks(&p, &texel.position, &lights) {
                 continue;
             }
@@ -144,16 +177,24 @@ fn fused_loss_gradient_matches_finite_differences() {
             let mut grad = Svbrdf::default();
             model.texel_loss(&texel, &lights, &targets, &norm, Some(&mut grad));
             let f = |q: &Svbrdf| {
-                let t = Texel { params: *q, position: texel.position };
+                let t = Texel {
+                    params: *q,
+                    position: texel.position,
+                };
                 model.texel_loss(&t, &lights, &targets, &norm, None) as f64
             };
             let analytic: Vec<f64> = grad.to_array().iter().map(|&g| g as f64).collect();
             // The loss sums 100 lights in f32: a wider step keeps its rounding out of the quotient.
-            let numeric: Vec<f64> = (0..Svbrdf::LEN).map(|k| finite_difference(&f, &p, k, 1e-2)).collect();
+            let numeric: Vec<f64> = (0..Svbrdf::LEN)
+                .map(|k| finite_difference(&f, &p, k, 1e-2))
+                .collect();
             // The per-light Jacobians meet 1e-3 above; this f32 sum over ~50 lights has a noise
             // floor near 1e-3 of its own, so 3e-3 (a wrong derivative shows at 1e-1).
             let err = relative_error(&analytic, &numeric);
-            assert!(err < 3e-3, "{norm}: relative error {err:.2e}\n{analytic:?}\n{numeric:?}");
+            assert!(
+                err < 3e-3,
+                "{norm}: relative error {err:.2e}\n{analytic:?}\n{numeric:?}"
+            );
             checked += 1;
         }
         assert_eq!(checked, 20, "{norm}: too few texels clear of every kink");
@@ -167,16 +208,25 @@ fn anisotropic_ggx_equals_ggx_without_anisotropy() {
     let mut rng = StdRng::seed_from_u64(11);
     let mut checked = 0;
     while checked < 2000 {
-        let Some((mut p, light)) = smooth_case(&mut rng) else { continue };
+        let Some((mut p, light)) = smooth_case(&mut rng) else {
+            continue;
+        };
         p.anisotropy = 0.0;
         let (a, ja) = ggx.shade_jacobian(&p, &light);
         let (b, jb) = aniso.shade_jacobian(&p, &light);
         for c in 0..3 {
-            assert!((a[c] - b[c]).abs() <= 1e-4 * a[c].abs().max(1e-2), "radiance {a:?} vs {b:?}");
+            assert!(
+                (a[c] - b[c]).abs() <= 1e-4 * a[c].abs().max(1e-2),
+                "radiance {a:?} vs {b:?}"
+            );
             // Every parameter but the anisotropy ones (which ggx ignores).
             for k in 0..8 {
                 let (x, y) = (ja[c].to_array()[k], jb[c].to_array()[k]);
-                assert!((x - y).abs() <= 2e-3 * x.abs().max(1e-1), "d/d{}: {x} vs {y}", Svbrdf::NAMES[k]);
+                assert!(
+                    (x - y).abs() <= 2e-3 * x.abs().max(1e-1),
+                    "d/d{}: {x} vs {y}",
+                    Svbrdf::NAMES[k]
+                );
             }
         }
         checked += 1;
@@ -214,7 +264,14 @@ fn adversarial_params(rng: &mut StdRng) -> Svbrdf {
         },
         alpha: pick(
             rng,
-            &[0.0, alpha_of_roughness(0.045), matup::material::MIN_ALPHA, 1.0, 1.5, -0.1],
+            &[
+                0.0,
+                alpha_of_roughness(0.045),
+                matup::material::MIN_ALPHA,
+                1.0,
+                1.5,
+                -0.1,
+            ],
             0.0,
             1.0,
         ),
@@ -229,7 +286,7 @@ fn adversarial_light(rng: &mut StdRng) -> LightSample {
         [1.0, 0.0, 0.0],
         [0.0, -1.0, 0.0],
         [0.0, 0.0, -1.0],
-        [0.7071068, 0.0, 0.7071068],
+        [std::f32::consts::FRAC_1_SQRT_2, 0.0, std::f32::consts::FRAC_1_SQRT_2],
         [0.6, 0.8, 1e-8],
     ];
     let direction = if rng.random_bool(0.5) {
@@ -248,7 +305,11 @@ fn adversarial_light(rng: &mut StdRng) -> LightSample {
 #[test]
 fn every_model_stays_finite_under_adversarial_inputs() {
     const CASES: usize = 1_000_000;
-    let lights = [Light { position: [0.3, 0.2, 1.3], intensity: 8.0, falloff: true }];
+    let lights = [Light {
+        position: [0.3, 0.2, 1.3],
+        intensity: 8.0,
+        falloff: true,
+    }];
     for registration in shading_models().unwrap() {
         let model = (registration.create)(None).unwrap();
         let mut rng = StdRng::seed_from_u64(99);
@@ -258,17 +319,39 @@ fn every_model_stays_finite_under_adversarial_inputs() {
             let forward = model.shade(&p, &light);
             let (rgb, jacobian) = model.shade_jacobian(&p, &light);
             let finite = forward.iter().chain(&rgb).all(|v| v.is_finite())
-                && jacobian.iter().all(|j| j.to_array().iter().all(|v| v.is_finite()));
-            assert!(finite, "{}: case {case} not finite: {p:?} {light:?} → {rgb:?} {jacobian:?}", registration.name);
+                && jacobian
+                    .iter()
+                    .all(|j| j.to_array().iter().all(|v| v.is_finite()));
+            assert!(
+                finite,
+                "{}: case {case} not finite: {p:?} {light:?} → {rgb:?} {jacobian:?}",
+                registration.name
+            );
             if case % 16 == 0 {
                 // The fused loss path too, with the light on the surface itself.
-                let texel = Texel { params: p, position: [0.3, 0.2, 1.3 * (case % 32 == 0) as u8 as f32] };
+                let texel = Texel {
+                    params: p,
+                    position: [0.3, 0.2, 1.3 * (case % 32 == 0) as u8 as f32],
+                };
                 let mut grad = Svbrdf::default();
-                let loss = model.texel_loss(&texel, &lights, &[[0.5; 3]], &LossNorm::L21, Some(&mut grad));
-                assert!(loss.is_finite() && grad.to_array().iter().all(|g| g.is_finite()), "{}: fused loss case {case}", registration.name);
+                let loss = model.texel_loss(
+                    &texel,
+                    &lights,
+                    &[[0.5; 3]],
+                    &LossNorm::L21,
+                    Some(&mut grad),
+                );
+                assert!(
+                    loss.is_finite() && grad.to_array().iter().all(|g| g.is_finite()),
+                    "{}: fused loss case {case}",
+                    registration.name
+                );
             }
         }
-        println!("{}: {CASES} adversarial and random texel/light cases, all finite", registration.name);
+        println!(
+            "{}: {CASES} adversarial and random texel/light cases, all finite",
+            registration.name
+        );
     }
 }
 
@@ -281,31 +364,72 @@ fn candle_op_backward_is_the_fused_gradient() {
     let mut params = Vec::new();
     let mut positions = Vec::new();
     while positions.len() < batch {
-        let Some((p, _)) = smooth_case(&mut rng) else { continue };
+        let Some((p, _)) = smooth_case(&mut rng) else {
+            continue;
+        };
         params.extend(p.to_array());
-        positions.push([rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0]);
+        positions.push([
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            0.0,
+        ]);
     }
-    let targets: Vec<[f32; 3]> = (0..batch * lights.len()).map(|_| std::array::from_fn(|_| rng.random_range(0.0..1.0))).collect();
+    let targets: Vec<[f32; 3]> = (0..batch * lights.len())
+        .map(|_| std::array::from_fn(|_| rng.random_range(0.0..1.0)))
+        .collect();
 
-    let var = Var::from_tensor(&Tensor::from_vec(params.clone(), (batch, Svbrdf::LEN), &Device::Cpu).unwrap()).unwrap();
-    let op = RenderLoss::new(model.clone(), lights.clone(), positions.clone(), targets.clone(), LossNorm::L21);
+    let var = Var::from_tensor(
+        &Tensor::from_vec(params.clone(), (batch, Svbrdf::LEN), &Device::Cpu).unwrap(),
+    )
+    .unwrap();
+    let op = RenderLoss::new(
+        model.clone(),
+        lights.clone(),
+        positions.clone(),
+        targets.clone(),
+        LossNorm::L21,
+    );
     let losses = var.as_tensor().apply_op1(op).unwrap();
     // Weight texels differently so the upstream gradient is not uniform.
-    let weights = Tensor::from_vec((0..batch).map(|i| 1.0 + i as f32 / batch as f32).collect::<Vec<_>>(), batch, &Device::Cpu).unwrap();
+    let weights = Tensor::from_vec(
+        (0..batch)
+            .map(|i| 1.0 + i as f32 / batch as f32)
+            .collect::<Vec<_>>(),
+        batch,
+        &Device::Cpu,
+    )
+    .unwrap();
     let total = (losses.clone() * &weights).unwrap().sum_all().unwrap();
     let grads = total.backward().unwrap();
-    let got = grads.get(var.as_tensor()).unwrap().to_vec2::<f32>().unwrap();
+    let got = grads
+        .get(var.as_tensor())
+        .unwrap()
+        .to_vec2::<f32>()
+        .unwrap();
 
     let losses = losses.to_vec1::<f32>().unwrap();
     for i in 0..batch {
-        let texel = Texel { params: Svbrdf::from_array(params[i * 10..(i + 1) * 10].try_into().unwrap()), position: positions[i] };
+        let texel = Texel {
+            params: Svbrdf::from_array(params[i * 10..(i + 1) * 10].try_into().unwrap()),
+            position: positions[i],
+        };
         let mut want = Svbrdf::default();
-        let loss = model.texel_loss(&texel, &lights, &targets[i * 100..(i + 1) * 100], &LossNorm::L21, Some(&mut want));
+        let loss = model.texel_loss(
+            &texel,
+            &lights,
+            &targets[i * 100..(i + 1) * 100],
+            &LossNorm::L21,
+            Some(&mut want),
+        );
         assert!((loss - losses[i]).abs() <= 1e-5 * loss.abs());
         let scale = 1.0 + i as f32 / batch as f32;
-        for k in 0..Svbrdf::LEN {
-            let w = want.to_array()[k] * scale;
-            assert!((got[i][k] - w).abs() <= 1e-5 * w.abs().max(1e-3), "texel {i} {}: {} vs {w}", Svbrdf::NAMES[k], got[i][k]);
+        for (k, (&g, w)) in got[i].iter().zip(want.to_array()).enumerate() {
+            let w = w * scale;
+            assert!(
+                (g - w).abs() <= 1e-5 * w.abs().max(1e-3),
+                "texel {i} {}: {g} vs {w}",
+                Svbrdf::NAMES[k]
+            );
         }
     }
 }

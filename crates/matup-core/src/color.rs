@@ -39,7 +39,8 @@ pub fn display(radiance: f32) -> f32 {
     linear_to_srgb(t / (1.0 + t))
 }
 
-/// [`display`] and its derivative with respect to the radiance.
+/// [`display`] and its derivative with respect to the radiance. One `powf` serves both: the
+/// slope of `1.055·t^(1/2.4) − 0.055` is `1.055·t^(1/2.4) / (2.4·t)`.
 #[inline]
 pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
     if radiance <= 0.0 {
@@ -48,10 +49,13 @@ pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
     }
     let inv = 1.0 / (1.0 + radiance);
     let tone = radiance * inv;
-    (
-        linear_to_srgb(tone),
-        linear_to_srgb_derivative(tone) * inv * inv,
-    )
+    let tone_slope = inv * inv;
+    if tone <= 0.003_130_8 {
+        (12.92 * tone, 12.92 * tone_slope)
+    } else {
+        let scaled = 1.055 * tone.powf(1.0 / 2.4);
+        (scaled - 0.055, scaled / (2.4 * tone) * tone_slope)
+    }
 }
 
 #[cfg(test)]

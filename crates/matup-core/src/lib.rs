@@ -16,15 +16,17 @@ pub mod shading;
 pub mod upsample;
 
 pub use error::{Error, Result};
+pub use io::{load_material, save_material, LoadOptions, MaterialPaths, SaveOptions};
 pub use lights::{Light, LightSample, LightSetSpec};
 pub use loss::LossNorm;
-pub use io::{load_material, save_material, LoadOptions, MaterialPaths, SaveOptions};
 pub use map::Map;
 pub use material::{FileFormat, MapKind, Material, NormalConvention};
 pub use plugin::{PluginOption, PluginSpec};
 pub use render::{render, RenderOptions};
 pub use resample::{Border, Kernel};
-pub use shading::{shading_model, shading_models, ShadingModel, ShadingModelRegistration, Svbrdf, Texel};
+pub use shading::{
+    shading_model, shading_models, ShadingModel, ShadingModelRegistration, Svbrdf, Texel,
+};
 pub use upsample::{upsampler, upsamplers, RgbUpsampler, UpsamplerRegistration};
 
 // Re-exported so plugin crates register without naming the same `inventory` version.

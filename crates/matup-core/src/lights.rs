@@ -174,11 +174,18 @@ mod tests {
             .map(|a| {
                 train
                     .iter()
-                    .map(|b| (0..3).map(|k| (a.position[k] - b.position[k]).powi(2)).sum::<f32>())
+                    .map(|b| {
+                        (0..3)
+                            .map(|k| (a.position[k] - b.position[k]).powi(2))
+                            .sum::<f32>()
+                    })
                     .fold(f32::MAX, f32::min)
             })
             .fold(f32::MAX, f32::min);
-        assert!(closest > 1e-6, "no held-out light coincides with a training light");
+        assert!(
+            closest > 1e-6,
+            "no held-out light coincides with a training light"
+        );
     }
 
     #[test]

@@ -15,7 +15,10 @@ pub enum LossNorm {
     L11,
     L22,
     /// General `‖e‖_p^q` with p ≥ 1, q > 0.
-    Lpq { p: f32, q: f32 },
+    Lpq {
+        p: f32,
+        q: f32,
+    },
 }
 
 /// Below this squared length an error counts as zero (its gradient is zero, not NaN).
@@ -137,7 +140,12 @@ mod tests {
 
     #[test]
     fn zero_error_has_zero_gradient() {
-        for norm in [LossNorm::L21, LossNorm::L11, LossNorm::L22, LossNorm::Lpq { p: 3.0, q: 0.5 }] {
+        for norm in [
+            LossNorm::L21,
+            LossNorm::L11,
+            LossNorm::L22,
+            LossNorm::Lpq { p: 3.0, q: 0.5 },
+        ] {
             let (l, g) = norm.eval([0.0; 3]);
             assert!(l.is_finite() && l < 1e-9);
             assert_eq!(g, [0.0; 3]);

@@ -77,7 +77,11 @@ impl CustomOp1 for RenderLoss {
         "matup-render-loss"
     }
 
-    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+    fn cpu_fwd(
+        &self,
+        storage: &CpuStorage,
+        layout: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
         let dims = layout.shape().dims();
         if dims.len() != 2 || dims[1] != Svbrdf::LEN || dims[0] != self.positions.len() {
             candle_core::bail!(
@@ -96,7 +100,12 @@ impl CustomOp1 for RenderLoss {
         Ok((CpuStorage::F32(losses), Shape::from(dims[0])))
     }
 
-    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> candle_core::Result<Option<Tensor>> {
+    fn bwd(
+        &self,
+        arg: &Tensor,
+        _res: &Tensor,
+        grad_res: &Tensor,
+    ) -> candle_core::Result<Option<Tensor>> {
         let cached = self.gradient.lock().unwrap().take();
         let grads = match cached {
             Some(g) => g,

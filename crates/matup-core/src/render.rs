@@ -46,10 +46,16 @@ pub fn render(
 ) -> Vec<Map> {
     if options.supersample {
         let fine = material.upsample(2, Kernel::Bilinear, options.border);
-        render_texels(&texels(&fine), fine.width(), fine.height_px(), model, lights)
-            .iter()
-            .map(|m| box_downsample(m, 2))
-            .collect()
+        render_texels(
+            &texels(&fine),
+            fine.width(),
+            fine.height_px(),
+            model,
+            lights,
+        )
+        .iter()
+        .map(|m| box_downsample(m, 2))
+        .collect()
     } else {
         render_texels(
             &texels(material),
@@ -99,11 +105,19 @@ pub fn contact_sheet(images: &[Map], columns: usize, gap: usize) -> Map {
     let (sw, sh) = (columns * (w + gap) + gap, rows * (h + gap) + gap);
     let mut sheet = Map::filled(sw, sh, 3, 0.1);
     for (k, image) in images.iter().enumerate() {
-        let (x0, y0) = (gap + (k % columns) * (w + gap), gap + (k / columns) * (h + gap));
+        let (x0, y0) = (
+            gap + (k % columns) * (w + gap),
+            gap + (k / columns) * (h + gap),
+        );
         for c in 0..3 {
             for y in 0..h {
                 for x in 0..w {
-                    sheet.set(c, y0 + y, x0 + x, image.get(c.min(image.channels() - 1), y, x));
+                    sheet.set(
+                        c,
+                        y0 + y,
+                        x0 + x,
+                        image.get(c.min(image.channels() - 1), y, x),
+                    );
                 }
             }
         }

@@ -281,7 +281,11 @@ mod tests {
                 for scale in [2, 3, 4] {
                     let up = upsample(&map, scale, kernel, border);
                     assert_eq!((up.width(), up.height()), (7 * scale, 5 * scale));
-                    let worst = up.data().iter().map(|v| (v - 0.37).abs()).fold(0.0, f32::max);
+                    let worst = up
+                        .data()
+                        .iter()
+                        .map(|v| (v - 0.37).abs())
+                        .fold(0.0, f32::max);
                     assert!(worst < 1e-6, "{kernel:?} {border} ×{scale}: {worst}");
                 }
             }

@@ -50,7 +50,10 @@ impl Registration for UpsamplerRegistration {
 
 /// Every registered upsampler, sorted by name.
 pub fn upsamplers() -> Result<Vec<&'static UpsamplerRegistration>> {
-    sorted_registry("upsampler", inventory::iter::<UpsamplerRegistration>.into_iter())
+    sorted_registry(
+        "upsampler",
+        inventory::iter::<UpsamplerRegistration>.into_iter(),
+    )
 }
 
 /// Builds the upsampler a spec names (`lanczos3`, `bicubic:a=-0.75`, …).

@@ -50,7 +50,11 @@ fn radiance<S: Real>(p: [S; Svbrdf::LEN], light: &LightSample) -> [S; 3] {
 
     let noh_raw = dot_const(n, h);
     let loh = dot_f32(l, h).clamp(DOT_MIN, DOT_MAX);
-    let chi = if noh_raw.value() > 0.0 && dot_f32(l, h) > 0.0 { 1.0 } else { 0.0 };
+    let chi = if noh_raw.value() > 0.0 && dot_f32(l, h) > 0.0 {
+        1.0
+    } else {
+        0.0
+    };
     let nol = dot_const(n, l).clamp_to(DOT_MIN, DOT_MAX);
     let nov = n[2].clamp_to(DOT_MIN, DOT_MAX);
     let noh = noh_raw.clamp_to(DOT_MIN, DOT_MAX);
@@ -58,7 +62,11 @@ fn radiance<S: Real>(p: [S; Svbrdf::LEN], light: &LightSample) -> [S; 3] {
     // Tangent frame: the direction θ projected onto the tangent plane (Gram–Schmidt).
     let t0 = [theta.cos(), theta.sin(), c(0.0)];
     let along = dot(t0, n);
-    let t = normalize([t0[0] - along * n[0], t0[1] - along * n[1], t0[2] - along * n[2]]);
+    let t = normalize([
+        t0[0] - along * n[0],
+        t0[1] - along * n[1],
+        t0[2] - along * n[2],
+    ]);
     let b = cross(n, t);
 
     let a = alpha.clamp_to(MIN_ALPHA, 1.0);

@@ -17,7 +17,12 @@ pub struct Dual {
 
 /// The arithmetic a generic shading model needs.
 pub trait Real:
-    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Div<Output = Self> + Neg<Output = Self>
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
 {
     fn constant(v: f32) -> Self;
     fn value(self) -> f32;
@@ -72,7 +77,10 @@ impl Dual {
 
 impl Real for Dual {
     fn constant(value: f32) -> Self {
-        Dual { value, grad: [0.0; N] }
+        Dual {
+            value,
+            grad: [0.0; N],
+        }
     }
     fn value(self) -> f32 {
         self.value
@@ -120,6 +128,8 @@ impl Sub for Dual {
 
 impl Mul for Dual {
     type Output = Dual;
+    // The product rule adds, which clippy's heuristic mistakes for a typo.
+    #[allow(clippy::suspicious_arithmetic_impl)]
     fn mul(self, o: Dual) -> Dual {
         Dual {
             value: self.value * o.value,
@@ -130,6 +140,7 @@ impl Mul for Dual {
 
 impl Div for Dual {
     type Output = Dual;
+    #[allow(clippy::suspicious_arithmetic_impl)]
     fn div(self, o: Dual) -> Dual {
         let inv = 1.0 / o.value;
         let q = self.value * inv;

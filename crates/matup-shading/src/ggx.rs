@@ -40,7 +40,11 @@ fn lobe(p: &Svbrdf, light: &LightSample) -> Lobe {
     let (n, normal_len) = normalize(p.normal);
     let h = half_vector(l);
     let (noh_raw, loh_raw) = (dot(n, h), dot(l, h));
-    let chi = if noh_raw > 0.0 && loh_raw > 0.0 { 1.0 } else { 0.0 };
+    let chi = if noh_raw > 0.0 && loh_raw > 0.0 {
+        1.0
+    } else {
+        0.0
+    };
     let (nol, nol_free) = clamp_dot(dot(n, l));
     let (nov, nov_free) = clamp_dot(dot(n, VIEW));
     let (noh, noh_free) = clamp_dot(noh_raw);
@@ -123,7 +127,11 @@ impl ShadingModel for Ggx {
         let dv = k.d * dvis_dvden;
         let l_free = scale(l, k.nol_free);
         let g_spec = add_scaled(
-            add_scaled(scale(l_free, dv * dvden_dnol), VIEW, dv * dvden_dnov * k.nov_free),
+            add_scaled(
+                scale(l_free, dv * dvden_dnol),
+                VIEW,
+                dv * dvden_dnov * k.nov_free,
+            ),
             k.h,
             k.vis * dd_dnoh * k.noh_free,
         );

@@ -92,7 +92,11 @@ mod tests {
                 let out = build(name).upsample(&[image.clone()], 4, border).unwrap();
                 for c in 0..3 {
                     let want = [0.2, 0.5, 0.9][c];
-                    let worst = out[0].plane(c).iter().map(|v| (v - want).abs()).fold(0.0, f32::max);
+                    let worst = out[0]
+                        .plane(c)
+                        .iter()
+                        .map(|v| (v - want).abs())
+                        .fold(0.0, f32::max);
                     assert!(worst < 1e-6, "{name} {border}: off by {worst}");
                 }
             }
@@ -105,7 +109,9 @@ mod tests {
         let image = Map::from_fn(16, 16, 3, |_, y, x| 0.03 * x as f32 + 0.02 * y as f32);
         for name in ["bilinear", "bicubic"] {
             for scale in [2, 3, 4] {
-                let out = &build(name).upsample(&[image.clone()], scale, Border::Clamp).unwrap()[0];
+                let out = &build(name)
+                    .upsample(&[image.clone()], scale, Border::Clamp)
+                    .unwrap()[0];
                 let margin = 2 * scale;
                 let mut worst = 0f32;
                 for y in margin..out.height() - margin {
@@ -123,7 +129,9 @@ mod tests {
     /// The image shifted by (dy, dx) with wrap-around.
     fn roll(image: &Map, dy: usize, dx: usize) -> Map {
         let (w, h) = (image.width(), image.height());
-        Map::from_fn(w, h, image.channels(), |c, y, x| image.get(c, (y + h - dy) % h, (x + w - dx) % w))
+        Map::from_fn(w, h, image.channels(), |c, y, x| {
+            image.get(c, (y + h - dy) % h, (x + w - dx) % w)
+        })
     }
 
     #[test]
@@ -136,7 +144,12 @@ mod tests {
         });
         let scale = 4;
         for name in ["bilinear", "bicubic", "lanczos3"] {
-            let up = |m: &Map, border| build(name).upsample(&[m.clone()], scale, border).unwrap().remove(0);
+            let up = |m: &Map, border| {
+                build(name)
+                    .upsample(&[m.clone()], scale, border)
+                    .unwrap()
+                    .remove(0)
+            };
             let shifted_then_up = up(&roll(&image, 7, 3), Border::Wrap);
             let up_then_shifted = roll(&up(&image, Border::Wrap), 7 * scale, 3 * scale);
             let worst = shifted_then_up
@@ -145,11 +158,19 @@ mod tests {
                 .zip(up_then_shifted.data())
                 .map(|(a, b)| (a - b).abs())
                 .fold(0.0, f32::max);
-            assert!(worst < 1e-5, "{name}: wrap-mode output is not tileable ({worst})");
+            assert!(
+                worst < 1e-5,
+                "{name}: wrap-mode output is not tileable ({worst})"
+            );
             // A mirrored border makes the edge special, and the same check sees it.
             let mirrored = roll(&up(&image, Border::Mirror), 7 * scale, 3 * scale);
             let shifted_mirrored = up(&roll(&image, 7, 3), Border::Mirror);
-            let diff = mirrored.data().iter().zip(shifted_mirrored.data()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+            let diff = mirrored
+                .data()
+                .iter()
+                .zip(shifted_mirrored.data())
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f32::max);
             assert!(diff > 1e-2, "{name}: mirror border should not tile");
         }
     }
@@ -160,6 +181,9 @@ mod tests {
         let e = upsampler(&"bicubic:b=1".parse().unwrap()).err().unwrap();
         assert!(e.to_string().contains("valid options: a"), "{e}");
         let e = upsampler(&"lanczos9".parse().unwrap()).err().unwrap();
-        assert!(e.to_string().contains("known: bicubic, bilinear, lanczos3"), "{e}");
+        assert!(
+            e.to_string().contains("known: bicubic, bilinear, lanczos3"),
+            "{e}"
+        );
     }
 }

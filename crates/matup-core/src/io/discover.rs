@@ -44,23 +44,56 @@ impl fmt::Display for Role {
 
 /// Name parts that mark a file as something matup does not use (it is skipped).
 const IGNORED: &[&str] = &[
-    "ao", "ambientocclusion", "occlusion", "opacity", "alpha", "emission", "emissive",
-    "specular", "spec", "preview", "thumbnail", "thumb", "sheen", "subsurface", "sss",
-    "translucency", "transmission", "cavity", "mask", "idmask", "curvature",
+    "ao",
+    "ambientocclusion",
+    "occlusion",
+    "opacity",
+    "alpha",
+    "emission",
+    "emissive",
+    "specular",
+    "spec",
+    "preview",
+    "thumbnail",
+    "thumb",
+    "sheen",
+    "subsurface",
+    "sss",
+    "translucency",
+    "transmission",
+    "cavity",
+    "mask",
+    "idmask",
+    "curvature",
 ];
 
 /// The name parts of each role, checked in this order (specific before generic).
 pub const ROLE_WORDS: &[(Role, &[&str])] = &[
     (Role::Packed, &["arm", "orm"]),
-    (Role::Normal, &["normal", "normals", "normalmap", "nor", "nrm", "norm"]),
+    (
+        Role::Normal,
+        &["normal", "normals", "normalmap", "nor", "nrm", "norm"],
+    ),
     (Role::Gloss, &["gloss", "glossiness", "glossy"]),
     (Role::Roughness, &["roughness", "rough", "rgh"]),
     (Role::Metallic, &["metallic", "metalness", "metal", "mtl"]),
-    (Role::Height, &["height", "heightmap", "displacement", "disp", "bump"]),
+    (
+        Role::Height,
+        &["height", "heightmap", "displacement", "disp", "bump"],
+    ),
     (Role::Anisotropy, &["anisotropy", "aniso"]),
     (
         Role::BaseColor,
-        &["basecolor", "basecolour", "albedo", "diffuse", "diff", "color", "colour", "col"],
+        &[
+            "basecolor",
+            "basecolour",
+            "albedo",
+            "diffuse",
+            "diff",
+            "color",
+            "colour",
+            "col",
+        ],
     ),
 ];
 
@@ -207,7 +240,12 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         if candidates.len() > 1 {
             let names: Vec<String> = candidates
                 .iter()
-                .map(|c| c.0.file_name().unwrap_or_default().to_string_lossy().into_owned())
+                .map(|c| {
+                    c.0.file_name()
+                        .unwrap_or_default()
+                        .to_string_lossy()
+                        .into_owned()
+                })
                 .collect();
             return Err(Error::material(
                 folder,
@@ -248,7 +286,10 @@ mod tests {
             ["paving", "stones092", "1k", "jpg", "normal", "gl"]
         );
         assert_eq!(words("baseColor"), ["base", "color"]);
-        assert_eq!(words("denim_fabric_nor_gl_1k"), ["denim", "fabric", "nor", "gl", "1k"]);
+        assert_eq!(
+            words("denim_fabric_nor_gl_1k"),
+            ["denim", "fabric", "nor", "gl", "1k"]
+        );
     }
 
     #[test]

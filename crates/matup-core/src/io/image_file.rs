@@ -42,7 +42,10 @@ pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
 
 fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Result<()> {
     if width == 0 || height == 0 {
-        return Err(Error::file(path, format!("image is empty ({width}×{height})")));
+        return Err(Error::file(
+            path,
+            format!("image is empty ({width}×{height})"),
+        ));
     }
     if (width as u64) * (height as u64) > max_texels {
         return Err(Error::file(
@@ -122,7 +125,9 @@ fn read_png_or_jpeg(path: &Path, max_texels: u64) -> Result<ImageFile> {
             ))
         }
     };
-    let map = Map::from_fn(w, h, keep, |c, y, x| interleaved[(y * w + x) * channels + c]);
+    let map = Map::from_fn(w, h, keep, |c, y, x| {
+        interleaved[(y * w + x) * channels + c]
+    });
     Ok(ImageFile { map, format })
 }
 
@@ -232,13 +237,17 @@ fn encode(map: &Map, format: FileFormat) -> std::result::Result<Vec<u8>, String>
                 .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
                 .collect();
             let image = if ch == 1 {
-                DynamicImage::ImageLuma8(image::GrayImage::from_raw(w as u32, h as u32, raw).unwrap())
+                DynamicImage::ImageLuma8(
+                    image::GrayImage::from_raw(w as u32, h as u32, raw).unwrap(),
+                )
             } else {
                 DynamicImage::ImageRgb8(image::RgbImage::from_raw(w as u32, h as u32, raw).unwrap())
             };
             if format == FileFormat::Jpeg {
                 let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95);
-                image.write_with_encoder(encoder).map_err(|e| e.to_string())?;
+                image
+                    .write_with_encoder(encoder)
+                    .map_err(|e| e.to_string())?;
             } else {
                 image
                     .write_to(&mut out, ImageFormat::Png)
@@ -251,9 +260,13 @@ fn encode(map: &Map, format: FileFormat) -> std::result::Result<Vec<u8>, String>
                 .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
                 .collect();
             let image = if ch == 1 {
-                DynamicImage::ImageLuma16(image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap())
+                DynamicImage::ImageLuma16(
+                    image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap(),
+                )
             } else {
-                DynamicImage::ImageRgb16(image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap())
+                DynamicImage::ImageRgb16(
+                    image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap(),
+                )
             };
             image
                 .write_to(&mut out, ImageFormat::Png)

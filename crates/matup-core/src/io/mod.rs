@@ -85,7 +85,13 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
     };
     let origin_folder = folder
         .map(Path::to_path_buf)
-        .or_else(|| options.paths.base_color.as_ref().and_then(|p| p.parent().map(Path::to_path_buf)))
+        .or_else(|| {
+            options
+                .paths
+                .base_color
+                .as_ref()
+                .and_then(|p| p.parent().map(Path::to_path_buf))
+        })
         .unwrap_or_else(|| PathBuf::from("."));
     let pick = |role: Role| -> Option<(PathBuf, Option<NormalConvention>)> {
         match options.paths.get(role) {
@@ -110,7 +116,8 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         packed_format: FileFormat::Png8,
     };
 
-    let (base_path, _) = pick(Role::BaseColor).ok_or_else(|| missing("base colour", &[Role::BaseColor]))?;
+    let (base_path, _) =
+        pick(Role::BaseColor).ok_or_else(|| missing("base colour", &[Role::BaseColor]))?;
     let base_color = reader.read(MapKind::BaseColor, &base_path, Layout::Color)?;
     let base_linear = reader.format(MapKind::BaseColor).is_float();
     let base_color = if base_linear {
@@ -119,7 +126,8 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         base_color.map_values(srgb_to_linear)
     };
 
-    let (normal_path, named_convention) = pick(Role::Normal).ok_or_else(|| missing("normal", &[Role::Normal]))?;
+    let (normal_path, named_convention) =
+        pick(Role::Normal).ok_or_else(|| missing("normal", &[Role::Normal]))?;
     let convention = named_convention.unwrap_or(preferred);
     let mut normal = reader.read(MapKind::Normal, &normal_path, Layout::Vector)?;
     decode_normals(&mut normal, convention);
@@ -138,12 +146,17 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
     let roughness = if let Some((p, _)) = pick(Role::Roughness) {
         reader.read(MapKind::Roughness, &p, Layout::Scalar)?
     } else if let Some((p, _)) = pick(Role::Gloss) {
-        reader.read(MapKind::Roughness, &p, Layout::Scalar)?.map_values(|g| 1.0 - g)
+        reader
+            .read(MapKind::Roughness, &p, Layout::Scalar)?
+            .map_values(|g| 1.0 - g)
     } else if let (Some(p), Some(m)) = (&packed, &packed_map) {
         reader.note(MapKind::Roughness, p, reader.packed_format);
         m.select_channels(&[1])
     } else {
-        return Err(missing("roughness", &[Role::Roughness, Role::Gloss, Role::Packed]));
+        return Err(missing(
+            "roughness",
+            &[Role::Roughness, Role::Gloss, Role::Packed],
+        ));
     };
     let roughness = roughness.map_values(|r| r.clamp(MIN_ROUGHNESS, 1.0));
 
@@ -275,7 +288,12 @@ impl Reader {
         let list: Vec<String> = self
             .sizes
             .iter()
-            .map(|(p, w, h)| format!("{} is {w}×{h}", p.file_name().unwrap_or_default().to_string_lossy()))
+            .map(|(p, w, h)| {
+                format!(
+                    "{} is {w}×{h}",
+                    p.file_name().unwrap_or_default().to_string_lossy()
+                )
+            })
             .collect();
         Err(Error::material(
             folder,
@@ -288,7 +306,11 @@ impl Reader {
 fn decode_normals(normal: &mut Map, convention: NormalConvention) {
     let n = normal.texels();
     let data = normal.data_mut();
-    let flip = if convention == NormalConvention::OpenGl { -1.0 } else { 1.0 };
+    let flip = if convention == NormalConvention::OpenGl {
+        -1.0
+    } else {
+        1.0
+    };
     for i in 0..n {
         data[i] = 2.0 * data[i] - 1.0;
         data[n + i] = flip * (2.0 * data[n + i] - 1.0);
@@ -313,8 +335,12 @@ pub fn check_output_folder(out_dir: &Path, origin: Option<&MaterialOrigin>) -> R
     let Ok(out) = out_dir.canonicalize() else {
         return Ok(()); // does not exist yet, so it is not the input folder
     };
-    let inputs = std::iter::once(origin.folder.clone())
-        .chain(origin.files.values().filter_map(|(p, _)| p.parent().map(Path::to_path_buf)));
+    let inputs = std::iter::once(origin.folder.clone()).chain(
+        origin
+            .files
+            .values()
+            .filter_map(|(p, _)| p.parent().map(Path::to_path_buf)),
+    );
     for input in inputs {
         if input.canonicalize().is_ok_and(|i| i == out) {
             return Err(Error::file(
@@ -330,7 +356,11 @@ pub fn check_output_folder(out_dir: &Path, origin: Option<&MaterialOrigin>) -> R
 /// `baseColor.<ext>`, `normal.<ext>`, `roughness.<ext>`, `metallic.<ext>`, `height.<ext>`,
 /// each written atomically. Metallic is written when the input had one or it is not all zero.
 /// Returns the written files.
-pub fn save_material(material: &Material, out_dir: &Path, options: &SaveOptions) -> Result<Vec<PathBuf>> {
+pub fn save_material(
+    material: &Material,
+    out_dir: &Path,
+    options: &SaveOptions,
+) -> Result<Vec<PathBuf>> {
     check_output_folder(out_dir, material.origin.as_ref())?;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     let origin = material.origin.as_ref();
@@ -340,7 +370,9 @@ pub fn save_material(material: &Material, out_dir: &Path, options: &SaveOptions)
         .unwrap_or_default();
     let mut written = Vec::new();
     for kind in MapKind::ALL {
-        let Some(map) = material.map(kind) else { continue };
+        let Some(map) = material.map(kind) else {
+            continue;
+        };
         let had_source = origin.is_some_and(|o| o.files.contains_key(&kind));
         if kind == MapKind::Metallic && !had_source && map.data().iter().all(|&v| v == 0.0) {
             continue;
@@ -366,7 +398,11 @@ pub fn save_material(material: &Material, out_dir: &Path, options: &SaveOptions)
 
 /// Unit normals → [0, 1] encoding in `convention`.
 fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
-    let flip = if convention == NormalConvention::OpenGl { -1.0 } else { 1.0 };
+    let flip = if convention == NormalConvention::OpenGl {
+        -1.0
+    } else {
+        1.0
+    };
     let n = normal.texels();
     let mut out = normal.clone();
     for (i, v) in out.data_mut().iter_mut().enumerate() {

@@ -1,0 +1,63 @@
+//! The arguments every command that reads a material shares.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use matup_core::io::DEFAULT_MAX_TEXELS;
+use matup_core::{load_material, LoadOptions, Material, MaterialPaths, NormalConvention};
+
+#[derive(Args, Debug, Clone)]
+pub struct MaterialArgs {
+    /// Folder holding the material's maps (recognised by name: baseColor/albedo/…_Color,
+    /// normal/…_NormalGL/…_nor_dx_…, roughness, metallic, height, packed …_arm_…).
+    pub material: PathBuf,
+    /// Convention of normal maps whose name does not say GL or DX.
+    #[arg(long, value_name = "directx|opengl")]
+    pub normal_convention: Option<NormalConvention>,
+    /// Refuse images with more texels than this (checked before decoding).
+    #[arg(long, default_value_t = DEFAULT_MAX_TEXELS)]
+    pub max_texels: u64,
+    /// Base colour file (overrides what is found in the folder).
+    #[arg(long, value_name = "FILE")]
+    pub base_color: Option<PathBuf>,
+    /// Normal map file.
+    #[arg(long, value_name = "FILE")]
+    pub normal: Option<PathBuf>,
+    /// Roughness file.
+    #[arg(long, value_name = "FILE")]
+    pub roughness: Option<PathBuf>,
+    /// Glossiness file (roughness = 1 − gloss).
+    #[arg(long, value_name = "FILE")]
+    pub gloss: Option<PathBuf>,
+    /// Metallic file.
+    #[arg(long, value_name = "FILE")]
+    pub metallic: Option<PathBuf>,
+    /// Height (displacement) file.
+    #[arg(long, value_name = "FILE")]
+    pub height: Option<PathBuf>,
+    /// Packed occlusion (R) / roughness (G) / metallic (B) file.
+    #[arg(long, value_name = "FILE")]
+    pub packed: Option<PathBuf>,
+}
+
+impl MaterialArgs {
+    pub fn load(&self) -> anyhow::Result<Material> {
+        let options = LoadOptions {
+            paths: MaterialPaths {
+                base_color: self.base_color.clone(),
+                normal: self.normal.clone(),
+                roughness: self.roughness.clone(),
+                gloss: self.gloss.clone(),
+                metallic: self.metallic.clone(),
+                height: self.height.clone(),
+                packed: self.packed.clone(),
+                ..Default::default()
+            },
+            normal_convention: self.normal_convention,
+            max_texels: self.max_texels,
+        };
+        load_material(Some(&self.material), &options)
+            .with_context(|| format!("cannot load the material in {}", self.material.display()))
+    }
+}
