@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use candle_core::{Device, Tensor, Var};
-use matup::op::RenderLoss;
+use matup::op::{RenderLoss, TexelLossOp};
 use matup::{
     shading_model, shading_models, Light, LightSample, LossNorm, PluginSpec, ShadingModel, Svbrdf,
     Texel,
@@ -382,13 +382,13 @@ fn candle_op_backward_is_the_fused_gradient() {
         &Tensor::from_vec(params.clone(), (batch, Svbrdf::LEN), &Device::Cpu).unwrap(),
     )
     .unwrap();
-    let op = RenderLoss::new(
+    let op = TexelLossOp::new(RenderLoss::new(
         model.clone(),
         lights.clone(),
         positions.clone(),
         targets.clone(),
         LossNorm::L21,
-    );
+    ));
     let losses = var.as_tensor().apply_op1(op).unwrap();
     // Weight texels differently so the upstream gradient is not uniform.
     let weights = Tensor::from_vec(

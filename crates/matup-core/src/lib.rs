@@ -2,7 +2,9 @@
 //! `ShadingModel`) with their registries, lights, resampling and rendering.
 
 pub mod color;
+pub mod config;
 mod error;
+pub mod filter;
 pub mod io;
 pub mod lights;
 pub mod loss;

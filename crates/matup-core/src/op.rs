@@ -1,5 +1,6 @@
-//! The fused render + loss as a candle op, so training code gets analytic gradients from a
-//! [`ShadingModel`] without building texels × lights tensors.
+//! Fused per-texel losses as candle ops: render + loss + analytic gradient in one pass over a
+//! batch, with nothing of size texels × lights ever stored. One op serves every objective
+//! that is a sum of independent per-texel terms.
 
 use std::sync::{Arc, Mutex};
 
@@ -10,9 +11,76 @@ use crate::lights::Light;
 use crate::loss::LossNorm;
 use crate::shading::{ShadingModel, Svbrdf, Texel};
 
-/// Maps texel parameters `[B, Svbrdf::LEN]` (in [`Svbrdf::to_array`] order) to each texel's
-/// loss `[B]`: `Σ_ω norm(display(render_ω) − target_ω)`. The forward pass computes the
-/// gradient too (one fused loop) and keeps it for the backward pass.
+/// A loss that is a sum of independent terms, one per texel of a batch, each a function of
+/// that texel's row of parameters.
+pub trait TexelObjective: Send + Sync {
+    /// Parameters per texel (the row width).
+    fn width(&self) -> usize;
+    /// Texels in the batch.
+    fn texels(&self) -> usize;
+    /// The loss of texel `i` at parameters `row`; its gradient is written into `grad` (zeroed
+    /// on entry, `width()` long).
+    fn eval(&self, i: usize, row: &[f32], grad: &mut [f32]) -> f32;
+}
+
+/// A [`TexelObjective`] as a candle op: parameters `[B, width]` → per-texel losses `[B]`.
+/// The forward pass computes the gradient too and keeps it for the backward pass.
+pub struct TexelLossOp<T> {
+    objective: T,
+    gradient: Mutex<Option<Vec<f32>>>,
+}
+
+impl<T: TexelObjective> TexelLossOp<T> {
+    pub fn new(objective: T) -> Self {
+        TexelLossOp { objective, gradient: Mutex::new(None) }
+    }
+
+    fn evaluate(&self, params: &[f32]) -> (Vec<f32>, Vec<f32>) {
+        let width = self.objective.width();
+        let mut losses = vec![0f32; self.objective.texels()];
+        let mut grads = vec![0f32; params.len()];
+        losses
+            .par_iter_mut()
+            .zip(grads.par_chunks_mut(width))
+            .zip(params.par_chunks(width))
+            .enumerate()
+            .for_each(|(i, ((loss, grad), row))| *loss = self.objective.eval(i, row, grad));
+        (losses, grads)
+    }
+}
+
+impl<T: TexelObjective> CustomOp1 for TexelLossOp<T> {
+    fn name(&self) -> &'static str {
+        "matup-texel-loss"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let dims = layout.shape().dims();
+        let (b, w) = (self.objective.texels(), self.objective.width());
+        if dims != [b, w] {
+            candle_core::bail!("texel loss expects [{b}, {w}] parameters, got {dims:?}");
+        }
+        let Some((start, end)) = layout.contiguous_offsets() else {
+            candle_core::bail!("texel loss needs contiguous parameters");
+        };
+        let (losses, grads) = self.evaluate(&storage.as_slice::<f32>()?[start..end]);
+        *self.gradient.lock().unwrap() = Some(grads);
+        Ok((CpuStorage::F32(losses), Shape::from(b)))
+    }
+
+    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        let cached = self.gradient.lock().unwrap().take();
+        let grads = match cached {
+            Some(g) => g,
+            None => self.evaluate(&arg.flatten_all()?.to_vec1::<f32>()?).1,
+        };
+        let grads = Tensor::from_vec(grads, arg.shape(), arg.device())?;
+        Ok(Some(grads.broadcast_mul(&grad_res.unsqueeze(1)?)?))
+    }
+}
+
+/// Render + loss of texel parameters (rows in [`Svbrdf::to_array`] order):
+/// `Σ_ω norm(display(render_ω) − target_ω)` over the lights.
 pub struct RenderLoss {
     model: Arc<dyn ShadingModel>,
     lights: Arc<[Light]>,
@@ -21,7 +89,6 @@ pub struct RenderLoss {
     /// Display-space target of each texel under each light, texel-major (`B × lights`).
     targets: Vec<[f32; 3]>,
     norm: LossNorm,
-    gradient: Mutex<Option<Vec<f32>>>,
 }
 
 impl RenderLoss {
@@ -33,88 +100,32 @@ impl RenderLoss {
         norm: LossNorm,
     ) -> Self {
         assert_eq!(targets.len(), positions.len() * lights.len());
-        RenderLoss {
-            model,
-            lights,
-            positions,
-            targets,
-            norm,
-            gradient: Mutex::new(None),
-        }
-    }
-
-    /// Losses and gradients of a batch of parameters (row-major `B × Svbrdf::LEN`).
-    fn evaluate(&self, params: &[f32]) -> (Vec<f32>, Vec<f32>) {
-        let lights = self.lights.len();
-        let mut losses = vec![0f32; self.positions.len()];
-        let mut grads = vec![0f32; params.len()];
-        losses
-            .par_iter_mut()
-            .zip(grads.par_chunks_mut(Svbrdf::LEN))
-            .enumerate()
-            .for_each(|(i, (loss, grad_out))| {
-                let row = &params[i * Svbrdf::LEN..(i + 1) * Svbrdf::LEN];
-                let texel = Texel {
-                    params: Svbrdf::from_array(row.try_into().unwrap()),
-                    position: self.positions[i],
-                };
-                let mut grad = Svbrdf::default();
-                *loss = self.model.texel_loss(
-                    &texel,
-                    &self.lights,
-                    &self.targets[i * lights..(i + 1) * lights],
-                    &self.norm,
-                    Some(&mut grad),
-                );
-                grad_out.copy_from_slice(&grad.to_array());
-            });
-        (losses, grads)
+        RenderLoss { model, lights, positions, targets, norm }
     }
 }
 
-impl CustomOp1 for RenderLoss {
-    fn name(&self) -> &'static str {
-        "matup-render-loss"
+impl TexelObjective for RenderLoss {
+    fn width(&self) -> usize {
+        Svbrdf::LEN
     }
-
-    fn cpu_fwd(
-        &self,
-        storage: &CpuStorage,
-        layout: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let dims = layout.shape().dims();
-        if dims.len() != 2 || dims[1] != Svbrdf::LEN || dims[0] != self.positions.len() {
-            candle_core::bail!(
-                "render loss expects [{}, {}] parameters, got {:?}",
-                self.positions.len(),
-                Svbrdf::LEN,
-                dims
-            );
-        }
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("render loss needs contiguous parameters");
-        };
-        let params = &storage.as_slice::<f32>()?[start..end];
-        let (losses, grads) = self.evaluate(params);
-        *self.gradient.lock().unwrap() = Some(grads);
-        Ok((CpuStorage::F32(losses), Shape::from(dims[0])))
+    fn texels(&self) -> usize {
+        self.positions.len()
     }
-
-    fn bwd(
-        &self,
-        arg: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<Option<Tensor>> {
-        let cached = self.gradient.lock().unwrap().take();
-        let grads = match cached {
-            Some(g) => g,
-            None => {
-                let params = arg.flatten_all()?.to_vec1::<f32>()?;
-                self.evaluate(&params).1
-            }
+    fn eval(&self, i: usize, row: &[f32], grad: &mut [f32]) -> f32 {
+        let lights = self.lights.len();
+        let texel = Texel {
+            params: Svbrdf::from_array(row.try_into().unwrap()),
+            position: self.positions[i],
         };
-        let grads = Tensor::from_vec(grads, (self.positions.len(), Svbrdf::LEN), arg.device())?;
-        Ok(Some(grads.broadcast_mul(&grad_res.unsqueeze(1)?)?))
+        let mut g = Svbrdf::default();
+        let loss = self.model.texel_loss(
+            &texel,
+            &self.lights,
+            &self.targets[i * lights..(i + 1) * lights],
+            &self.norm,
+            Some(&mut g),
+        );
+        grad.copy_from_slice(&g.to_array());
+        loss
     }
 }

@@ -1,0 +1,374 @@
+//! The configuration of an upscale run: every hyper-parameter, with METHOD.md's values as
+//! defaults, readable from TOML (`deny_unknown_fields`: a typo is an error, not a silent
+//! default) and settable from the CLI.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+use crate::loss::LossNorm;
+use crate::resample::Kernel;
+use crate::{Error, Result};
+
+/// Serde through `Display` / `FromStr`, so values read the same in TOML as on the CLI.
+macro_rules! serde_as_string {
+    ($($t:ty),*) => {$(
+        impl Serialize for $t {
+            fn serialize<S: Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+                s.collect_str(self)
+            }
+        }
+        impl<'de> Deserialize<'de> for $t {
+            fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+                let s = String::deserialize(d)?;
+                s.parse().map_err(serde::de::Error::custom)
+            }
+        }
+    )*};
+}
+
+serde_as_string!(LossNorm, Activation, Schedule, Chain, Interpolation);
+
+/// The hidden layers' nonlinearity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Activation {
+    LeakyRelu(f32),
+    Relu,
+    Gelu,
+    Silu,
+}
+
+impl FromStr for Activation {
+    type Err = Error;
+    /// `leaky-relu` (slope 0.01), `leaky-relu:SLOPE`, `relu`, `gelu`, `silu`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "leaky-relu" => Ok(Activation::LeakyRelu(0.01)),
+            "relu" => Ok(Activation::Relu),
+            "gelu" => Ok(Activation::Gelu),
+            "silu" => Ok(Activation::Silu),
+            _ => s
+                .strip_prefix("leaky-relu:")
+                .and_then(|v| v.parse().ok())
+                .map(Activation::LeakyRelu)
+                .ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "unknown activation '{s}'; use leaky-relu, leaky-relu:SLOPE, relu, gelu or silu"
+                    ))
+                }),
+        }
+    }
+}
+
+impl fmt::Display for Activation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Activation::LeakyRelu(s) if *s == 0.01 => f.write_str("leaky-relu"),
+            Activation::LeakyRelu(s) => write!(f, "leaky-relu:{s}"),
+            Activation::Relu => f.write_str("relu"),
+            Activation::Gelu => f.write_str("gelu"),
+            Activation::Silu => f.write_str("silu"),
+        }
+    }
+}
+
+/// Learning-rate schedule over the run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Schedule {
+    /// The paper's: the same rate throughout.
+    Constant,
+    /// Cosine decay from the rate to 0 over all steps.
+    Cosine,
+}
+
+impl FromStr for Schedule {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "constant" => Ok(Schedule::Constant),
+            "cosine" => Ok(Schedule::Cosine),
+            _ => Err(Error::Invalid(format!("unknown schedule '{s}'; use constant or cosine"))),
+        }
+    }
+}
+
+impl fmt::Display for Schedule {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Schedule::Constant => "constant",
+            Schedule::Cosine => "cosine",
+        })
+    }
+}
+
+/// How ×16 is reached.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Chain {
+    /// Run the whole method again on the ×4 result (sharper; the default).
+    TwoLevel,
+    /// Apply the trained ×4 filter again to its own output.
+    Single,
+}
+
+impl FromStr for Chain {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "two-level" => Ok(Chain::TwoLevel),
+            "single" => Ok(Chain::Single),
+            _ => Err(Error::Invalid(format!("unknown chain '{s}'; use two-level or single"))),
+        }
+    }
+}
+
+impl fmt::Display for Chain {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Chain::TwoLevel => "two-level",
+            Chain::Single => "single",
+        })
+    }
+}
+
+/// An interpolation kernel named in a configuration: `bilinear`, `bicubic`, `lanczos3`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Interpolation(pub Kernel);
+
+impl FromStr for Interpolation {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "bilinear" => Ok(Interpolation(Kernel::Bilinear)),
+            "bicubic" => Ok(Interpolation(Kernel::Bicubic { a: -0.5 })),
+            "lanczos3" => Ok(Interpolation(Kernel::Lanczos3)),
+            _ => Err(Error::Invalid(format!(
+                "unknown interpolation '{s}'; use bilinear, bicubic or lanczos3"
+            ))),
+        }
+    }
+}
+
+impl fmt::Display for Interpolation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self.0 {
+            Kernel::Bilinear => "bilinear",
+            Kernel::Bicubic { .. } => "bicubic",
+            Kernel::Lanczos3 => "lanczos3",
+        })
+    }
+}
+
+/// The light set the renders are made under.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LightsConfig {
+    pub count: usize,
+    pub distance: f32,
+    pub intensity: f32,
+    pub falloff: bool,
+}
+
+impl Default for LightsConfig {
+    fn default() -> Self {
+        LightsConfig { count: 100, distance: 1.4, intensity: 8.0, falloff: false }
+    }
+}
+
+/// The per-material filter.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FilterConfig {
+    /// Side of the square input window, in output texels (odd).
+    pub window: usize,
+    pub hidden_width: usize,
+    pub hidden_layers: usize,
+    pub activation: Activation,
+    /// The upsampler of the LR maps that builds the input window.
+    pub input: Interpolation,
+    /// The upsampler of the LR maps that the residual output is added to.
+    pub residual_base: Interpolation,
+}
+
+impl Default for FilterConfig {
+    fn default() -> Self {
+        FilterConfig {
+            window: 17,
+            hidden_width: 128,
+            hidden_layers: 4,
+            activation: Activation::LeakyRelu(0.01),
+            input: Interpolation(Kernel::Bilinear),
+            residual_base: Interpolation(Kernel::Bilinear),
+        }
+    }
+}
+
+/// Training.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    pub epochs: usize,
+    /// Texels per step.
+    pub batch_size: usize,
+    pub learning_rate: f64,
+    /// Multiply the learning rate by `batch_size / 128` (linear scaling).
+    pub scale_learning_rate: bool,
+    pub schedule: Schedule,
+    pub loss: LossNorm,
+    /// α: weight of the metallic regulariser `mean (m_bilinear − m)²`.
+    pub metallic_weight: f32,
+    /// β: weight of the LR-consistency term `mean ‖box_downsample(M_SR) − M_LR‖²` (0: off).
+    pub lr_consistency: f32,
+    /// γ: weight of cross-scale self-supervision on exact pairs one scale down (0: off).
+    pub cross_scale: f32,
+    /// Train on this many randomly chosen texels per epoch instead of all of them.
+    pub texels_per_epoch: Option<usize>,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            epochs: 10,
+            batch_size: 128,
+            learning_rate: 1e-4,
+            scale_learning_rate: false,
+            schedule: Schedule::Constant,
+            loss: LossNorm::L21,
+            metallic_weight: 0.1,
+            lr_consistency: 0.0,
+            cross_scale: 0.0,
+            texels_per_epoch: None,
+        }
+    }
+}
+
+/// Everything an upscale run needs to know besides the material.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// 2, 3 or 4 (one level), or 16 (two ×4 levels).
+    pub scale: usize,
+    pub chain: Chain,
+    /// The RGB upsampler of the renders (`NAME[:ARGUMENT]`).
+    pub upsampler: String,
+    /// The shading model (`NAME[:OPTIONS]`).
+    pub shading: String,
+    /// Whether the material tiles; detected from its edges when absent.
+    pub tileable: Option<bool>,
+    /// Skip work the material cannot use (constant channels, dark lights).
+    pub skip: bool,
+    pub seed: u64,
+    pub lights: LightsConfig,
+    pub filter: FilterConfig,
+    pub train: TrainConfig,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            scale: 4,
+            chain: Chain::TwoLevel,
+            upsampler: "lanczos3".into(),
+            shading: "ggx".into(),
+            tileable: None,
+            skip: true,
+            seed: 0,
+            lights: LightsConfig::default(),
+            filter: FilterConfig::default(),
+            train: TrainConfig::default(),
+        }
+    }
+}
+
+/// The scales one level of the method handles.
+pub const LEVEL_SCALES: [usize; 3] = [2, 3, 4];
+
+impl Config {
+    /// Parses TOML; `origin` (a file name) prefixes errors, which carry the line and key.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Config> {
+        let config: Config =
+            toml::from_str(text).map_err(|e| Error::Invalid(format!("{origin}: {e}")))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The configuration as TOML.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a Config always serialises")
+    }
+
+    /// The scale of each level: `[4, 4]` for ×16, `[s]` otherwise.
+    pub fn levels(&self) -> Vec<usize> {
+        if self.scale == 16 {
+            vec![4, 4]
+        } else {
+            vec![self.scale]
+        }
+    }
+
+    /// Rejects values the method cannot run with, saying which and why.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::Invalid(m));
+        if !(LEVEL_SCALES.contains(&self.scale) || self.scale == 16) {
+            return bad(format!("unsupported scale ×{}; use 2, 3, 4 or 16", self.scale));
+        }
+        let f = &self.filter;
+        if f.window == 0 || f.window % 2 == 0 {
+            return bad(format!("filter.window must be odd and positive, not {}", f.window));
+        }
+        if f.hidden_width == 0 {
+            return bad("filter.hidden_width must be positive".into());
+        }
+        let t = &self.train;
+        if t.batch_size == 0 {
+            return bad("train.batch_size must be positive".into());
+        }
+        if !(t.learning_rate > 0.0 && t.learning_rate.is_finite()) {
+            return bad(format!("train.learning_rate must be positive, not {}", t.learning_rate));
+        }
+        for (name, v) in [
+            ("train.metallic_weight", t.metallic_weight),
+            ("train.lr_consistency", t.lr_consistency),
+            ("train.cross_scale", t.cross_scale),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return bad(format!("{name} must be ≥ 0, not {v}"));
+            }
+        }
+        if self.lights.count == 0 {
+            return bad("lights.count must be at least 1".into());
+        }
+        if t.texels_per_epoch == Some(0) {
+            return bad("train.texels_per_epoch must be positive".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_paper() {
+        let c = Config::default();
+        assert_eq!((c.filter.window, c.filter.hidden_width, c.filter.hidden_layers), (17, 128, 4));
+        assert_eq!((c.train.epochs, c.train.batch_size, c.train.learning_rate), (10, 128, 1e-4));
+        assert_eq!(c.train.loss, LossNorm::L21);
+        assert_eq!(c.train.metallic_weight, 0.1);
+        assert_eq!(c.lights.count, 100);
+    }
+
+    #[test]
+    fn toml_round_trips_and_rejects_unknown_keys() {
+        let c = Config::default();
+        assert_eq!(Config::from_toml(&c.to_toml(), "x.toml").unwrap(), c);
+        let c = Config::from_toml("scale = 16\n[train]\nloss = \"lpq:1.5,1\"\nepochs = 3\n", "a.toml").unwrap();
+        assert_eq!(c.train.loss, LossNorm::Lpq { p: 1.5, q: 1.0 });
+        assert_eq!(c.levels(), vec![4, 4]);
+        let e = Config::from_toml("[train]\nepoch = 3\n", "b.toml").unwrap_err().to_string();
+        assert!(e.contains("b.toml") && e.contains("epoch") && e.contains("line 2"), "{e}");
+        let e = Config::from_toml("scale = 5\n", "c.toml").unwrap_err().to_string();
+        assert!(e.contains("unsupported scale"), "{e}");
+    }
+}
