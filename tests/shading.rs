@@ -286,7 +286,11 @@ fn adversarial_light(rng: &mut StdRng) -> LightSample {
         [1.0, 0.0, 0.0],
         [0.0, -1.0, 0.0],
         [0.0, 0.0, -1.0],
-        [std::f32::consts::FRAC_1_SQRT_2, 0.0, std::f32::consts::FRAC_1_SQRT_2],
+        [
+            std::f32::consts::FRAC_1_SQRT_2,
+            0.0,
+            std::f32::consts::FRAC_1_SQRT_2,
+        ],
         [0.6, 0.8, 1e-8],
     ];
     let direction = if rng.random_bool(0.5) {

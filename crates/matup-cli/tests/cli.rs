@@ -105,3 +105,109 @@ fn bad_arguments_give_clear_errors_and_fail() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("no image files"), "{}", stderr(&o));
 }
+
+#[test]
+fn upscale_error_paths_are_clear() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let out = out.to_str().unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (
+            &["--upsampler", "esrgan"],
+            "unknown upsampler 'esrgan'; known: bicubic, bilinear, lanczos3",
+        ),
+        (
+            &["--shading", "phong"],
+            "unknown shading model 'phong'; known: ggx, ggx-aniso, lambert",
+        ),
+        (&["--scale", "4.5"], "--scale '4.5' is not a whole number"),
+        (&["--scale", "5"], "unsupported scale ×5; use 2, 3, 4 or 16"),
+        (&["--window", "16"], "filter.window must be odd"),
+        (&["--loss", "l3"], "unknown loss norm 'l3'"),
+    ];
+    for (extra, message) in cases {
+        let sample = sample();
+        let mut args = vec!["upscale", sample.as_str(), "-o", out, "--quiet"];
+        args.extend_from_slice(extra);
+        let o = matup(&args);
+        assert!(!o.status.success(), "{extra:?} should fail");
+        assert!(stderr(&o).contains(message), "{extra:?}: {}", stderr(&o));
+    }
+    // The output folder may not be the input folder, nor a file.
+    let o = matup(&["upscale", &sample(), "-o", &sample(), "--quiet"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("input folder"), "{}", stderr(&o));
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let o = matup(&[
+        "upscale",
+        &sample(),
+        "-o",
+        file.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("a-file"), "{}", stderr(&o));
+    // A malformed configuration names its file, line and key.
+    let toml = dir.path().join("bad.toml");
+    std::fs::write(&toml, "[train]\nepochz = 3\n").unwrap();
+    let o = matup(&[
+        "upscale",
+        &sample(),
+        "-o",
+        out,
+        "--config",
+        toml.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("bad.toml") && e.contains("epochz") && e.contains("line 2"),
+        "{e}"
+    );
+}
+
+#[test]
+fn upscale_writes_maps_preview_and_run_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let o = matup(&[
+        "upscale",
+        &sample(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+        "--epochs",
+        "1",
+        "--texels-per-epoch",
+        "2048",
+        "--lights",
+        "8",
+        "--upsampler",
+        "bilinear",
+        "--seed",
+        "3",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["output_size"], serde_json::json!([512, 512]));
+    assert_eq!(report["config"]["seed"], 3);
+    assert!(report["final_loss"].as_f64().unwrap() > 0.0);
+    for f in [
+        "baseColor.png",
+        "normal.png",
+        "roughness.png",
+        "metallic.png",
+        "height.png",
+        "preview.png",
+        "run.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let base = image::open(out.join("baseColor.png")).unwrap();
+    assert_eq!((base.width(), base.height()), (512, 512));
+    assert!(
+        !out.join(".matup-checkpoint").exists(),
+        "a finished run leaves no checkpoint"
+    );
+}

@@ -88,7 +88,9 @@ impl FromStr for Schedule {
         match s {
             "constant" => Ok(Schedule::Constant),
             "cosine" => Ok(Schedule::Cosine),
-            _ => Err(Error::Invalid(format!("unknown schedule '{s}'; use constant or cosine"))),
+            _ => Err(Error::Invalid(format!(
+                "unknown schedule '{s}'; use constant or cosine"
+            ))),
         }
     }
 }
@@ -117,7 +119,9 @@ impl FromStr for Chain {
         match s {
             "two-level" => Ok(Chain::TwoLevel),
             "single" => Ok(Chain::Single),
-            _ => Err(Error::Invalid(format!("unknown chain '{s}'; use two-level or single"))),
+            _ => Err(Error::Invalid(format!(
+                "unknown chain '{s}'; use two-level or single"
+            ))),
         }
     }
 }
@@ -171,7 +175,12 @@ pub struct LightsConfig {
 
 impl Default for LightsConfig {
     fn default() -> Self {
-        LightsConfig { count: 100, distance: 1.4, intensity: 8.0, falloff: false }
+        LightsConfig {
+            count: 100,
+            distance: 1.4,
+            intensity: 8.0,
+            falloff: false,
+        }
     }
 }
 
@@ -310,11 +319,17 @@ impl Config {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::Invalid(m));
         if !(LEVEL_SCALES.contains(&self.scale) || self.scale == 16) {
-            return bad(format!("unsupported scale ×{}; use 2, 3, 4 or 16", self.scale));
+            return bad(format!(
+                "unsupported scale ×{}; use 2, 3, 4 or 16",
+                self.scale
+            ));
         }
         let f = &self.filter;
         if f.window == 0 || f.window % 2 == 0 {
-            return bad(format!("filter.window must be odd and positive, not {}", f.window));
+            return bad(format!(
+                "filter.window must be odd and positive, not {}",
+                f.window
+            ));
         }
         if f.hidden_width == 0 {
             return bad("filter.hidden_width must be positive".into());
@@ -324,7 +339,10 @@ impl Config {
             return bad("train.batch_size must be positive".into());
         }
         if !(t.learning_rate > 0.0 && t.learning_rate.is_finite()) {
-            return bad(format!("train.learning_rate must be positive, not {}", t.learning_rate));
+            return bad(format!(
+                "train.learning_rate must be positive, not {}",
+                t.learning_rate
+            ));
         }
         for (name, v) in [
             ("train.metallic_weight", t.metallic_weight),
@@ -352,8 +370,18 @@ mod tests {
     #[test]
     fn defaults_are_the_paper() {
         let c = Config::default();
-        assert_eq!((c.filter.window, c.filter.hidden_width, c.filter.hidden_layers), (17, 128, 4));
-        assert_eq!((c.train.epochs, c.train.batch_size, c.train.learning_rate), (10, 128, 1e-4));
+        assert_eq!(
+            (
+                c.filter.window,
+                c.filter.hidden_width,
+                c.filter.hidden_layers
+            ),
+            (17, 128, 4)
+        );
+        assert_eq!(
+            (c.train.epochs, c.train.batch_size, c.train.learning_rate),
+            (10, 128, 1e-4)
+        );
         assert_eq!(c.train.loss, LossNorm::L21);
         assert_eq!(c.train.metallic_weight, 0.1);
         assert_eq!(c.lights.count, 100);
@@ -363,12 +391,23 @@ mod tests {
     fn toml_round_trips_and_rejects_unknown_keys() {
         let c = Config::default();
         assert_eq!(Config::from_toml(&c.to_toml(), "x.toml").unwrap(), c);
-        let c = Config::from_toml("scale = 16\n[train]\nloss = \"lpq:1.5,1\"\nepochs = 3\n", "a.toml").unwrap();
+        let c = Config::from_toml(
+            "scale = 16\n[train]\nloss = \"lpq:1.5,1\"\nepochs = 3\n",
+            "a.toml",
+        )
+        .unwrap();
         assert_eq!(c.train.loss, LossNorm::Lpq { p: 1.5, q: 1.0 });
         assert_eq!(c.levels(), vec![4, 4]);
-        let e = Config::from_toml("[train]\nepoch = 3\n", "b.toml").unwrap_err().to_string();
-        assert!(e.contains("b.toml") && e.contains("epoch") && e.contains("line 2"), "{e}");
-        let e = Config::from_toml("scale = 5\n", "c.toml").unwrap_err().to_string();
+        let e = Config::from_toml("[train]\nepoch = 3\n", "b.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("b.toml") && e.contains("epoch") && e.contains("line 2"),
+            "{e}"
+        );
+        let e = Config::from_toml("scale = 5\n", "c.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("unsupported scale"), "{e}");
     }
 }

@@ -39,6 +39,11 @@ pub enum Error {
     #[error("{what} is not supported by {plugin}")]
     Unsupported { plugin: String, what: String },
 
+    #[error(
+        "interrupted after {epochs_done} finished epoch(s); run again with --resume to continue"
+    )]
+    Cancelled { epochs_done: usize },
+
     #[error(transparent)]
     Candle(#[from] candle_core::Error),
 }

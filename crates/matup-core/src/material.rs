@@ -234,17 +234,7 @@ impl Material {
     /// The position of texel `index` on the material's square [−1, 1]², displaced by height.
     #[inline]
     pub fn position(&self, index: usize) -> [f32; 3] {
-        let (w, h) = (self.width(), self.height_px());
-        let (i, j) = (index / w, index % w);
-        let z = self
-            .height
-            .as_ref()
-            .map_or(0.0, |m| DISPLACEMENT * (m.data()[index] - 0.5));
-        [
-            2.0 * (j as f32 + 0.5) / w as f32 - 1.0,
-            2.0 * (i as f32 + 0.5) / h as f32 - 1.0,
-            z,
-        ]
+        texel_position(index, self.width(), self.height_px(), self.height.as_ref())
     }
 
     /// The shading parameters of texel `index`.
@@ -311,6 +301,24 @@ impl Material {
         }
         normalize_normals(&mut self.normal);
     }
+}
+
+/// The position of texel `index` of a `width × height` map on the square [−1, 1]² (METHOD.md:
+/// x from the column, y from the row), displaced by `height` if given.
+#[inline]
+pub fn texel_position(
+    index: usize,
+    width: usize,
+    height: usize,
+    heights: Option<&Map>,
+) -> [f32; 3] {
+    let (i, j) = (index / width, index % width);
+    let z = heights.map_or(0.0, |m| DISPLACEMENT * (m.data()[index] - 0.5));
+    [
+        2.0 * (j as f32 + 0.5) / width as f32 - 1.0,
+        2.0 * (i as f32 + 0.5) / height as f32 - 1.0,
+        z,
+    ]
 }
 
 /// `alpha = r²`, clamped to `[MIN_ALPHA, 1]`.

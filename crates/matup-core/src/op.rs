@@ -32,7 +32,10 @@ pub struct TexelLossOp<T> {
 
 impl<T: TexelObjective> TexelLossOp<T> {
     pub fn new(objective: T) -> Self {
-        TexelLossOp { objective, gradient: Mutex::new(None) }
+        TexelLossOp {
+            objective,
+            gradient: Mutex::new(None),
+        }
     }
 
     fn evaluate(&self, params: &[f32]) -> (Vec<f32>, Vec<f32>) {
@@ -54,7 +57,11 @@ impl<T: TexelObjective> CustomOp1 for TexelLossOp<T> {
         "matup-texel-loss"
     }
 
-    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+    fn cpu_fwd(
+        &self,
+        storage: &CpuStorage,
+        layout: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
         let dims = layout.shape().dims();
         let (b, w) = (self.objective.texels(), self.objective.width());
         if dims != [b, w] {
@@ -68,7 +75,12 @@ impl<T: TexelObjective> CustomOp1 for TexelLossOp<T> {
         Ok((CpuStorage::F32(losses), Shape::from(b)))
     }
 
-    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> candle_core::Result<Option<Tensor>> {
+    fn bwd(
+        &self,
+        arg: &Tensor,
+        _res: &Tensor,
+        grad_res: &Tensor,
+    ) -> candle_core::Result<Option<Tensor>> {
         let cached = self.gradient.lock().unwrap().take();
         let grads = match cached {
             Some(g) => g,
@@ -100,7 +112,13 @@ impl RenderLoss {
         norm: LossNorm,
     ) -> Self {
         assert_eq!(targets.len(), positions.len() * lights.len());
-        RenderLoss { model, lights, positions, targets, norm }
+        RenderLoss {
+            model,
+            lights,
+            positions,
+            targets,
+            norm,
+        }
     }
 }
 

@@ -39,7 +39,11 @@ pub fn decode(raw: &[f32], base: &[f32], fixed: &[Option<f32>; FEATURES]) -> Dec
         }
         v[k].clamp(lo, hi)
     };
-    let base_color = [clamp(0, 0.0, 1.0, &mut mask), clamp(1, 0.0, 1.0, &mut mask), clamp(2, 0.0, 1.0, &mut mask)];
+    let base_color = [
+        clamp(0, 0.0, 1.0, &mut mask),
+        clamp(1, 0.0, 1.0, &mut mask),
+        clamp(2, 0.0, 1.0, &mut mask),
+    ];
     let metallic = clamp(3, 0.0, 1.0, &mut mask);
     let alpha = clamp(6, MIN_ALPHA, 1.0, &mut mask);
 
@@ -49,7 +53,14 @@ pub fn decode(raw: &[f32], base: &[f32], fixed: &[Option<f32>; FEATURES]) -> Dec
     let (tx, ty, j) = if len > MAX_TANGENT_LENGTH {
         let s = MAX_TANGENT_LENGTH / len;
         let (ux, uy) = (x / len, y / len);
-        (s * x, s * y, [[s * (1.0 - ux * ux), -s * ux * uy], [-s * ux * uy, s * (1.0 - uy * uy)]])
+        (
+            s * x,
+            s * y,
+            [
+                [s * (1.0 - ux * ux), -s * ux * uy],
+                [-s * ux * uy, s * (1.0 - uy * uy)],
+            ],
+        )
     } else {
         (x, y, [[1.0, 0.0], [0.0, 1.0]])
     };
@@ -107,7 +118,16 @@ mod tests {
 
     fn objective(d: &Decoded, w: &[f32; 8]) -> f32 {
         let p = &d.params;
-        let v = [p.base_color[0], p.base_color[1], p.base_color[2], p.metallic, p.normal[0], p.normal[1], p.normal[2], p.alpha];
+        let v = [
+            p.base_color[0],
+            p.base_color[1],
+            p.base_color[2],
+            p.metallic,
+            p.normal[0],
+            p.normal[1],
+            p.normal[2],
+            p.alpha,
+        ];
         v.iter().zip(w).map(|(a, b)| a * b).sum()
     }
 
@@ -116,9 +136,9 @@ mod tests {
         let w = [0.3, -0.7, 1.1, 0.5, 0.9, -1.3, 0.8, 0.4];
         let none = [None; FEATURES];
         let cases: [[f32; 7]; 3] = [
-            [0.4, 0.5, 0.6, 0.2, 0.3, -0.2, 0.3],   // everything inside
-            [0.4, 0.5, 0.6, 0.2, 0.8, -0.7, 0.3],   // tangent longer than 0.999
-            [0.4, 0.5, 0.6, 0.2, 0.6, -0.75, 0.3],  // near the nz floor but inside
+            [0.4, 0.5, 0.6, 0.2, 0.3, -0.2, 0.3],  // everything inside
+            [0.4, 0.5, 0.6, 0.2, 0.8, -0.7, 0.3],  // tangent longer than 0.999
+            [0.4, 0.5, 0.6, 0.2, 0.6, -0.75, 0.3], // near the nz floor but inside
         ];
         for raw in cases {
             let base = [0.0; FEATURES];
@@ -137,8 +157,14 @@ mod tests {
                 let mut b = raw;
                 a[k] += h;
                 b[k] -= h;
-                let fd = (objective(&decode(&a, &base, &none), &w) - objective(&decode(&b, &base, &none), &w)) / (2.0 * h);
-                assert!((fd - analytic[k]).abs() < 2e-3, "{raw:?} feature {k}: {fd} vs {}", analytic[k]);
+                let fd = (objective(&decode(&a, &base, &none), &w)
+                    - objective(&decode(&b, &base, &none), &w))
+                    / (2.0 * h);
+                assert!(
+                    (fd - analytic[k]).abs() < 2e-3,
+                    "{raw:?} feature {k}: {fd} vs {}",
+                    analytic[k]
+                );
             }
         }
     }
@@ -147,12 +173,21 @@ mod tests {
     fn clamps_and_fixed_features_stop_gradients() {
         let mut fixed = [None; FEATURES];
         fixed[3] = Some(0.0);
-        let d = decode(&[1.5, 0.5, 0.5, 0.7, 0.0, 0.0, -1.0], &[0.0; FEATURES], &fixed);
+        let d = decode(
+            &[1.5, 0.5, 0.5, 0.7, 0.0, 0.0, -1.0],
+            &[0.0; FEATURES],
+            &fixed,
+        );
         assert_eq!(d.params.base_color[0], 1.0);
         assert_eq!(d.params.metallic, 0.0, "fixed metallic stays constant");
         assert_eq!(d.params.alpha, MIN_ALPHA);
         assert_eq!(d.params.normal, [0.0, 0.0, 1.0]);
-        let g = d.backward(&Svbrdf { base_color: [1.0; 3], metallic: 1.0, alpha: 1.0, ..Default::default() });
+        let g = d.backward(&Svbrdf {
+            base_color: [1.0; 3],
+            metallic: 1.0,
+            alpha: 1.0,
+            ..Default::default()
+        });
         assert_eq!((g[0], g[1], g[3], g[6]), (0.0, 1.0, 0.0, 0.0));
     }
 }

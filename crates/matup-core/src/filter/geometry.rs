@@ -100,7 +100,15 @@ impl WindowGeometry {
 
     /// Gathers the LR window of output texel (row, col) from `features` (the LR maps) into
     /// `out`, laid out `[a][b][c]` over `channels`, reading beyond the edges as `border`.
-    pub fn gather(&self, features: &Map, channels: &[usize], border: Border, row: usize, col: usize, out: &mut [f32]) {
+    pub fn gather(
+        &self,
+        features: &Map,
+        channels: &[usize],
+        border: Border,
+        row: usize,
+        col: usize,
+        out: &mut [f32],
+    ) {
         let (w, h) = (features.width(), features.height());
         let k = self.taps;
         let nc = channels.len();
@@ -130,7 +138,9 @@ mod tests {
     /// The window of the upsampled map equals the folded LR window, for every phase.
     #[test]
     fn folding_reproduces_the_upsampled_window() {
-        let lr = Map::from_fn(9, 7, 2, |c, y, x| ((x * 3 + y * 5 + c * 7) % 11) as f32 / 10.0);
+        let lr = Map::from_fn(9, 7, 2, |c, y, x| {
+            ((x * 3 + y * 5 + c * 7) % 11) as f32 / 10.0
+        });
         for (kernel, border) in [
             (Kernel::Bilinear, Border::Wrap),
             (Kernel::Bilinear, Border::Mirror),

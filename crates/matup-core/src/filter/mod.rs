@@ -21,7 +21,9 @@ use geometry::WindowGeometry;
 /// The features the filter reads and answers, per texel: linear base colour (3), metallic,
 /// normal x and y, alpha.
 pub const FEATURES: usize = 7;
-pub const FEATURE_NAMES: [&str; FEATURES] = ["base_r", "base_g", "base_b", "metallic", "normal_x", "normal_y", "alpha"];
+pub const FEATURE_NAMES: [&str; FEATURES] = [
+    "base_r", "base_g", "base_b", "metallic", "normal_x", "normal_y", "alpha",
+];
 
 /// The MLP: a folded first layer, hidden layers, a 7-wide output.
 pub struct Filter {
@@ -29,14 +31,19 @@ pub struct Filter {
     pub activation: Activation,
     /// Which features are inputs (constant ones are left out).
     pub input_channels: Vec<usize>,
-    /// `[w1, b1, w2, b2, …, w_out, b_out]`; `w1` is `[dx][dy][h][c]`, the others `[out][in]`.
+    /// `[w1, b1, w2, b2, …, w_out, b_out]`; `w1` is `[dy][dx][c][h]`, the others `[out][in]`.
     pub vars: Vec<Var>,
 }
 
 impl Filter {
     /// A freshly initialised filter (PyTorch's `Linear` default, U(±1/√fan_in); the output
     /// layer scaled by 0.1 so training starts near the residual base).
-    pub fn new(config: &FilterConfig, scale: usize, input_channels: Vec<usize>, seed: u64) -> Result<Filter> {
+    pub fn new(
+        config: &FilterConfig,
+        scale: usize,
+        input_channels: Vec<usize>,
+        seed: u64,
+    ) -> Result<Filter> {
         let geometry = Arc::new(WindowGeometry::new(scale, config.window, config.input.0));
         let layer1 = FoldedLayer {
             geometry,
@@ -44,7 +51,9 @@ impl Filter {
             hidden: config.hidden_width,
         };
         let mut rng = StdRng::seed_from_u64(seed);
-        let mut uniform = |n: usize, bound: f32| -> Vec<f32> { (0..n).map(|_| rng.random_range(-bound..bound)).collect() };
+        let mut uniform = |n: usize, bound: f32| -> Vec<f32> {
+            (0..n).map(|_| rng.random_range(-bound..bound)).collect()
+        };
         let h = config.hidden_width;
         let mut shapes: Vec<(usize, usize, f32)> = Vec::new(); // (out, fan_in, scale)
         shapes.push((h, config.window * config.window * input_channels.len(), 1.0));
@@ -62,7 +71,11 @@ impl Filter {
                 Tensor::from_vec(w, (out, fan_in), &Device::Cpu)?
             };
             vars.push(Var::from_tensor(&w)?);
-            vars.push(Var::from_tensor(&Tensor::from_vec(uniform(out, bound), out, &Device::Cpu)?)?);
+            vars.push(Var::from_tensor(&Tensor::from_vec(
+                uniform(out, bound),
+                out,
+                &Device::Cpu,
+            )?)?);
         }
         Ok(Filter {
             layer1,
@@ -90,7 +103,10 @@ impl Filter {
         let mut x = self.activate(&first.broadcast_add(self.vars[1].as_tensor())?)?;
         let layers = self.vars.len() / 2;
         for layer in 1..layers {
-            let (w, b) = (self.vars[2 * layer].as_tensor(), self.vars[2 * layer + 1].as_tensor());
+            let (w, b) = (
+                self.vars[2 * layer].as_tensor(),
+                self.vars[2 * layer + 1].as_tensor(),
+            );
             x = x.matmul(&w.t()?)?.broadcast_add(b)?;
             if layer + 1 < layers {
                 x = self.activate(&x)?;
@@ -111,7 +127,12 @@ impl Filter {
 
     /// Raw residuals `[B][7]` for many windows with fixed weights (inference): the first layer
     /// is folded once for all of them.
-    pub fn infer(&self, folded: &[Vec<f32>], windows: &[f32], phases: &[usize]) -> Result<Vec<f32>> {
+    pub fn infer(
+        &self,
+        folded: &[Vec<f32>],
+        windows: &[f32],
+        phases: &[usize],
+    ) -> Result<Vec<f32>> {
         let first = self.layer1.apply(folded, windows, phases);
         let first = Tensor::from_vec(first, (phases.len(), self.layer1.hidden), &Device::Cpu)?;
         Ok(self.tail(first)?.flatten_all()?.to_vec1::<f32>()?)
@@ -119,7 +140,9 @@ impl Filter {
 
     /// The first layer folded per phase with the current weights.
     pub fn folded_weights(&self) -> Result<Vec<Vec<f32>>> {
-        Ok(self.layer1.fold(&self.vars[0].as_tensor().to_vec1::<f32>()?))
+        Ok(self
+            .layer1
+            .fold(&self.vars[0].as_tensor().to_vec1::<f32>()?))
     }
 
     /// The weights by name (`w0`, `b0`, `w1`, …), for checkpoints.
@@ -139,7 +162,10 @@ impl Filter {
                 .get(&key)
                 .ok_or_else(|| Error::file(origin, format!("checkpoint lacks tensor {key}")))?;
             if t.shape() != var.shape() || t.dtype() != DType::F32 {
-                return Err(Error::file(origin, format!("checkpoint tensor {key} does not fit this filter")));
+                return Err(Error::file(
+                    origin,
+                    format!("checkpoint tensor {key} does not fit this filter"),
+                ));
             }
             var.set(t)?;
         }

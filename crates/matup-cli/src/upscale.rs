@@ -1,0 +1,229 @@
+//! `matup upscale`: the method end to end.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use clap::Args;
+use matup_core::config::{Activation, Chain, Interpolation, Schedule};
+use matup_core::io::{check_output_folder, save_png, write_atomic};
+use matup_core::pipeline::preview;
+use matup_core::{save_material, upscale, Config, FileFormat, LossNorm, RunOptions, SaveOptions};
+
+use crate::material_args::MaterialArgs;
+use crate::progress_bars::Bars;
+
+#[derive(Args, Debug)]
+pub struct UpscaleArgs {
+    #[command(flatten)]
+    pub material: MaterialArgs,
+    /// Output folder (created; never the input folder).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// A TOML configuration; flags given here override it.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Upsampling factor: 2, 3, 4, or 16 (two ×4 levels).
+    #[arg(long)]
+    pub scale: Option<String>,
+    /// How ×16 is reached: two-level (train again on the ×4 result) or single (reuse the ×4 filter).
+    #[arg(long)]
+    pub chain: Option<Chain>,
+    /// RGB upsampler of the renders (see `matup list`).
+    #[arg(long)]
+    pub upsampler: Option<String>,
+    /// Shading model (see `matup list`).
+    #[arg(long)]
+    pub shading: Option<String>,
+    /// Treat the material as tileable (wrap-around windows; tileable output).
+    #[arg(long, conflicts_with = "no_tileable")]
+    pub tileable: bool,
+    /// Treat the material as not tileable (mirrored windows).
+    #[arg(long)]
+    pub no_tileable: bool,
+    /// Do not skip work the material seems not to need (constant maps, dark lights).
+    #[arg(long)]
+    pub no_skip: bool,
+    /// Seed of the initialisation and the texel order (deterministic for a thread count).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Number of training lights.
+    #[arg(long)]
+    pub lights: Option<usize>,
+    /// Distance of the lights from the origin.
+    #[arg(long)]
+    pub light_distance: Option<f32>,
+    /// Filter window side N (odd), in output texels.
+    #[arg(long)]
+    pub window: Option<usize>,
+    /// Width of the hidden layers.
+    #[arg(long)]
+    pub hidden_width: Option<usize>,
+    /// Number of hidden layers.
+    #[arg(long)]
+    pub hidden_layers: Option<usize>,
+    /// leaky-relu, leaky-relu:SLOPE, relu, gelu or silu.
+    #[arg(long)]
+    pub activation: Option<Activation>,
+    /// Upsampler of the LR maps feeding the filter window: bilinear, bicubic, lanczos3.
+    #[arg(long)]
+    pub input_interpolation: Option<Interpolation>,
+    /// Upsampler of the LR maps the residual is added to: bilinear, bicubic, lanczos3.
+    #[arg(long)]
+    pub residual_base: Option<Interpolation>,
+    /// Learning rate.
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Texels per step.
+    #[arg(long)]
+    pub batch_size: Option<usize>,
+    /// Scale the learning rate by batch-size / 128.
+    #[arg(long)]
+    pub scale_lr: bool,
+    /// constant or cosine.
+    #[arg(long)]
+    pub schedule: Option<Schedule>,
+    #[arg(long)]
+    pub epochs: Option<usize>,
+    /// l21, l11, l22 or lpq:P,Q.
+    #[arg(long)]
+    pub loss: Option<LossNorm>,
+    /// α, weight of the metallic regulariser.
+    #[arg(long)]
+    pub metallic_weight: Option<f32>,
+    /// β, weight of the LR-consistency term.
+    #[arg(long)]
+    pub lr_consistency: Option<f32>,
+    /// γ, weight of cross-scale self-supervision.
+    #[arg(long)]
+    pub cross_scale: Option<f32>,
+    /// Train on this many random texels per epoch.
+    #[arg(long)]
+    pub texels_per_epoch: Option<usize>,
+    /// Output format of every map (png, png16, jpg, exr-half, exr-float); default: the input's.
+    #[arg(long)]
+    pub format: Option<FileFormat>,
+    /// Continue from the last checkpoint in the output folder.
+    #[arg(long)]
+    pub resume: bool,
+    /// No progress bars or summary.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Print run.json to stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl UpscaleArgs {
+    /// Defaults, then the TOML file, then the flags.
+    pub fn config(&self) -> anyhow::Result<Config> {
+        let mut c = match &self.config {
+            Some(path) => {
+                let text = std::fs::read_to_string(path)
+                    .with_context(|| format!("cannot read {}", path.display()))?;
+                Config::from_toml(&text, &path.display().to_string())?
+            }
+            None => Config::default(),
+        };
+        if let Some(s) = &self.scale {
+            c.scale = s.parse().map_err(|_| {
+                anyhow::anyhow!("--scale '{s}' is not a whole number; use 2, 3, 4 or 16")
+            })?;
+        }
+        macro_rules! set {
+            ($($flag:ident => $($field:ident).+),* $(,)?) => {$(
+                if let Some(v) = self.$flag.clone() { c.$($field).+ = v; }
+            )*};
+        }
+        set!(
+            chain => chain, upsampler => upsampler, shading => shading, seed => seed,
+            lights => lights.count, light_distance => lights.distance,
+            window => filter.window, hidden_width => filter.hidden_width,
+            hidden_layers => filter.hidden_layers, activation => filter.activation,
+            input_interpolation => filter.input, residual_base => filter.residual_base,
+            lr => train.learning_rate, batch_size => train.batch_size, schedule => train.schedule,
+            epochs => train.epochs, loss => train.loss, metallic_weight => train.metallic_weight,
+            lr_consistency => train.lr_consistency, cross_scale => train.cross_scale,
+        );
+        if let Some(t) = self.texels_per_epoch {
+            c.train.texels_per_epoch = Some(t);
+        }
+        if self.scale_lr {
+            c.train.scale_learning_rate = true;
+        }
+        if self.tileable {
+            c.tileable = Some(true);
+        }
+        if self.no_tileable {
+            c.tileable = Some(false);
+        }
+        if self.no_skip {
+            c.skip = false;
+        }
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
+    let config = args.config()?;
+    let material = args.material.load()?;
+    check_output_folder(&args.output, material.origin.as_ref())?;
+    if args.output.exists() && !args.output.is_dir() {
+        bail!(
+            "{}: output exists and is not a folder",
+            args.output.display()
+        );
+    }
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("cannot create the output folder {}", args.output.display()))?;
+
+    let bars = Bars::new(args.quiet || args.json);
+    let options = RunOptions {
+        checkpoint_folder: Some(args.output.join(".matup-checkpoint")),
+        resume: args.resume,
+    };
+    let (result, report) = upscale(&material, &config, &options, &bars)?;
+    bars.finish();
+
+    let save = SaveOptions {
+        format: args.format,
+        normal_convention: None,
+    };
+    let written = save_material(&result, &args.output, &save)?;
+    let sheet = preview(&material, &result, &config, report.tileable)?;
+    save_png(&args.output.join("preview.png"), &sheet)?;
+    let json = serde_json::to_string_pretty(&report)?;
+    write_atomic(&args.output.join("run.json"), json.as_bytes())?;
+    if let Some(folder) = &options.checkpoint_folder {
+        let _ = std::fs::remove_dir_all(folder); // finished: nothing to resume
+    }
+
+    if args.json {
+        println!("{json}");
+    } else if !args.quiet {
+        println!(
+            "{}×{} → {}×{} in {:.1} s (final loss {}), peak memory {}",
+            report.input_size[0],
+            report.input_size[1],
+            report.output_size[0],
+            report.output_size[1],
+            report.total_seconds,
+            report.final_loss.map_or("-".into(), |l| format!("{l:.5}")),
+            report
+                .peak_memory_mib
+                .map_or("-".into(), |m| format!("{m:.0} MiB")),
+        );
+        for (stage, seconds) in &report.timings {
+            println!("  {stage:<28} {seconds:>7.2} s");
+        }
+        for s in &report.skipped {
+            println!("  skipped: {s}");
+        }
+        for path in &written {
+            println!("wrote {}", path.display());
+        }
+        println!("wrote {}", args.output.join("preview.png").display());
+        println!("wrote {}", args.output.join("run.json").display());
+    }
+    Ok(())
+}

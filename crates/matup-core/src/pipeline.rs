@@ -1,0 +1,577 @@
+//! The method end to end: one function over a [`Config`] that runs the stages in order and
+//! reports progress through a callback. It does not know which plugins exist.
+
+use std::collections::hash_map::DefaultHasher;
+use std::hash::{Hash, Hasher};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::config::{Chain, Config};
+use crate::filter::decode::decode;
+use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
+use crate::height::reconstruct_height;
+use crate::lights::{Light, LightSetSpec};
+use crate::map::Map;
+use crate::material::{alpha_from_roughness, Material};
+use crate::progress::Progress;
+use crate::render::{contact_sheet, render, RenderOptions};
+use crate::resample::{seam_ratio, upsample, Border, Kernel};
+use crate::shading::{shading_model, ShadingModel};
+use crate::train::{train, Checkpoint, Examples, Shading, Targets, TrainStats};
+use crate::upsample::{check_scale, upsampler, RgbUpsampler};
+use crate::{Error, PluginSpec, Result};
+
+/// A material whose wrap-around seam ratio (see [`seam_ratio`]) stays below this tiles.
+/// Seamless textures read 1.0–1.3; regular tiles whose joints lie on the border up to ~3.
+pub const TILEABLE_SEAM_RATIO: f32 = 3.0;
+
+/// Renders are upsampled this many at a time (bounds the memory of f32 renders in flight).
+const RENDER_CHUNK: usize = 8;
+
+/// What a run did, for `run.json` and the CLI summary.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    pub matup_version: &'static str,
+    pub input_size: [usize; 2],
+    pub output_size: [usize; 2],
+    pub config: Config,
+    pub tileable: bool,
+    /// The seam ratio the tileability was detected from (absent when it was given).
+    pub seam_ratio: Option<f32>,
+    pub levels: Vec<LevelReport>,
+    /// Seconds per stage, in order.
+    pub timings: Vec<(String, f64)>,
+    pub total_seconds: f64,
+    /// Mean training loss of the last epoch of the last level.
+    pub final_loss: Option<f64>,
+    /// Work skipped because the material could not use it.
+    pub skipped: Vec<String>,
+    /// Peak resident memory of the process (Linux), in MiB.
+    pub peak_memory_mib: Option<f64>,
+    pub threads: usize,
+}
+
+/// One level (one ×s step) of a run.
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelReport {
+    pub scale: usize,
+    pub input_size: [usize; 2],
+    pub output_size: [usize; 2],
+    pub lights_used: usize,
+    /// Features held constant instead of learned.
+    pub constant_features: Vec<&'static str>,
+    pub training: TrainStats,
+}
+
+/// Where a run may keep checkpoints, and whether to continue from them.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    pub checkpoint_folder: Option<PathBuf>,
+    pub resume: bool,
+}
+
+/// The 7 filter features of a material: linear base colour, metallic, normal x and y, alpha.
+pub fn features(material: &Material) -> Map {
+    let alpha = material.roughness.clone().map_values(alpha_from_roughness);
+    let normal_xy = material.normal.select_channels(&[0, 1]);
+    Map::stack(&[&material.base_color, &material.metallic, &normal_xy, &alpha])
+}
+
+/// The wrap-around seam ratio of a material's base colour and normal (the larger): about 1
+/// for tileable materials, well above for others.
+pub fn wrap_seam_ratio(material: &Material) -> f32 {
+    seam_ratio(&material.base_color).max(seam_ratio(&material.normal))
+}
+
+fn timed<T>(
+    timings: &mut Vec<(String, f64)>,
+    name: String,
+    f: impl FnOnce() -> Result<T>,
+) -> Result<T> {
+    let start = Instant::now();
+    let out = f()?;
+    timings.push((name, start.elapsed().as_secs_f64()));
+    Ok(out)
+}
+
+/// Peak resident memory from `/proc/self/status` (VmHWM), where there is one.
+pub fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// Everything a level needs that stays the same across levels.
+struct Context<'a> {
+    config: &'a Config,
+    model: Arc<dyn ShadingModel>,
+    upsampler: Box<dyn RgbUpsampler>,
+    lights: Vec<Light>,
+    border: Border,
+    options: &'a RunOptions,
+    progress: &'a dyn Progress,
+}
+
+/// Upsamples `material` as `config` says. Returns the HR material (height included when the
+/// input has one) and what the run did.
+pub fn upscale(
+    material: &Material,
+    config: &Config,
+    options: &RunOptions,
+    progress: &dyn Progress,
+) -> Result<(Material, RunReport)> {
+    config.validate()?;
+    let start = Instant::now();
+    let mut timings = Vec::new();
+    let mut skipped = Vec::new();
+
+    let model: Arc<dyn ShadingModel> =
+        Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
+    let upsampler_spec: PluginSpec = config.upsampler.parse()?;
+    let upsampler = upsampler(&upsampler_spec)?;
+    for &s in &config.levels() {
+        check_scale(&upsampler_spec.name, upsampler.as_ref(), s)?;
+    }
+    let (tileable, seam) = match config.tileable {
+        Some(t) => (t, None),
+        None => {
+            let ratio = wrap_seam_ratio(material);
+            (ratio < TILEABLE_SEAM_RATIO, Some(ratio))
+        }
+    };
+    progress.note(&match seam {
+        Some(r) => format!(
+            "tileable: {} (wrap-around seam ratio {r:.2})",
+            if tileable { "yes" } else { "no" }
+        ),
+        None => format!(
+            "tileable: {} (as given)",
+            if tileable { "yes" } else { "no" }
+        ),
+    });
+    if material.height.is_none() {
+        skipped.push("height stage: the input has no height map (flat geometry)".to_string());
+    }
+    if material.anisotropy.is_some() || material.anisotropy_angle.is_some() {
+        skipped.push("anisotropy maps: upsampled bilinearly, not learned".to_string());
+    }
+    let lights = LightSetSpec {
+        count: config.lights.count,
+        distance: config.lights.distance,
+        intensity: config.lights.intensity,
+        falloff: config.lights.falloff,
+        ..Default::default()
+    }
+    .build();
+    let ctx = Context {
+        config,
+        model,
+        upsampler,
+        lights,
+        border: Border::for_tiling(tileable),
+        options,
+        progress,
+    };
+
+    let mut levels = Vec::new();
+    let mut current = material.clone();
+    let mut single_filter: Option<TrainedFilter> = None;
+    for (level, &scale) in config.levels().iter().enumerate() {
+        let reuse = config.chain == Chain::Single && level > 0;
+        let (next, report, filter) = if reuse {
+            let trained = single_filter.as_ref().expect("level 1 trained a filter");
+            let next = timed(&mut timings, format!("level {}: infer", level + 1), || {
+                infer_material(&current, &trained.filter, trained.fixed, scale, &ctx)
+            })?;
+            let report = LevelReport {
+                scale,
+                input_size: [current.width(), current.height_px()],
+                output_size: [next.width(), next.height_px()],
+                lights_used: 0,
+                constant_features: Vec::new(),
+                training: TrainStats::default(),
+            };
+            (next, report, None)
+        } else {
+            let (next, report, filter) =
+                run_level(&current, scale, level, &ctx, &mut timings, &mut skipped)?;
+            (next, report, Some(filter))
+        };
+        if let Some(f) = filter {
+            single_filter = Some(f);
+        }
+        let with_height = match (&current.height, &next.height) {
+            (Some(lr_height), None) => {
+                let h = timed(&mut timings, format!("level {}: height", level + 1), || {
+                    Ok(reconstruct_height(
+                        lr_height,
+                        &current.normal,
+                        &next.normal,
+                        scale,
+                        tileable,
+                    ))
+                })?;
+                Material {
+                    height: Some(h),
+                    ..next
+                }
+            }
+            _ => next,
+        };
+        levels.push(report);
+        current = with_height;
+    }
+    current.origin = material.origin.clone();
+
+    let final_loss = levels
+        .iter()
+        .rev()
+        .find_map(|l| l.training.epoch_losses.last().copied());
+    let report = RunReport {
+        matup_version: env!("CARGO_PKG_VERSION"),
+        input_size: [material.width(), material.height_px()],
+        output_size: [current.width(), current.height_px()],
+        config: config.clone(),
+        tileable,
+        seam_ratio: seam,
+        levels,
+        timings,
+        total_seconds: start.elapsed().as_secs_f64(),
+        final_loss,
+        skipped,
+        peak_memory_mib: peak_memory_mib(),
+        threads: rayon::current_num_threads(),
+    };
+    Ok((current, report))
+}
+
+/// A digest of what a level's training depends on, so a checkpoint is resumed only for the
+/// same input and settings.
+fn fingerprint(material_features: &Map, config: &Config, level: usize) -> String {
+    let mut h = DefaultHasher::new();
+    config.to_toml().hash(&mut h);
+    level.hash(&mut h);
+    (material_features.width(), material_features.height()).hash(&mut h);
+    for v in material_features.data() {
+        v.to_bits().hash(&mut h);
+    }
+    format!("{:016x}", h.finish())
+}
+
+/// A trained filter and the features it holds constant.
+struct TrainedFilter {
+    filter: Filter,
+    fixed: [Option<f32>; FEATURES],
+}
+
+/// One ×`scale` level: LR renders, upsampled targets, training, inference.
+fn run_level(
+    lr: &Material,
+    scale: usize,
+    level: usize,
+    ctx: &Context,
+    timings: &mut Vec<(String, f64)>,
+    skipped: &mut Vec<String>,
+) -> Result<(Material, LevelReport, TrainedFilter)> {
+    let config = ctx.config;
+    let tag = |stage: &str| format!("level {}: {stage}", level + 1);
+    let lr_features = features(lr);
+
+    // Constant features are kept, not learned; they are no input either.
+    let mut fixed = [None; FEATURES];
+    if config.skip {
+        for (k, slot) in fixed.iter_mut().enumerate() {
+            if lr_features.is_constant(k, 0.0) {
+                *slot = Some(lr_features.plane(k)[0]);
+            }
+        }
+    }
+    let constant_features: Vec<&'static str> = (0..FEATURES)
+        .filter(|&k| fixed[k].is_some())
+        .map(|k| FEATURE_NAMES[k])
+        .collect();
+    if !constant_features.is_empty() {
+        skipped.push(format!(
+            "level {}: constant features kept, not learned: {}",
+            level + 1,
+            constant_features.join(", ")
+        ));
+    }
+    let input_channels: Vec<usize> = (0..FEATURES).filter(|&k| fixed[k].is_none()).collect();
+
+    // 1. LR renders (anti-aliased), dropping lights that light nothing.
+    ctx.progress
+        .stage(&tag("render LR"), ctx.lights.len() as u64);
+    let renders = timed(timings, tag("render LR"), || {
+        Ok(render(
+            lr,
+            ctx.model.as_ref(),
+            &ctx.lights,
+            RenderOptions {
+                supersample: true,
+                border: ctx.border,
+            },
+        ))
+    })?;
+    ctx.progress.advance(ctx.lights.len() as u64, None);
+    let (lights, renders): (Vec<Light>, Vec<Map>) = ctx
+        .lights
+        .iter()
+        .zip(renders)
+        .filter(|(_, r)| !config.skip || r.data().iter().any(|&v| v >= 0.5 / 255.0))
+        .map(|(l, r)| (*l, r))
+        .unzip();
+    if lights.len() < ctx.lights.len() {
+        skipped.push(format!(
+            "level {}: {} of {} lights light nothing; their renders were not upsampled",
+            level + 1,
+            ctx.lights.len() - lights.len(),
+            ctx.lights.len()
+        ));
+    }
+    if lights.is_empty() {
+        return Err(Error::Invalid(
+            "no light lights the material: every render is black".into(),
+        ));
+    }
+
+    // 2. Upsampled renders become the targets, stored compactly.
+    ctx.progress
+        .stage(&tag("upsample renders"), renders.len() as u64);
+    let targets = timed(timings, tag("upsample renders"), || {
+        let mut targets = Targets::default();
+        for chunk in renders.chunks(RENDER_CHUNK) {
+            let up = ctx.upsampler.upsample(chunk, scale, ctx.border)?;
+            targets.append(&up);
+            ctx.progress.advance(chunk.len() as u64, None);
+        }
+        Ok(targets)
+    })?;
+
+    let (w, h) = (lr.width() * scale, lr.height_px() * scale);
+    let examples = |features: &Map, heights: Option<&Map>, targets: Targets| Examples {
+        residual_base: upsample(features, scale, config.filter.residual_base.0, ctx.border),
+        metallic_bilinear: upsample(
+            &features.select_channels(&[3]),
+            scale,
+            Kernel::Bilinear,
+            ctx.border,
+        ),
+        heights: heights.map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border)),
+        features: features.clone(),
+        border: ctx.border,
+        width: features.width() * scale,
+        height: features.height() * scale,
+        targets,
+    };
+    let main = Arc::new(examples(&lr_features, lr.height.as_ref(), targets));
+    debug_assert_eq!((main.width, main.height), (w, h));
+
+    // Cross-scale self-supervision: the LR material one scale down is the input, the LR
+    // material the answer, its exact renders the targets.
+    let cross = if config.train.cross_scale > 0.0 {
+        if lr.width() % scale == 0 && lr.height_px() % scale == 0 {
+            let lower = lr.box_downsample(scale);
+            let mut ex = examples(
+                &features(&lower),
+                lower.height.as_ref(),
+                Targets::from_renders(&renders),
+            );
+            ex.heights = lr.height.clone();
+            Some(Arc::new(ex))
+        } else {
+            skipped.push(format!(
+                "level {}: cross-scale term: {}×{} is not divisible by {scale}",
+                level + 1,
+                lr.width(),
+                lr.height_px()
+            ));
+            None
+        }
+    } else {
+        None
+    };
+    drop(renders);
+
+    let filter = Filter::new(
+        &config.filter,
+        scale,
+        input_channels.clone(),
+        config.seed.wrapping_add(level as u64),
+    )?;
+    let shading = Shading {
+        model: ctx.model.clone(),
+        lights: lights.clone().into(),
+        norm: config.train.loss,
+    };
+    let checkpoint = ctx
+        .options
+        .checkpoint_folder
+        .as_ref()
+        .map(|folder| Checkpoint {
+            folder: folder.join(format!("level{}", level + 1)),
+            resume: ctx.options.resume,
+            fingerprint: fingerprint(&lr_features, config, level),
+        });
+    let training = if input_channels.is_empty() {
+        skipped.push(format!(
+            "level {}: training: every feature is constant",
+            level + 1
+        ));
+        TrainStats::default()
+    } else {
+        timed(timings, tag("train"), || {
+            train(
+                &filter,
+                &main,
+                cross.as_ref().map(|c| (c, config.train.cross_scale)),
+                &shading,
+                fixed,
+                &config.train,
+                config.seed.wrapping_add(level as u64),
+                checkpoint.as_ref(),
+                ctx.progress,
+            )
+        })?
+    };
+
+    let hr = timed(timings, tag("infer"), || {
+        infer_material(lr, &filter, fixed, scale, ctx)
+    })?;
+    let report = LevelReport {
+        scale,
+        input_size: [lr.width(), lr.height_px()],
+        output_size: [w, h],
+        lights_used: lights.len(),
+        constant_features,
+        training,
+    };
+    Ok((hr, report, TrainedFilter { filter, fixed }))
+}
+
+/// Runs the trained filter over every output texel of `lr` upsampled by `scale`.
+fn infer_material(
+    lr: &Material,
+    filter: &Filter,
+    fixed: [Option<f32>; FEATURES],
+    scale: usize,
+    ctx: &Context,
+) -> Result<Material> {
+    let lr_features = features(lr);
+    let config = ctx.config;
+    let examples = Examples {
+        residual_base: upsample(
+            &lr_features,
+            scale,
+            config.filter.residual_base.0,
+            ctx.border,
+        ),
+        metallic_bilinear: Map::filled(1, 1, 1, 0.0),
+        heights: None,
+        features: lr_features,
+        border: ctx.border,
+        width: lr.width() * scale,
+        height: lr.height_px() * scale,
+        targets: Targets::default(),
+    };
+    let (w, h) = (examples.width, examples.height);
+    let n = w * h;
+    ctx.progress.stage("infer", n as u64);
+    let folded = filter.folded_weights()?;
+    let mut hr = Material::uniform(1, [0.0; 3], 0.5, 0.0);
+    hr.base_color = Map::filled(w, h, 3, 0.0);
+    hr.normal = Map::filled(w, h, 3, 0.0);
+    hr.roughness = Map::filled(w, h, 1, 0.0);
+    hr.metallic = Map::filled(w, h, 1, 0.0);
+    let all: Vec<usize> = (0..n).collect();
+    for chunk in all.chunks(16384) {
+        let (windows, phases) = examples.gather(filter, chunk);
+        let raw = if filter.input_channels.is_empty() {
+            vec![0.0; chunk.len() * FEATURES]
+        } else {
+            filter.infer(&folded, &windows, &phases)?
+        };
+        let decoded: Vec<_> = chunk
+            .par_iter()
+            .zip(raw.par_chunks(FEATURES))
+            .map(|(&t, r)| {
+                let base: [f32; FEATURES] = examples.residual_base.texel(t);
+                decode(r, &base, &fixed).params
+            })
+            .collect();
+        for (&t, p) in chunk.iter().zip(&decoded) {
+            for c in 0..3 {
+                hr.base_color.plane_mut(c)[t] = p.base_color[c];
+                hr.normal.plane_mut(c)[t] = p.normal[c];
+            }
+            hr.metallic.data_mut()[t] = p.metallic;
+            hr.roughness.data_mut()[t] = p.alpha.sqrt();
+        }
+        ctx.progress.advance(chunk.len() as u64, None);
+    }
+    hr.anisotropy = lr
+        .anisotropy
+        .as_ref()
+        .map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+    hr.anisotropy_angle = lr
+        .anisotropy_angle
+        .as_ref()
+        .map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+    hr.restore_invariants();
+    Ok(hr)
+}
+
+/// `preview.png`: the bilinearly upsampled input (left) and the result (right), rendered
+/// under two training lights (rows). Large outputs show their central 512² texels.
+pub fn preview(
+    input: &Material,
+    output: &Material,
+    config: &Config,
+    tileable: bool,
+) -> Result<Map> {
+    let scale = output.width() / input.width().max(1);
+    let border = Border::for_tiling(tileable);
+    let baseline = input.upsample(scale.max(1), Kernel::Bilinear, border);
+    let crop = |m: &Material| {
+        let side = 512.min(m.width()).min(m.height_px());
+        let (x0, y0) = ((m.width() - side) / 2, (m.height_px() - side) / 2);
+        if side == m.width() && side == m.height_px() {
+            m.clone()
+        } else {
+            m.crop(x0, y0, side, side)
+        }
+    };
+    let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
+    let lights = LightSetSpec {
+        count: config.lights.count,
+        distance: config.lights.distance,
+        intensity: config.lights.intensity,
+        falloff: config.lights.falloff,
+        ..Default::default()
+    }
+    .build();
+    // A high light and a low one: shading detail shows at grazing angles.
+    let by_height = |a: &&Light, b: &&Light| a.position[2].total_cmp(&b.position[2]);
+    let high = *lights.iter().max_by(by_height).unwrap();
+    let low = *lights
+        .iter()
+        .filter(|l| l.position[2] > 0.3 * config.lights.distance)
+        .min_by(by_height)
+        .unwrap_or(&high);
+    let options = RenderOptions {
+        supersample: false,
+        border,
+    };
+    let mut tiles = Vec::new();
+    for light in [high, low] {
+        for m in [&baseline, output] {
+            tiles.extend(render(&crop(m), model.as_ref(), &[light], options));
+        }
+    }
+    Ok(contact_sheet(&tiles, 2, 4))
+}

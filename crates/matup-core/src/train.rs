@@ -1,0 +1,701 @@
+//! Training the filter: examples, the fused objective, Adam, the epoch loop, checkpoints.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use candle_core::{CpuStorage, Device, InplaceOp1, Layout, Storage, Tensor, Var};
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::config::{Schedule, TrainConfig};
+use crate::filter::decode::decode;
+use crate::filter::{Filter, FEATURES};
+use crate::lights::Light;
+use crate::loss::LossNorm;
+use crate::map::Map;
+use crate::material::texel_position;
+use crate::op::{TexelLossOp, TexelObjective};
+use crate::progress::Progress;
+use crate::resample::Border;
+use crate::shading::{ShadingModel, Svbrdf, Texel};
+use crate::{Error, Result};
+
+/// Display-space targets of every texel under every light, 8 bits per channel, texel-major
+/// (`[texel][light][rgb]`): 100 lights × 4K² × RGB is 5 GB instead of 20 GB in f32.
+#[derive(Clone, Debug, Default)]
+pub struct Targets {
+    pub lights: usize,
+    pub data: Vec<u8>,
+}
+
+impl Targets {
+    /// Quantises display-space renders (one map per light) by rounding.
+    pub fn from_renders(renders: &[Map]) -> Targets {
+        let n = renders[0].texels();
+        let lights = renders.len();
+        let mut data = vec![0u8; n * lights * 3];
+        data.par_chunks_mut(lights * 3)
+            .enumerate()
+            .for_each(|(t, row)| {
+                for (l, r) in renders.iter().enumerate() {
+                    for c in 0..3 {
+                        row[l * 3 + c] = (r.plane(c)[t].clamp(0.0, 1.0) * 255.0).round() as u8;
+                    }
+                }
+            });
+        Targets { lights, data }
+    }
+
+    /// Adds renders of further lights (a later chunk of the light set).
+    pub fn append(&mut self, renders: &[Map]) {
+        let more = Targets::from_renders(renders);
+        if self.lights == 0 {
+            *self = more;
+            return;
+        }
+        let (old, new) = (self.lights * 3, more.lights * 3);
+        let n = self.data.len() / old;
+        let mut data = Vec::with_capacity(n * (old + new));
+        for t in 0..n {
+            data.extend_from_slice(&self.data[t * old..][..old]);
+            data.extend_from_slice(&more.data[t * new..][..new]);
+        }
+        self.data = data;
+        self.lights += more.lights;
+    }
+
+    /// The targets of one texel as f32, written into `out`.
+    #[inline]
+    pub fn texel(&self, index: usize, out: &mut Vec<[f32; 3]>) {
+        let row = &self.data[index * self.lights * 3..][..self.lights * 3];
+        out.clear();
+        out.extend(row.chunks_exact(3).map(|c| {
+            [
+                c[0] as f32 / 255.0,
+                c[1] as f32 / 255.0,
+                c[2] as f32 / 255.0,
+            ]
+        }));
+    }
+}
+
+/// Training examples at one scale: the filter's inputs and what its answers are judged by.
+pub struct Examples {
+    /// The 7 features of the input material (the filter reads windows of these).
+    pub features: Map,
+    pub border: Border,
+    /// Output size.
+    pub width: usize,
+    pub height: usize,
+    /// The 7 features upsampled to the output size; residuals are added to these.
+    pub residual_base: Map,
+    /// Metallic upsampled bilinearly to the output size (the regulariser's reference).
+    pub metallic_bilinear: Map,
+    /// Output-size height, if the material has one (displaces the shading points).
+    pub heights: Option<Map>,
+    pub targets: Targets,
+}
+
+impl Examples {
+    pub fn texels(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// Gathers the filter's input windows and phases for output texels `batch`.
+    pub fn gather(&self, filter: &Filter, batch: &[usize]) -> (Vec<f32>, Vec<usize>) {
+        let g = filter.geometry();
+        let len = g.window_len(filter.input_channels.len());
+        let mut windows = vec![0f32; batch.len() * len];
+        windows
+            .par_chunks_mut(len)
+            .zip(batch)
+            .for_each(|(out, &t)| {
+                let (row, col) = (t / self.width, t % self.width);
+                g.gather(
+                    &self.features,
+                    &filter.input_channels,
+                    self.border,
+                    row,
+                    col,
+                    out,
+                );
+            });
+        let phases = batch
+            .iter()
+            .map(|&t| g.phase(t / self.width, t % self.width))
+            .collect();
+        (windows, phases)
+    }
+}
+
+/// What the renders are compared with, and how.
+#[derive(Clone)]
+pub struct Shading {
+    pub model: Arc<dyn ShadingModel>,
+    pub lights: Arc<[Light]>,
+    pub norm: LossNorm,
+}
+
+/// METHOD.md's objective for one batch: per texel, the render loss over the lights divided by
+/// their number, plus `α (m_bilinear − m)²`.
+struct FilterObjective {
+    examples: Arc<Examples>,
+    shading: Shading,
+    batch: Vec<usize>,
+    fixed: [Option<f32>; FEATURES],
+    metallic_weight: f32,
+}
+
+impl TexelObjective for FilterObjective {
+    fn width(&self) -> usize {
+        FEATURES
+    }
+    fn texels(&self) -> usize {
+        self.batch.len()
+    }
+    fn eval(&self, i: usize, row: &[f32], grad: &mut [f32]) -> f32 {
+        let ex = &self.examples;
+        let t = self.batch[i];
+        let base: [f32; FEATURES] = ex.residual_base.texel(t);
+        let decoded = decode(row, &base, &self.fixed);
+        let mut targets = Vec::with_capacity(ex.targets.lights);
+        ex.targets.texel(t, &mut targets);
+        let texel = Texel {
+            params: decoded.params,
+            position: texel_position(t, ex.width, ex.height, ex.heights.as_ref()),
+        };
+        let mut g = Svbrdf::default();
+        let scale = 1.0 / self.shading.lights.len() as f32;
+        let fit = self.shading.model.texel_loss(
+            &texel,
+            &self.shading.lights,
+            &targets,
+            &self.shading.norm,
+            Some(&mut g),
+        );
+        let mut g_scaled = Svbrdf::default();
+        g_scaled.add_scaled(&g, scale);
+        let diff = ex.metallic_bilinear.data()[t] - decoded.params.metallic;
+        g_scaled.metallic += -2.0 * self.metallic_weight * diff;
+        grad.copy_from_slice(&decoded.backward(&g_scaled));
+        fit * scale + self.metallic_weight * diff * diff
+    }
+}
+
+/// The LR-consistency term for groups of `scale²` output texels that make up whole LR
+/// texels: `mean_groups ‖box(decoded features) − LR features‖²` over the 7 features. Not a
+/// sum of per-texel terms (a group's mean couples its texels), so it has its own op.
+struct Consistency {
+    examples: Arc<Examples>,
+    /// Output texels, `group_size` consecutive ones per LR texel.
+    batch: Vec<usize>,
+    /// The LR texel of each group.
+    parents: Vec<usize>,
+    group_size: usize,
+    fixed: [Option<f32>; FEATURES],
+    gradient: Mutex<Option<Vec<f32>>>,
+}
+
+/// The 7 features of a decoded texel, in [`FEATURES`] order.
+fn decoded_features(p: &Svbrdf) -> [f32; FEATURES] {
+    [
+        p.base_color[0],
+        p.base_color[1],
+        p.base_color[2],
+        p.metallic,
+        p.normal[0],
+        p.normal[1],
+        p.alpha,
+    ]
+}
+
+impl candle_core::CustomOp1 for Consistency {
+    fn name(&self) -> &'static str {
+        "matup-lr-consistency"
+    }
+
+    fn cpu_fwd(
+        &self,
+        storage: &CpuStorage,
+        layout: &Layout,
+    ) -> candle_core::Result<(CpuStorage, candle_core::Shape)> {
+        let Some((start, end)) = layout.contiguous_offsets() else {
+            candle_core::bail!("consistency needs contiguous input");
+        };
+        let raw = &storage.as_slice::<f32>()?[start..end];
+        let ex = &self.examples;
+        let n = self.group_size;
+        let mut grads = vec![0f32; raw.len()];
+        let mut total = 0.0f32;
+        for (g, &parent) in self.parents.iter().enumerate() {
+            let members = &self.batch[g * n..(g + 1) * n];
+            let decoded: Vec<_> = members
+                .iter()
+                .enumerate()
+                .map(|(j, &t)| {
+                    let base: [f32; FEATURES] = ex.residual_base.texel(t);
+                    decode(
+                        &raw[(g * n + j) * FEATURES..][..FEATURES],
+                        &base,
+                        &self.fixed,
+                    )
+                })
+                .collect();
+            let want: [f32; FEATURES] = ex.features.texel(parent);
+            let mut diff = [0f32; FEATURES];
+            for d in &decoded {
+                let f = decoded_features(&d.params);
+                for k in 0..FEATURES {
+                    diff[k] += f[k] / n as f32;
+                }
+            }
+            for k in 0..FEATURES {
+                diff[k] -= want[k];
+                total += diff[k] * diff[k];
+            }
+            // d/d(feature of member j) = 2·diff / n, then through the decode.
+            for (j, d) in decoded.iter().enumerate() {
+                let s = 2.0 / n as f32;
+                let up = Svbrdf {
+                    base_color: [s * diff[0], s * diff[1], s * diff[2]],
+                    metallic: s * diff[3],
+                    normal: [s * diff[4], s * diff[5], 0.0],
+                    alpha: s * diff[6],
+                    ..Default::default()
+                };
+                grads[(g * n + j) * FEATURES..][..FEATURES].copy_from_slice(&d.backward(&up));
+            }
+        }
+        let groups = self.parents.len().max(1) as f32;
+        grads.iter_mut().for_each(|v| *v /= groups);
+        *self.gradient.lock().unwrap() = Some(grads);
+        Ok((
+            CpuStorage::F32(vec![total / groups]),
+            candle_core::Shape::from(()),
+        ))
+    }
+
+    fn bwd(
+        &self,
+        arg: &Tensor,
+        _res: &Tensor,
+        grad_res: &Tensor,
+    ) -> candle_core::Result<Option<Tensor>> {
+        let grads = self
+            .gradient
+            .lock()
+            .unwrap()
+            .take()
+            .expect("forward ran before backward");
+        let grads = Tensor::from_vec(grads, arg.shape(), arg.device())?;
+        Ok(Some(grads.broadcast_mul(grad_res)?))
+    }
+}
+
+/// The LR-consistency loss of `groups` random LR texels (all their output texels).
+fn consistency_loss(
+    filter: &Filter,
+    examples: &Arc<Examples>,
+    fixed: [Option<f32>; FEATURES],
+    groups: usize,
+    rng: &mut StdRng,
+) -> Result<Tensor> {
+    use rand::Rng;
+    let s = filter.geometry().scale;
+    let (lw, lh) = (examples.features.width(), examples.features.height());
+    let mut batch = Vec::with_capacity(groups * s * s);
+    let mut parents = Vec::with_capacity(groups);
+    for _ in 0..groups {
+        let parent = rng.random_range(0..lw * lh);
+        let (py, px) = (parent / lw, parent % lw);
+        parents.push(parent);
+        for dy in 0..s {
+            for dx in 0..s {
+                batch.push((py * s + dy) * examples.width + px * s + dx);
+            }
+        }
+    }
+    let (windows, phases) = examples.gather(filter, &batch);
+    let raw = filter.forward(Arc::new(windows), Arc::new(phases))?;
+    Ok(raw.apply_op1(Consistency {
+        examples: examples.clone(),
+        batch,
+        parents,
+        group_size: s * s,
+        fixed,
+        gradient: Mutex::new(None),
+    })?)
+}
+
+/// Adam (Kingma & Ba, default betas), fused into one pass per weight tensor. Hand-written
+/// so its state can be checkpointed (a resumed run equals an uninterrupted one).
+pub struct Adam {
+    pub step: u64,
+    moments: Vec<Mutex<(Vec<f32>, Vec<f32>)>>,
+}
+
+const BETA1: f32 = 0.9;
+const BETA2: f32 = 0.999;
+const EPSILON: f32 = 1e-8;
+
+struct AdamUpdate<'a> {
+    grad: &'a [f32],
+    moments: &'a Mutex<(Vec<f32>, Vec<f32>)>,
+    learning_rate: f32,
+    step: u64,
+}
+
+impl InplaceOp1 for AdamUpdate<'_> {
+    fn name(&self) -> &'static str {
+        "matup-adam"
+    }
+    fn cpu_fwd(&self, storage: &mut CpuStorage, layout: &Layout) -> candle_core::Result<()> {
+        let Some((start, end)) = layout.contiguous_offsets() else {
+            candle_core::bail!("adam needs contiguous weights");
+        };
+        let CpuStorage::F32(weights) = storage else {
+            candle_core::bail!("adam needs f32 weights");
+        };
+        let weights = &mut weights[start..end];
+        let mut guard = self.moments.lock().unwrap();
+        let (m, v) = &mut *guard;
+        let c1 = 1.0 - BETA1.powi(self.step as i32);
+        let c2 = 1.0 - BETA2.powi(self.step as i32);
+        let lr = self.learning_rate;
+        weights
+            .par_chunks_mut(4096)
+            .zip(self.grad.par_chunks(4096))
+            .zip(m.par_chunks_mut(4096).zip(v.par_chunks_mut(4096)))
+            .for_each(|((w, g), (m, v))| {
+                for i in 0..w.len() {
+                    m[i] = BETA1 * m[i] + (1.0 - BETA1) * g[i];
+                    v[i] = BETA2 * v[i] + (1.0 - BETA2) * g[i] * g[i];
+                    w[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + EPSILON);
+                }
+            });
+        Ok(())
+    }
+}
+
+impl Adam {
+    pub fn new(vars: &[Var]) -> Adam {
+        Adam {
+            step: 0,
+            moments: vars
+                .iter()
+                .map(|v| Mutex::new((vec![0.0; v.elem_count()], vec![0.0; v.elem_count()])))
+                .collect(),
+        }
+    }
+
+    /// One update of every weight from its gradient in `grads`.
+    pub fn update(
+        &mut self,
+        vars: &[Var],
+        grads: &candle_core::backprop::GradStore,
+        learning_rate: f64,
+    ) -> Result<()> {
+        self.step += 1;
+        for (var, moments) in vars.iter().zip(&self.moments) {
+            let Some(grad) = grads.get(var.as_tensor()) else {
+                continue;
+            };
+            let grad = grad.contiguous()?;
+            let (storage, layout) = grad.storage_and_layout();
+            let Storage::Cpu(cpu) = &*storage else {
+                return Err(Error::Invalid("adam runs on CPU tensors".into()));
+            };
+            let (start, end) = layout.contiguous_offsets().expect("made contiguous above");
+            let update = AdamUpdate {
+                grad: &cpu.as_slice::<f32>()?[start..end],
+                moments,
+                learning_rate: learning_rate as f32,
+                step: self.step,
+            };
+            var.as_tensor().inplace_op1(&update)?;
+        }
+        Ok(())
+    }
+
+    fn tensors(&self) -> Result<HashMap<String, Tensor>> {
+        let mut out = HashMap::new();
+        for (i, m) in self.moments.iter().enumerate() {
+            let (m, v) = &*m.lock().unwrap();
+            out.insert(
+                format!("adam_m{i}"),
+                Tensor::from_slice(m, m.len(), &Device::Cpu)?,
+            );
+            out.insert(
+                format!("adam_v{i}"),
+                Tensor::from_slice(v, v.len(), &Device::Cpu)?,
+            );
+        }
+        Ok(out)
+    }
+
+    fn restore(
+        &mut self,
+        tensors: &HashMap<String, Tensor>,
+        step: u64,
+        origin: &Path,
+    ) -> Result<()> {
+        for (i, slot) in self.moments.iter().enumerate() {
+            let get = |k: String| -> Result<Vec<f32>> {
+                let t = tensors
+                    .get(&k)
+                    .ok_or_else(|| Error::file(origin, format!("checkpoint lacks {k}")))?;
+                Ok(t.to_vec1::<f32>()?)
+            };
+            let (m, v) = (get(format!("adam_m{i}"))?, get(format!("adam_v{i}"))?);
+            let mut guard = slot.lock().unwrap();
+            if m.len() != guard.0.len() || v.len() != guard.1.len() {
+                return Err(Error::file(
+                    origin,
+                    "checkpoint optimiser state does not fit this filter",
+                ));
+            }
+            *guard = (m, v);
+        }
+        self.step = step;
+        Ok(())
+    }
+}
+
+/// Where a run keeps its per-epoch checkpoint, and whether to continue from it.
+#[derive(Clone, Debug)]
+pub struct Checkpoint {
+    pub folder: PathBuf,
+    pub resume: bool,
+    /// What must match for a checkpoint to be resumed (the configuration and input).
+    pub fingerprint: String,
+}
+
+#[derive(Serialize, Deserialize)]
+struct CheckpointMeta {
+    fingerprint: String,
+    epochs_done: usize,
+    adam_step: u64,
+    epoch_losses: Vec<f64>,
+}
+
+impl Checkpoint {
+    fn weights_path(&self) -> PathBuf {
+        self.folder.join("state.safetensors")
+    }
+    fn meta_path(&self) -> PathBuf {
+        self.folder.join("state.json")
+    }
+
+    /// Writes the state atomically (weights first, then the metadata that points at them).
+    fn save(&self, filter: &Filter, adam: &Adam, meta: &CheckpointMeta) -> Result<()> {
+        std::fs::create_dir_all(&self.folder).map_err(|e| Error::io(&self.folder, e))?;
+        let mut tensors = filter.named_tensors();
+        tensors.extend(adam.tensors()?);
+        let tmp = self.folder.join("state.safetensors.partial");
+        candle_core::safetensors::save(&tensors, &tmp)?;
+        std::fs::rename(&tmp, self.weights_path())
+            .map_err(|e| Error::io(&self.weights_path(), e))?;
+        let json = serde_json::to_vec_pretty(meta).expect("checkpoint metadata serialises");
+        crate::io::write_atomic(&self.meta_path(), &json)
+    }
+
+    /// The saved state, if there is one for this fingerprint.
+    fn load(&self, filter: &Filter, adam: &mut Adam) -> Result<Option<CheckpointMeta>> {
+        let Ok(bytes) = std::fs::read(self.meta_path()) else {
+            return Ok(None);
+        };
+        let meta: CheckpointMeta = serde_json::from_slice(&bytes)
+            .map_err(|e| Error::file(&self.meta_path(), format!("unreadable checkpoint: {e}")))?;
+        if meta.fingerprint != self.fingerprint {
+            return Ok(None);
+        }
+        let tensors = candle_core::safetensors::load(self.weights_path(), &Device::Cpu)?;
+        filter.load_tensors(&tensors, &self.weights_path())?;
+        adam.restore(&tensors, meta.adam_step, &self.weights_path())?;
+        Ok(Some(meta))
+    }
+
+    /// Removes the checkpoint (after a finished run).
+    pub fn clear(&self) {
+        let _ = std::fs::remove_dir_all(&self.folder);
+    }
+}
+
+/// The outcome of training.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TrainStats {
+    /// Mean loss of each epoch.
+    pub epoch_losses: Vec<f64>,
+    pub steps: u64,
+    /// Epochs taken from a checkpoint instead of trained.
+    pub resumed_epochs: usize,
+}
+
+/// Trains `filter` on `main` (and, with weight `cross_weight`, on `cross`): METHOD.md's loop,
+/// every texel once per epoch in an order drawn from `seed`.
+#[allow(clippy::too_many_arguments)]
+pub fn train(
+    filter: &Filter,
+    main: &Arc<Examples>,
+    cross: Option<(&Arc<Examples>, f32)>,
+    shading: &Shading,
+    fixed: [Option<f32>; FEATURES],
+    config: &TrainConfig,
+    seed: u64,
+    checkpoint: Option<&Checkpoint>,
+    progress: &dyn Progress,
+) -> Result<TrainStats> {
+    let mut adam = Adam::new(&filter.vars);
+    let mut stats = TrainStats::default();
+    let mut start_epoch = 0;
+    if let Some(cp) = checkpoint.filter(|c| c.resume) {
+        if let Some(meta) = cp.load(filter, &mut adam)? {
+            progress.note(&format!(
+                "resumed from the checkpoint after epoch {}",
+                meta.epochs_done
+            ));
+            start_epoch = meta.epochs_done;
+            stats.epoch_losses = meta.epoch_losses;
+            stats.resumed_epochs = start_epoch;
+        }
+    }
+
+    let per_epoch = config
+        .texels_per_epoch
+        .unwrap_or(main.texels())
+        .min(main.texels());
+    let batch = config.batch_size;
+    let steps_per_epoch = per_epoch.div_ceil(batch);
+    let total_steps = (steps_per_epoch * config.epochs) as u64;
+    let base_lr = if config.scale_learning_rate {
+        config.learning_rate * batch as f64 / 128.0
+    } else {
+        config.learning_rate
+    };
+    progress.stage("train", total_steps);
+    progress.advance(adam.step, stats.epoch_losses.last().copied());
+
+    for epoch in start_epoch..config.epochs {
+        let mut rng =
+            StdRng::seed_from_u64(seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut order: Vec<usize> = (0..main.texels()).collect();
+        order.shuffle(&mut rng);
+        order.truncate(per_epoch);
+        let mut cross_order: Vec<usize> = cross
+            .map(|(c, _)| (0..c.texels()).collect())
+            .unwrap_or_default();
+        cross_order.shuffle(&mut rng);
+
+        let mut epoch_loss = 0.0f64;
+        for (step_in_epoch, indices) in order.chunks(batch).enumerate() {
+            let lr = match config.schedule {
+                Schedule::Constant => base_lr,
+                Schedule::Cosine => {
+                    let t = adam.step as f64 / total_steps.max(1) as f64;
+                    base_lr * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())
+                }
+            };
+            let mut loss = batch_loss(
+                filter,
+                main,
+                shading,
+                fixed,
+                config.metallic_weight,
+                indices,
+            )?;
+            if let Some((examples, weight)) = cross {
+                let n = examples.texels();
+                let start = (step_in_epoch * batch) % n;
+                let picked: Vec<usize> = (0..indices.len())
+                    .map(|k| cross_order[(start + k) % n])
+                    .collect();
+                let extra = batch_loss(
+                    filter,
+                    examples,
+                    shading,
+                    fixed,
+                    config.metallic_weight,
+                    &picked,
+                )?;
+                loss = (loss + extra.affine(weight as f64, 0.0)?)?;
+            }
+            if config.lr_consistency > 0.0 {
+                let s = filter.geometry().scale;
+                let groups = (indices.len() / (s * s)).max(1);
+                let extra = consistency_loss(filter, main, fixed, groups, &mut rng)?;
+                loss = (loss + extra.affine(config.lr_consistency as f64, 0.0)?)?;
+            }
+            if progress.cancelled() {
+                return Err(Error::Cancelled { epochs_done: epoch });
+            }
+            let value = loss.to_scalar::<f32>()? as f64;
+            if !value.is_finite() {
+                return Err(Error::Invalid(format!(
+                    "training diverged: loss {value} at epoch {}",
+                    epoch + 1
+                )));
+            }
+            let grads = loss.backward()?;
+            adam.update(&filter.vars, &grads, lr)?;
+            epoch_loss += value * indices.len() as f64;
+            progress.advance(1, Some(value));
+        }
+        stats.epoch_losses.push(epoch_loss / per_epoch as f64);
+        if let Some(cp) = checkpoint {
+            cp.save(
+                filter,
+                &adam,
+                &CheckpointMeta {
+                    fingerprint: cp.fingerprint.clone(),
+                    epochs_done: epoch + 1,
+                    adam_step: adam.step,
+                    epoch_losses: stats.epoch_losses.clone(),
+                },
+            )?;
+        }
+    }
+    stats.steps = adam.step;
+    Ok(stats)
+}
+
+/// The mean objective over one batch, as a differentiable scalar.
+fn batch_loss(
+    filter: &Filter,
+    examples: &Arc<Examples>,
+    shading: &Shading,
+    fixed: [Option<f32>; FEATURES],
+    metallic_weight: f32,
+    indices: &[usize],
+) -> Result<Tensor> {
+    let (windows, phases) = examples.gather(filter, indices);
+    let raw = filter.forward(Arc::new(windows), Arc::new(phases))?;
+    let objective = FilterObjective {
+        examples: examples.clone(),
+        shading: shading.clone(),
+        batch: indices.to_vec(),
+        fixed,
+        metallic_weight,
+    };
+    Ok(raw.apply_op1(TexelLossOp::new(objective))?.mean_all()?)
+}
+
+/// The mean objective of the current filter over `indices` (no gradient), for reporting.
+pub fn evaluate(
+    filter: &Filter,
+    examples: &Arc<Examples>,
+    shading: &Shading,
+    fixed: [Option<f32>; FEATURES],
+    metallic_weight: f32,
+    indices: &[usize],
+) -> Result<f64> {
+    let mut total = 0.0;
+    for chunk in indices.chunks(4096) {
+        let loss = batch_loss(filter, examples, shading, fixed, metallic_weight, chunk)?;
+        total += loss.to_scalar::<f32>()? as f64 * chunk.len() as f64;
+    }
+    Ok(total / indices.len().max(1) as f64)
+}

@@ -1,0 +1,264 @@
+//! The method end to end on real materials (small: 32² → 128², few epochs, few lights).
+
+mod common;
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::OnceLock;
+
+use matup::config::Config;
+use matup::lights::Light;
+use matup::material::Material;
+use matup::pipeline::wrap_seam_ratio;
+use matup::progress::{Progress, Silent};
+use matup::render::{render, RenderOptions};
+use matup::{
+    shading_model, upsampler, Border, Kernel, LightSetSpec, LossNorm, PluginSpec, RunOptions,
+    RunReport,
+};
+
+/// A whole shared material box-filtered down to `size`² (a tileable input stays tileable).
+fn lr_material(name: &str, size: usize) -> Material {
+    let m =
+        matup::load_material(Some(&common::shared_material(name)), &Default::default()).unwrap();
+    m.box_downsample(m.width() / size)
+}
+
+fn quick_config(seed: u64) -> Config {
+    let mut c = Config {
+        upsampler: "bicubic".into(),
+        seed,
+        ..Default::default()
+    };
+    c.lights.count = 24;
+    c.train.epochs = 3;
+    c
+}
+
+fn run(lr: &Material, config: &Config) -> (Material, RunReport) {
+    matup::upscale(lr, config, &RunOptions::default(), &Silent).unwrap()
+}
+
+/// The wood material ×4 with the quick settings, shared by several tests.
+fn wood() -> &'static (Material, Material, RunReport) {
+    static RUN: OnceLock<(Material, Material, RunReport)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let lr = lr_material("polyhaven_wood_cabinet_worn_long", 32);
+        let (hr, report) = run(&lr, &quick_config(1));
+        (lr, hr, report)
+    })
+}
+
+/// Mean l2,1 error (per texel and light, display space) between renders of `hr` and the
+/// upsampled renders of `lr`, under `lights`.
+fn error_against_targets(lr: &Material, hr: &Material, lights: &[Light], border: Border) -> f64 {
+    let model = shading_model(&PluginSpec::new("ggx")).unwrap();
+    let up = upsampler(&PluginSpec::new("bicubic")).unwrap();
+    let lr_renders = render(
+        lr,
+        model.as_ref(),
+        lights,
+        RenderOptions {
+            supersample: true,
+            border,
+        },
+    );
+    let targets = up.upsample(&lr_renders, 4, border).unwrap();
+    let renders = render(
+        hr,
+        model.as_ref(),
+        lights,
+        RenderOptions {
+            supersample: false,
+            border,
+        },
+    );
+    let mut total = 0.0;
+    for (r, t) in renders.iter().zip(&targets) {
+        for i in 0..r.texels() {
+            let e = std::array::from_fn(|c| r.plane(c)[i] - t.plane(c)[i]);
+            total += LossNorm::L21.eval(e).0 as f64;
+        }
+    }
+    total / (lights.len() * renders[0].texels()) as f64
+}
+
+#[test]
+fn trained_maps_explain_the_targets_better_than_bilinear() {
+    let (lr, hr, report) = wood();
+    assert_eq!((hr.width(), hr.height_px()), (128, 128));
+    assert!(report.tileable, "the whole wood material tiles");
+    let losses = &report.levels[0].training.epoch_losses;
+    assert_eq!(losses.len(), 3);
+    assert!(
+        losses[2] < losses[0],
+        "training lowers the loss: {losses:?}"
+    );
+
+    let bilinear = lr.upsample(4, Kernel::Bilinear, Border::Wrap);
+    let training = LightSetSpec {
+        count: 24,
+        ..Default::default()
+    }
+    .build();
+    let held_out = LightSetSpec::held_out(24).build();
+    for (name, lights) in [("training", &training), ("held-out", &held_out)] {
+        let base = error_against_targets(lr, &bilinear, lights, Border::Wrap);
+        let ours = error_against_targets(lr, hr, lights, Border::Wrap);
+        println!("{name} lights: bilinear {base:.5}, matup {ours:.5}");
+        assert!(
+            ours < 0.9 * base,
+            "{name} lights: matup {ours} vs bilinear {base}"
+        );
+    }
+}
+
+/// Denim ×4 (quick settings, skips on), shared by the tiling and skip tests.
+fn denim() -> &'static (Material, Material, RunReport) {
+    static RUN: OnceLock<(Material, Material, RunReport)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let lr = lr_material("polyhaven_denim_fabric", 32);
+        let (hr, report) = run(&lr, &quick_config(1));
+        (lr, hr, report)
+    })
+}
+
+#[test]
+fn tileable_input_gives_tileable_output() {
+    let (lr, hr, report) = denim();
+    assert!(report.tileable);
+    let input = wrap_seam_ratio(lr);
+    let output = wrap_seam_ratio(hr);
+    // Mirrored windows treat the edge as an edge; the wrap-around then shows it.
+    let mut mirrored = quick_config(1);
+    mirrored.tileable = Some(false);
+    let (not_tiled, _) = run(lr, &mirrored);
+    let mirrored_ratio = wrap_seam_ratio(&not_tiled);
+    println!(
+        "seam ratio: input {input:.3}, output {output:.3}, mirrored windows {mirrored_ratio:.3}"
+    );
+    // The wrap-around edge differs no more than interior neighbours do.
+    assert!((output - 1.0).abs() < 0.15, "output seam ratio {output}");
+    assert!(
+        mirrored_ratio > output,
+        "mirrored {mirrored_ratio} vs wrapped {output}"
+    );
+}
+
+#[test]
+fn a_seed_makes_runs_repeat() {
+    let (lr, hr, _) = wood();
+    let (again, _) = run(lr, &quick_config(1));
+    assert_eq!(&again, hr, "same seed, same maps");
+    let mut other = quick_config(2);
+    other.train.epochs = 1;
+    let (different, _) = run(lr, &other);
+    assert_ne!(different.base_color, hr.base_color);
+}
+
+/// Asks training to stop once `limit` steps are done.
+struct StopAfter {
+    steps: AtomicU64,
+    limit: u64,
+}
+
+impl Progress for StopAfter {
+    fn advance(&self, done: u64, loss: Option<f64>) {
+        if loss.is_some() {
+            self.steps.fetch_add(done, Ordering::SeqCst);
+        }
+    }
+    fn cancelled(&self) -> bool {
+        self.steps.load(Ordering::SeqCst) >= self.limit
+    }
+}
+
+#[test]
+fn resuming_after_an_interruption_gives_the_uninterrupted_result() {
+    let (lr, hr, _) = wood();
+    let folder = tempfile::tempdir().unwrap();
+    let options = RunOptions {
+        checkpoint_folder: Some(folder.path().to_path_buf()),
+        resume: true,
+    };
+    // 128² texels / 128 per batch = 128 steps an epoch: stop during the second epoch.
+    let stop = StopAfter {
+        steps: AtomicU64::new(0),
+        limit: 128 + 40,
+    };
+    let error = matup::upscale(lr, &quick_config(1), &options, &stop).unwrap_err();
+    assert!(
+        matches!(error, matup::Error::Cancelled { epochs_done: 1 }),
+        "{error}"
+    );
+    let (resumed, report) = matup::upscale(lr, &quick_config(1), &options, &Silent).unwrap();
+    assert_eq!(report.levels[0].training.resumed_epochs, 1);
+    assert_eq!(&resumed, hr, "resumed = uninterrupted");
+}
+
+#[test]
+fn skipping_a_constant_metallic_map_stays_within_noise() {
+    // Denim has no metallic: the skip keeps it constant instead of learning it.
+    let (lr, skipped, skipped_report) = denim();
+    let config = |seed, skip| {
+        let mut c = quick_config(seed);
+        c.skip = skip;
+        c
+    };
+    let (full, full_report) = run(lr, &config(1, false));
+    let (full2, _) = run(lr, &config(2, false));
+    assert!(
+        skipped_report
+            .skipped
+            .iter()
+            .any(|s| s.contains("metallic")),
+        "{:?}",
+        skipped_report.skipped
+    );
+    assert!(full_report.skipped.iter().all(|s| !s.contains("constant")));
+    assert!(
+        skipped.metallic.data().iter().all(|&m| m == 0.0),
+        "constant metallic stays constant"
+    );
+
+    let lights = LightSetSpec::held_out(24).build();
+    let e = |hr: &Material| error_against_targets(lr, hr, &lights, Border::Wrap);
+    let (es, ef, ef2) = (e(skipped), e(&full), e(&full2));
+    let noise = (ef - ef2).abs();
+    println!("held-out error: skip {es:.5}, full {ef:.5}, full (other seed) {ef2:.5}");
+    assert!(
+        (es - ef).abs() <= 2.0 * noise + 0.02 * ef,
+        "skip {es} vs full {ef} (seed noise {noise})"
+    );
+}
+
+#[test]
+fn sixteen_times_in_two_levels_or_by_reusing_the_filter() {
+    let lr = lr_material("ambientcg_Metal053C", 8);
+    let mut c = quick_config(1);
+    c.scale = 16;
+    c.train.epochs = 1;
+    let (two_level, report) = run(&lr, &c);
+    assert_eq!((two_level.width(), two_level.height_px()), (128, 128));
+    assert_eq!(report.levels.len(), 2);
+    assert_eq!(report.levels[1].input_size, [32, 32]);
+    assert!(
+        report
+            .levels
+            .iter()
+            .all(|l| l.training.epoch_losses.len() == 1),
+        "both levels train"
+    );
+    assert!(
+        two_level.height.is_some(),
+        "height follows through both levels"
+    );
+
+    c.chain = matup::config::Chain::Single;
+    let (single, report) = run(&lr, &c);
+    assert_eq!((single.width(), single.height_px()), (128, 128));
+    assert!(
+        report.levels[1].training.epoch_losses.is_empty(),
+        "the ×4 filter is reused"
+    );
+    assert_ne!(single.base_color, two_level.base_color);
+}
