@@ -437,3 +437,54 @@ fn candle_op_backward_is_the_fused_gradient() {
         }
     }
 }
+
+#[test]
+fn ggx_fused_override_equals_the_generic_loop() {
+    let model = shading_model(&PluginSpec::new("ggx")).unwrap();
+    let mut lights = matup::LightSetSpec::default().build();
+    lights.truncate(37); // not a multiple of the lane count
+    lights[3].falloff = true;
+    let mut rng = StdRng::seed_from_u64(8);
+    for norm in [
+        LossNorm::L21,
+        LossNorm::L11,
+        LossNorm::L22,
+        LossNorm::Lpq { p: 1.5, q: 0.8 },
+    ] {
+        for _ in 0..200 {
+            let p = adversarial_params(&mut rng);
+            let texel = Texel {
+                params: p,
+                position: [
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    0.003,
+                ],
+            };
+            let targets: Vec<[f32; 3]> = (0..lights.len())
+                .map(|_| std::array::from_fn(|_| rng.random_range(0.0..1.0)))
+                .collect();
+            let (mut fast, mut slow) = (Svbrdf::default(), Svbrdf::default());
+            let a = model.texel_loss(&texel, &lights, &targets, &norm, Some(&mut fast));
+            let b = matup::shading::texel_loss(
+                model.as_ref(),
+                &texel,
+                &lights,
+                &targets,
+                &norm,
+                Some(&mut slow),
+            );
+            assert!(
+                (a - b).abs() <= 1e-4 * b.abs().max(1.0),
+                "{norm}: loss {a} vs {b}"
+            );
+            for (k, (x, y)) in fast.to_array().iter().zip(slow.to_array()).enumerate() {
+                assert!(
+                    (x - y).abs() <= 1e-3 * y.abs().max(1.0),
+                    "{norm} d/d{}: {x} vs {y} at {p:?}",
+                    Svbrdf::NAMES[k]
+                );
+            }
+        }
+    }
+}

@@ -10,52 +10,48 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     }
 }
 
-/// Linear value → sRGB-encoded, for values in [0, 1].
+/// The sRGB transfer curve and its slope for a linear value in [0, 1]: the one implementation
+/// of the curve (file encoding, display and its gradient). One `powf` serves both: the slope
+/// of `1.055·v^(1/2.4) − 0.055` is `1.055·v^(1/2.4) / (2.4·v)`.
 #[inline]
-pub fn linear_to_srgb(v: f32) -> f32 {
+pub fn srgb_encode(v: f32) -> (f32, f32) {
     let v = v.max(0.0);
     if v <= 0.003_130_8 {
-        12.92 * v
+        (12.92 * v, 12.92)
     } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
+        let power = 1.055 * v.powf(1.0 / 2.4);
+        (power - 0.055, power / (2.4 * v))
     }
 }
 
-/// Derivative of [`linear_to_srgb`].
+/// Linear value → sRGB-encoded, for values in [0, 1].
 #[inline]
-pub fn linear_to_srgb_derivative(v: f32) -> f32 {
-    if v <= 0.003_130_8 {
-        12.92
-    } else {
-        1.055 / 2.4 * v.powf(1.0 / 2.4 - 1.0)
-    }
+pub fn linear_to_srgb(v: f32) -> f32 {
+    srgb_encode(v).0
 }
 
 /// The display transform of METHOD.md: Reinhard tone mapping `t / (1 + t)`, then the sRGB
 /// transfer curve, per channel. Renders are compared after it.
 #[inline]
 pub fn display(radiance: f32) -> f32 {
-    let t = radiance.max(0.0);
-    linear_to_srgb(t / (1.0 + t))
+    display_with_derivative(radiance).0
 }
 
-/// [`display`] and its derivative with respect to the radiance. One `powf` serves both: the
-/// slope of `1.055·t^(1/2.4) − 0.055` is `1.055·t^(1/2.4) / (2.4·t)`.
+/// [`display`] and its derivative with respect to the radiance.
 #[inline]
 pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
-    if radiance <= 0.0 {
-        // Radiance is never negative in practice; below 0 the clamp has no gradient.
-        return (0.0, 0.0);
-    }
-    let inv = 1.0 / (1.0 + radiance);
-    let tone = radiance * inv;
-    let tone_slope = inv * inv;
-    if tone <= 0.003_130_8 {
-        (12.92 * tone, 12.92 * tone_slope)
-    } else {
-        let scaled = 1.055 * tone.powf(1.0 / 2.4);
-        (scaled - 0.055, scaled / (2.4 * tone) * tone_slope)
-    }
+    // Radiance is never negative in practice; below 0 the clamp has no gradient.
+    let t = radiance.max(0.0);
+    let inv = 1.0 / (1.0 + t);
+    let (value, slope) = srgb_encode(t * inv);
+    (
+        value,
+        if radiance > 0.0 {
+            slope * inv * inv
+        } else {
+            0.0
+        },
+    )
 }
 
 #[cfg(test)]

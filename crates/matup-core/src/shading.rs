@@ -116,7 +116,8 @@ pub trait ShadingModel: Send + Sync {
 
     /// The fused render + loss of one texel: `Σ_ω norm(display(render_ω) − target_ω)` over the
     /// lights, and, when `grad` is given, its gradient with respect to the texel's parameters
-    /// added into `grad`. One pass, no temporaries.
+    /// added into `grad`. One pass, no temporaries. Models may override it with a faster
+    /// equivalent of [`texel_loss`].
     fn texel_loss(
         &self,
         texel: &Texel,
@@ -125,32 +126,45 @@ pub trait ShadingModel: Send + Sync {
         norm: &LossNorm,
         grad: Option<&mut Svbrdf>,
     ) -> f32 {
-        debug_assert_eq!(lights.len(), targets.len());
-        let mut total = 0.0;
-        match grad {
-            None => {
-                for (light, target) in lights.iter().zip(targets) {
-                    let rgb = self.shade(&texel.params, &light.sample_at(texel.position));
-                    let e = std::array::from_fn(|c| display(rgb[c]) - target[c]);
-                    total += norm.eval(e).0;
-                }
+        texel_loss(self, texel, lights, targets, norm, grad)
+    }
+}
+
+/// The generic fused render + loss of [`ShadingModel::texel_loss`], light by light.
+#[inline]
+pub fn texel_loss<M: ShadingModel + ?Sized>(
+    model: &M,
+    texel: &Texel,
+    lights: &[Light],
+    targets: &[[f32; 3]],
+    norm: &LossNorm,
+    grad: Option<&mut Svbrdf>,
+) -> f32 {
+    debug_assert_eq!(lights.len(), targets.len());
+    let mut total = 0.0;
+    match grad {
+        None => {
+            for (light, target) in lights.iter().zip(targets) {
+                let rgb = model.shade(&texel.params, &light.sample_at(texel.position));
+                let e = std::array::from_fn(|c| display(rgb[c]) - target[c]);
+                total += norm.eval(e).0;
             }
-            Some(grad) => {
-                for (light, target) in lights.iter().zip(targets) {
-                    let (rgb, jacobian) =
-                        self.shade_jacobian(&texel.params, &light.sample_at(texel.position));
-                    let shown = rgb.map(display_with_derivative);
-                    let e = std::array::from_fn(|c| shown[c].0 - target[c]);
-                    let (loss, de) = norm.eval(e);
-                    total += loss;
-                    for c in 0..3 {
-                        grad.add_scaled(&jacobian[c], de[c] * shown[c].1);
-                    }
+        }
+        Some(grad) => {
+            for (light, target) in lights.iter().zip(targets) {
+                let (rgb, jacobian) =
+                    model.shade_jacobian(&texel.params, &light.sample_at(texel.position));
+                let shown = rgb.map(display_with_derivative);
+                let e = std::array::from_fn(|c| shown[c].0 - target[c]);
+                let (loss, de) = norm.eval(e);
+                total += loss;
+                for c in 0..3 {
+                    grad.add_scaled(&jacobian[c], de[c] * shown[c].1);
                 }
             }
         }
-        total
     }
+    total
 }
 
 /// A shading model's entry in the registry; submit one with `inventory::submit!`.
