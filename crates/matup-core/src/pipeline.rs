@@ -344,10 +344,10 @@ fn run_level(
     ctx.progress
         .stage(&tag("upsample renders"), renders.len() as u64);
     let targets = timed(timings, tag("upsample renders"), || {
-        let mut targets = Targets::default();
-        for chunk in renders.chunks(RENDER_CHUNK) {
+        let mut targets = Targets::new(lr.width() * scale * lr.height_px() * scale, renders.len());
+        for (k, chunk) in renders.chunks(RENDER_CHUNK).enumerate() {
             let up = ctx.upsampler.upsample(chunk, scale, ctx.border)?;
-            targets.append(&up);
+            targets.fill(k * RENDER_CHUNK, &up);
             ctx.progress.advance(chunk.len() as u64, None);
         }
         Ok(targets)

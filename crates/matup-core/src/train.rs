@@ -33,39 +33,29 @@ pub struct Targets {
 }
 
 impl Targets {
-    /// Quantises display-space renders (one map per light) by rounding.
-    pub fn from_renders(renders: &[Map]) -> Targets {
-        let n = renders[0].texels();
-        let lights = renders.len();
-        let mut data = vec![0u8; n * lights * 3];
-        data.par_chunks_mut(lights * 3)
-            .enumerate()
-            .for_each(|(t, row)| {
-                for (l, r) in renders.iter().enumerate() {
-                    for c in 0..3 {
-                        row[l * 3 + c] = (r.plane(c)[t].clamp(0.0, 1.0) * 255.0).round() as u8;
-                    }
-                }
-            });
-        Targets { lights, data }
+    /// Room for `texels × lights` targets, all 0.
+    pub fn new(texels: usize, lights: usize) -> Targets {
+        Targets { lights, data: vec![0; texels * lights * 3] }
     }
 
-    /// Adds renders of further lights (a later chunk of the light set).
-    pub fn append(&mut self, renders: &[Map]) {
-        let more = Targets::from_renders(renders);
-        if self.lights == 0 {
-            *self = more;
-            return;
-        }
-        let (old, new) = (self.lights * 3, more.lights * 3);
-        let n = self.data.len() / old;
-        let mut data = Vec::with_capacity(n * (old + new));
-        for t in 0..n {
-            data.extend_from_slice(&self.data[t * old..][..old]);
-            data.extend_from_slice(&more.data[t * new..][..new]);
-        }
-        self.data = data;
-        self.lights += more.lights;
+    /// Quantises display-space renders (one map per light) by rounding.
+    pub fn from_renders(renders: &[Map]) -> Targets {
+        let mut targets = Targets::new(renders[0].texels(), renders.len());
+        targets.fill(0, renders);
+        targets
+    }
+
+    /// Stores the renders of lights `first..first + renders.len()`, quantised by rounding.
+    pub fn fill(&mut self, first: usize, renders: &[Map]) {
+        let lights = self.lights;
+        assert!(first + renders.len() <= lights, "more renders than lights");
+        self.data.par_chunks_mut(lights * 3).enumerate().for_each(|(t, row)| {
+            for (l, r) in renders.iter().enumerate() {
+                for c in 0..3 {
+                    row[(first + l) * 3 + c] = (r.plane(c)[t].clamp(0.0, 1.0) * 255.0).round() as u8;
+                }
+            }
+        });
     }
 
     /// The targets of one texel as f32, written into `out`.
