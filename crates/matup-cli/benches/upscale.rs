@@ -25,23 +25,57 @@ struct Row {
 
 fn run(name: &str, material: &Path, output: usize, extra: &[&str]) -> Row {
     let out = tempfile::tempdir().unwrap();
-    let mut args = vec!["upscale", material.to_str().unwrap(), "-o", out.path().to_str().unwrap(), "--json", "--upsampler", "lanczos3"];
+    let mut args = vec![
+        "upscale",
+        material.to_str().unwrap(),
+        "-o",
+        out.path().to_str().unwrap(),
+        "--json",
+        "--upsampler",
+        "lanczos3",
+    ];
     args.extend_from_slice(extra);
-    let o = Command::new(env!("CARGO_BIN_EXE_matup")).args(&args).output().unwrap();
-    assert!(o.status.success(), "{name}: {}", String::from_utf8_lossy(&o.stderr));
-    Row { name: name.to_string(), output, report: serde_json::from_slice(&o.stdout).unwrap() }
+    let o = Command::new(env!("CARGO_BIN_EXE_matup"))
+        .args(&args)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "{name}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    Row {
+        name: name.to_string(),
+        output,
+        report: serde_json::from_slice(&o.stdout).unwrap(),
+    }
 }
 
 /// A shared material box-filtered to `size`², saved as PNG in a temporary folder.
 fn downsampled(name: &str, size: usize) -> tempfile::TempDir {
-    let m = load_material(Some(&repo().join("../shared/materials").join(name)), &LoadOptions::default()).unwrap();
+    let m = load_material(
+        Some(&repo().join("../shared/materials").join(name)),
+        &LoadOptions::default(),
+    )
+    .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    save_material(&m.box_downsample(m.width() / size), dir.path(), &SaveOptions::default()).unwrap();
+    save_material(
+        &m.box_downsample(m.width() / size),
+        dir.path(),
+        &SaveOptions::default(),
+    )
+    .unwrap();
     dir
 }
 
 fn stage(report: &serde_json::Value, suffix: &str) -> f64 {
-    report["timings"].as_array().unwrap().iter().filter(|t| t[0].as_str().unwrap().ends_with(suffix)).map(|t| t[1].as_f64().unwrap()).sum()
+    report["timings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|t| t[0].as_str().unwrap().ends_with(suffix))
+        .map(|t| t[1].as_f64().unwrap())
+        .sum()
 }
 
 fn main() {
@@ -56,11 +90,21 @@ fn main() {
     )];
     for lr in [64, 128, 256] {
         let dir = downsampled("polyhaven_wood_cabinet_worn_long", lr);
-        rows.push(run(&format!("wood {lr}²→{}², 1 epoch", 4 * lr), dir.path(), 4 * lr, &["--epochs", "1"]));
+        rows.push(run(
+            &format!("wood {lr}²→{}², 1 epoch", 4 * lr),
+            dir.path(),
+            4 * lr,
+            &["--epochs", "1"],
+        ));
     }
     if std::env::var("MATUP_BENCH_4K").is_ok_and(|v| v == "1") {
         let dir = downsampled("polyhaven_wood_cabinet_worn_long", 1024);
-        rows.push(run("wood 1K²→4K², 1 epoch of 262144 texels", dir.path(), 4096, &["--epochs", "1", "--texels-per-epoch", "262144"]));
+        rows.push(run(
+            "wood 1K²→4K², 1 epoch of 262144 texels",
+            dir.path(),
+            4096,
+            &["--epochs", "1", "--texels-per-epoch", "262144"],
+        ));
     }
 
     println!("\nmatup upscale, {cores} cores (times in seconds; per-megatexel figures are per output megatexel)\n");
@@ -70,8 +114,13 @@ fn main() {
         let r = &row.report;
         let megatexels = (row.output * row.output) as f64 / 1e6;
         let train = stage(r, "train");
-        let trained_epochs = r["levels"][0]["training"]["epoch_losses"].as_array().map_or(1, |e| e.len()).max(1) as f64;
-        let texels_per_epoch = r["config"]["train"]["texels_per_epoch"].as_f64().map_or(megatexels, |t| t / 1e6);
+        let trained_epochs = r["levels"][0]["training"]["epoch_losses"]
+            .as_array()
+            .map_or(1, |e| e.len())
+            .max(1) as f64;
+        let texels_per_epoch = r["config"]["train"]["texels_per_epoch"]
+            .as_f64()
+            .map_or(megatexels, |t| t / 1e6);
         let total = r["total_seconds"].as_f64().unwrap();
         println!(
             "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",

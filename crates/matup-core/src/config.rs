@@ -184,6 +184,20 @@ impl Default for LightsConfig {
     }
 }
 
+impl LightsConfig {
+    /// The training light set these settings describe.
+    pub fn build(&self) -> Vec<crate::lights::Light> {
+        crate::lights::LightSetSpec {
+            count: self.count,
+            distance: self.distance,
+            intensity: self.intensity,
+            falloff: self.falloff,
+            ..Default::default()
+        }
+        .build()
+    }
+}
+
 /// The per-material filter.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

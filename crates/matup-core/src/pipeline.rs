@@ -14,7 +14,7 @@ use crate::config::{Chain, Config};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
 use crate::height::reconstruct_height;
-use crate::lights::{Light, LightSetSpec};
+use crate::lights::Light;
 use crate::map::Map;
 use crate::material::{alpha_from_roughness, Material};
 use crate::progress::Progress;
@@ -160,14 +160,7 @@ pub fn upscale(
     if material.anisotropy.is_some() || material.anisotropy_angle.is_some() {
         skipped.push("anisotropy maps: upsampled bilinearly, not learned".to_string());
     }
-    let lights = LightSetSpec {
-        count: config.lights.count,
-        distance: config.lights.distance,
-        intensity: config.lights.intensity,
-        falloff: config.lights.falloff,
-        ..Default::default()
-    }
-    .build();
+    let lights = config.lights.build();
     let ctx = Context {
         config,
         model,
@@ -547,14 +540,7 @@ pub fn preview(
         }
     };
     let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
-    let lights = LightSetSpec {
-        count: config.lights.count,
-        distance: config.lights.distance,
-        intensity: config.lights.intensity,
-        falloff: config.lights.falloff,
-        ..Default::default()
-    }
-    .build();
+    let lights = config.lights.build();
     // A high light and a low one: shading detail shows at grazing angles.
     let by_height = |a: &&Light, b: &&Light| a.position[2].total_cmp(&b.position[2]);
     let high = *lights.iter().max_by(by_height).unwrap();

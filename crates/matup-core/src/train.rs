@@ -35,7 +35,10 @@ pub struct Targets {
 impl Targets {
     /// Room for `texels × lights` targets, all 0.
     pub fn new(texels: usize, lights: usize) -> Targets {
-        Targets { lights, data: vec![0; texels * lights * 3] }
+        Targets {
+            lights,
+            data: vec![0; texels * lights * 3],
+        }
     }
 
     /// Quantises display-space renders (one map per light) by rounding.
@@ -49,13 +52,17 @@ impl Targets {
     pub fn fill(&mut self, first: usize, renders: &[Map]) {
         let lights = self.lights;
         assert!(first + renders.len() <= lights, "more renders than lights");
-        self.data.par_chunks_mut(lights * 3).enumerate().for_each(|(t, row)| {
-            for (l, r) in renders.iter().enumerate() {
-                for c in 0..3 {
-                    row[(first + l) * 3 + c] = (r.plane(c)[t].clamp(0.0, 1.0) * 255.0).round() as u8;
+        self.data
+            .par_chunks_mut(lights * 3)
+            .enumerate()
+            .for_each(|(t, row)| {
+                for (l, r) in renders.iter().enumerate() {
+                    for c in 0..3 {
+                        row[(first + l) * 3 + c] =
+                            (r.plane(c)[t].clamp(0.0, 1.0) * 255.0).round() as u8;
+                    }
                 }
-            }
-        });
+            });
     }
 
     /// The targets of one texel as f32, written into `out`.
@@ -190,19 +197,6 @@ struct Consistency {
     gradient: Mutex<Option<Vec<f32>>>,
 }
 
-/// The 7 features of a decoded texel, in [`FEATURES`] order.
-fn decoded_features(p: &Svbrdf) -> [f32; FEATURES] {
-    [
-        p.base_color[0],
-        p.base_color[1],
-        p.base_color[2],
-        p.metallic,
-        p.normal[0],
-        p.normal[1],
-        p.alpha,
-    ]
-}
-
 impl candle_core::CustomOp1 for Consistency {
     fn name(&self) -> &'static str {
         "matup-lr-consistency"
@@ -238,7 +232,7 @@ impl candle_core::CustomOp1 for Consistency {
             let want: [f32; FEATURES] = ex.features.texel(parent);
             let mut diff = [0f32; FEATURES];
             for d in &decoded {
-                let f = decoded_features(&d.params);
+                let f = d.features();
                 for k in 0..FEATURES {
                     diff[k] += f[k] / n as f32;
                 }
@@ -671,21 +665,4 @@ fn batch_loss(
         metallic_weight,
     };
     Ok(raw.apply_op1(TexelLossOp::new(objective))?.mean_all()?)
-}
-
-/// The mean objective of the current filter over `indices` (no gradient), for reporting.
-pub fn evaluate(
-    filter: &Filter,
-    examples: &Arc<Examples>,
-    shading: &Shading,
-    fixed: [Option<f32>; FEATURES],
-    metallic_weight: f32,
-    indices: &[usize],
-) -> Result<f64> {
-    let mut total = 0.0;
-    for chunk in indices.chunks(4096) {
-        let loss = batch_loss(filter, examples, shading, fixed, metallic_weight, chunk)?;
-        total += loss.to_scalar::<f32>()? as f64 * chunk.len() as f64;
-    }
-    Ok(total / indices.len().max(1) as f64)
 }

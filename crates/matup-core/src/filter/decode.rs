@@ -91,6 +91,21 @@ pub fn decode(raw: &[f32], base: &[f32], fixed: &[Option<f32>; FEATURES]) -> Dec
 }
 
 impl Decoded {
+    /// The decoded texel as the 7 features, in [`FEATURES`] order (normal x and y after the
+    /// rebuild).
+    pub fn features(&self) -> [f32; FEATURES] {
+        let p = &self.params;
+        [
+            p.base_color[0],
+            p.base_color[1],
+            p.base_color[2],
+            p.metallic,
+            p.normal[0],
+            p.normal[1],
+            p.alpha,
+        ]
+    }
+
     /// The gradient with respect to the raw residuals, given the gradient with respect to the
     /// decoded parameters.
     #[inline]
