@@ -137,6 +137,10 @@ pub struct Shading {
     pub norm: LossNorm,
 }
 
+thread_local! {
+    static TARGETS: std::cell::RefCell<Vec<[f32; 3]>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
 /// METHOD.md's objective for one batch: per texel, the render loss over the lights divided by
 /// their number, plus `α (m_bilinear − m)²`.
 struct FilterObjective {
@@ -159,21 +163,24 @@ impl TexelObjective for FilterObjective {
         let t = self.batch[i];
         let base: [f32; FEATURES] = ex.residual_base.texel(t);
         let decoded = decode(row, &base, &self.fixed);
-        let mut targets = Vec::with_capacity(ex.targets.lights);
-        ex.targets.texel(t, &mut targets);
         let texel = Texel {
             params: decoded.params,
             position: texel_position(t, ex.width, ex.height, ex.heights.as_ref()),
         };
         let mut g = Svbrdf::default();
         let scale = 1.0 / self.shading.lights.len() as f32;
-        let fit = self.shading.model.texel_loss(
-            &texel,
-            &self.shading.lights,
-            &targets,
-            &self.shading.norm,
-            Some(&mut g),
-        );
+        // The targets of one texel as f32, in a buffer each thread reuses.
+        let fit = TARGETS.with(|buffer| {
+            let mut targets = buffer.borrow_mut();
+            ex.targets.texel(t, &mut targets);
+            self.shading.model.texel_loss(
+                &texel,
+                &self.shading.lights,
+                &targets,
+                &self.shading.norm,
+                Some(&mut g),
+            )
+        });
         let mut g_scaled = Svbrdf::default();
         g_scaled.add_scaled(&g, scale);
         let diff = ex.metallic_bilinear.data()[t] - decoded.params.metallic;

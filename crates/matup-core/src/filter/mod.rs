@@ -1,6 +1,7 @@
 //! The per-material filter: an MLP reading a window of upsampled LR maps around each output
 //! texel and answering a residual on its 7 features (METHOD.md).
 
+pub mod activation;
 pub mod decode;
 pub mod folded;
 pub mod geometry;
@@ -91,8 +92,8 @@ impl Filter {
 
     fn activate(&self, x: &Tensor) -> Result<Tensor> {
         Ok(match self.activation {
-            Activation::LeakyRelu(slope) => x.maximum(&x.affine(slope as f64, 0.0)?)?,
-            Activation::Relu => x.relu()?,
+            Activation::LeakyRelu(slope) => x.apply_op1(activation::LeakyRelu(slope))?,
+            Activation::Relu => x.apply_op1(activation::LeakyRelu(0.0))?,
             Activation::Gelu => x.gelu()?,
             Activation::Silu => x.silu()?,
         })
