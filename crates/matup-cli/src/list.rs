@@ -14,6 +14,20 @@ pub fn run() -> anyhow::Result<()> {
     for r in upsamplers()? {
         print_entry(r.name, r.description, r.options);
     }
+    #[cfg(feature = "onnx")]
+    {
+        println!();
+        println!("Models for onnx:NAME (folders: $MATUP_MODELS, --models-dir, ./models, matup's models/):");
+        for (name, path, info) in matup_upsamplers::onnx::available_models() {
+            println!(
+                "  {name:<20} ×{} {} [{}] {}",
+                info.scale,
+                info.description,
+                info.licence,
+                path.display()
+            );
+        }
+    }
     println!();
     println!("Shading models (--shading NAME[:OPTIONS]):");
     for r in shading_models()? {

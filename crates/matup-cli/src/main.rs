@@ -28,6 +28,9 @@ use matup_upsamplers as _;
     about = "Upsample physically based materials (SVBRDF maps)"
 )]
 struct Cli {
+    /// A folder of ONNX models (with sidecars), searched first for onnx:NAME.
+    #[arg(long, global = true, value_name = "DIR")]
+    models_dir: Option<std::path::PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -63,6 +66,21 @@ fn configure_threads() {
 fn main() -> ExitCode {
     configure_threads();
     let cli = Cli::parse();
+    if let Some(dir) = &cli.models_dir {
+        let mut dirs = vec![dir.clone()];
+        dirs.extend(
+            std::env::var_os("MATUP_MODELS")
+                .map(|v| std::env::split_paths(&v).collect::<Vec<_>>())
+                .unwrap_or_default(),
+        );
+        // SAFETY: no thread of ours reads the environment concurrently (the pool is idle).
+        unsafe {
+            std::env::set_var(
+                "MATUP_MODELS",
+                std::env::join_paths(dirs).expect("folder names without separators"),
+            )
+        };
+    }
     let result = match cli.command {
         Command::List => list::run(),
         Command::Upscale(args) => upscale::run(&args),

@@ -272,7 +272,8 @@ pub struct Config {
     /// 2, 3 or 4 (one level), or 16 (two ×4 levels).
     pub scale: usize,
     pub chain: Chain,
-    /// The RGB upsampler of the renders (`NAME[:ARGUMENT]`).
+    /// The RGB upsampler of the renders (`NAME[:ARGUMENT]`), or `auto`: the best the build
+    /// has ([`AUTO_UPSAMPLERS`], first that loads and fits the scale).
     pub upsampler: String,
     /// The shading model (`NAME[:OPTIONS]`).
     pub shading: String,
@@ -291,7 +292,7 @@ impl Default for Config {
         Config {
             scale: 4,
             chain: Chain::TwoLevel,
-            upsampler: "lanczos3".into(),
+            upsampler: "auto".into(),
             shading: "ggx".into(),
             tileable: None,
             skip: true,
@@ -302,6 +303,9 @@ impl Default for Config {
         }
     }
 }
+
+/// What `upsampler = "auto"` tries, best first: the shipped SR network, then Lanczos.
+pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
 
 /// The scales one level of the method handles.
 pub const LEVEL_SCALES: [usize; 3] = [2, 3, 4];

@@ -10,7 +10,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::config::{Chain, Config};
+use crate::config::{Chain, Config, AUTO_UPSAMPLERS};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
 use crate::height::reconstruct_height;
@@ -39,6 +39,8 @@ pub struct RunReport {
     pub input_size: [usize; 2],
     pub output_size: [usize; 2],
     pub config: Config,
+    /// The RGB upsampler that ran (what `auto` chose).
+    pub upsampler_used: String,
     pub tileable: bool,
     /// The seam ratio the tileability was detected from (absent when it was given).
     pub seam_ratio: Option<f32>,
@@ -132,11 +134,7 @@ pub fn upscale(
 
     let model: Arc<dyn ShadingModel> =
         Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
-    let upsampler_spec: PluginSpec = config.upsampler.parse()?;
-    let upsampler = upsampler(&upsampler_spec)?;
-    for &s in &config.levels() {
-        check_scale(&upsampler_spec.name, upsampler.as_ref(), s)?;
-    }
+    let (upsampler_used, upsampler) = choose_upsampler(config)?;
     let (tileable, seam) = match config.tileable {
         Some(t) => (t, None),
         None => {
@@ -230,6 +228,7 @@ pub fn upscale(
         input_size: [material.width(), material.height_px()],
         output_size: [current.width(), current.height_px()],
         config: config.clone(),
+        upsampler_used,
         tileable,
         seam_ratio: seam,
         levels,
@@ -241,6 +240,30 @@ pub fn upscale(
         threads: rayon::current_num_threads(),
     };
     Ok((current, report))
+}
+
+/// The configured upsampler, or for `auto` the first of [`AUTO_UPSAMPLERS`] that loads and
+/// supports every level's scale.
+fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
+    let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
+        let spec: PluginSpec = spec.parse()?;
+        let up = upsampler(&spec)?;
+        for &s in &config.levels() {
+            check_scale(&spec.name, up.as_ref(), s)?;
+        }
+        Ok(up)
+    };
+    if config.upsampler != "auto" {
+        return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
+    }
+    let mut last = None;
+    for spec in AUTO_UPSAMPLERS {
+        match fits(spec) {
+            Ok(up) => return Ok((spec.to_string(), up)),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.expect("AUTO_UPSAMPLERS is not empty"))
 }
 
 /// A digest of what a level's training depends on, so a checkpoint is resumed only for the

@@ -1,5 +1,9 @@
 //! matup's built-in RGB upsamplers, each registered with `inventory`: `bilinear`, `bicubic`
-//! and `lanczos3`, at any integer scale, on matup-core's shared resampling kernels.
+//! and `lanczos3`, at any integer scale, on matup-core's shared resampling kernels; and, with
+//! the `onnx` feature (on by default), `onnx`: pre-trained super-resolution networks.
+
+#[cfg(feature = "onnx")]
+pub mod onnx;
 
 use matup_core::plugin::{option_value, parse_options, PluginOption};
 use matup_core::resample::{upsample, Border, Kernel};

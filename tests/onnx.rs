@@ -1,0 +1,229 @@
+//! Pre-trained SR networks as upsamplers (the `onnx` feature, on by default).
+#![cfg(feature = "onnx")]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use matup::render::{render, RenderOptions};
+use matup::{shading_model, upsampler, Border, Light, Map, PluginSpec, RgbUpsampler};
+
+/// A 64² render of the shipped sample under a light from the side.
+fn real_render() -> Map {
+    let m = matup::load_material(Some(&common::sample_material()), &Default::default()).unwrap();
+    let m = m.crop(32, 32, 64, 64);
+    let model = shading_model(&PluginSpec::new("ggx")).unwrap();
+    let light = Light {
+        position: [0.6, -0.4, 1.2],
+        intensity: 8.0,
+        falloff: false,
+    };
+    render(&m, model.as_ref(), &[light], RenderOptions::default()).remove(0)
+}
+
+fn build(spec: &str) -> Box<dyn RgbUpsampler> {
+    upsampler(&spec.parse::<PluginSpec>().unwrap()).unwrap_or_else(|e| panic!("{spec}: {e}"))
+}
+
+fn max_abs_diff(a: &Map, b: &Map) -> f32 {
+    a.data()
+        .iter()
+        .zip(b.data())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+fn shared_model(name: &str, scale: usize, overlap: usize) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(format!("{name}.onnx"));
+    std::fs::copy(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/models")
+            .join(format!("{name}.onnx")),
+        &path,
+    )
+    .unwrap();
+    std::fs::write(
+        path.with_extension("toml"),
+        format!("scale = {scale}\noverlap = {overlap}\ntile = 64\n"),
+    )
+    .unwrap();
+    (dir, path)
+}
+
+/// Upsamples `image` and checks size, range, colour (per-channel means kept) and that the
+/// result is an upsample of it: mean |SR − bicubic| below `max_from_bicubic`.
+fn check_upsamples(
+    name: &str,
+    up: &dyn RgbUpsampler,
+    scale: usize,
+    image: &Map,
+    max_from_bicubic: f32,
+    max_colour_shift: f32,
+) {
+    let out = up
+        .upsample(std::slice::from_ref(image), scale, Border::Mirror)
+        .unwrap()
+        .remove(0);
+    assert_eq!((out.width(), out.height()), (64 * scale, 64 * scale));
+    assert!(out
+        .data()
+        .iter()
+        .all(|v| v.is_finite() && (0.0..=1.0).contains(v)));
+    for c in 0..3 {
+        let shift = (out.mean(c) - image.mean(c)).abs();
+        println!("{name}: channel {c} mean shift {shift:.4}");
+        assert!(
+            shift < max_colour_shift,
+            "{name}: channel {c} mean {} vs {}",
+            out.mean(c),
+            image.mean(c)
+        );
+    }
+    let bicubic = build("bicubic")
+        .upsample(std::slice::from_ref(image), scale, Border::Mirror)
+        .unwrap()
+        .remove(0);
+    let mean: f32 = out
+        .data()
+        .iter()
+        .zip(bicubic.data())
+        .map(|(a, b)| (a - b).abs())
+        .sum::<f32>()
+        / out.data().len() as f32;
+    println!("{name}: mean |SR − bicubic| {mean:.4}");
+    assert!(
+        mean < max_from_bicubic,
+        "{name}: mean |SR − bicubic| {mean}"
+    );
+}
+
+#[test]
+fn every_model_loads_and_upsamples_a_real_render() {
+    let image = real_render();
+    // SPAN is PSNR-oriented: near bicubic, colours kept. Real-ESRGAN (a GAN trained on
+    // real-world degradations) smooths noise, invents edges and mutes colours a little: the
+    // colour drift users report of SR networks, and a reason matup fits in radiance.
+    check_upsamples(
+        "span ×4",
+        build("onnx:span_x4_ch48").as_ref(),
+        4,
+        &image,
+        0.03,
+        0.005,
+    );
+    let (_d, x2) = shared_model("span_x2_ch48", 2, 24);
+    check_upsamples(
+        "span ×2",
+        build(&format!("onnx:{}", x2.display())).as_ref(),
+        2,
+        &image,
+        0.03,
+        0.005,
+    );
+    let (_d, esrgan) = shared_model("realesrgan_x4plus", 4, 16);
+    check_upsamples(
+        "real-esrgan ×4",
+        build(&format!("onnx:{}", esrgan.display())).as_ref(),
+        4,
+        &image,
+        0.1,
+        0.04,
+    );
+}
+
+#[test]
+fn tiles_match_the_whole_image_when_the_overlap_covers_the_receptive_field() {
+    let image = real_render();
+    // SPAN reads 21 LR texels around each output: 24 of context make tiles exact.
+    let whole = build("onnx:span_x4_ch48,tile=64,overlap=24")
+        .upsample(std::slice::from_ref(&image), 4, Border::Mirror)
+        .unwrap()
+        .remove(0);
+    let tiled = build("onnx:span_x4_ch48,tile=24,overlap=24,batch=3")
+        .upsample(std::slice::from_ref(&image), 4, Border::Mirror)
+        .unwrap()
+        .remove(0);
+    let diff = max_abs_diff(&whole, &tiled);
+    assert!(diff <= 2.0 / 255.0, "tiled differs from whole by {diff}");
+}
+
+fn roll(image: &Map, d: usize) -> Map {
+    let (w, h) = (image.width(), image.height());
+    Map::from_fn(w, h, 3, |c, y, x| {
+        image.get(c, (y + h - d) % h, (x + w - d) % w)
+    })
+}
+
+#[test]
+fn wrap_around_tiles_keep_tileable_inputs_tileable() {
+    let image = real_render();
+    let up = build("onnx:span_x4_ch48,tile=32,overlap=24");
+    let a = roll(
+        &up.upsample(std::slice::from_ref(&image), 4, Border::Wrap)
+            .unwrap()
+            .remove(0),
+        4 * 20,
+    );
+    let b = up
+        .upsample(&[roll(&image, 20)], 4, Border::Wrap)
+        .unwrap()
+        .remove(0);
+    let diff = max_abs_diff(&a, &b);
+    assert!(diff <= 2.0 / 255.0, "shifted input, shifted output: {diff}");
+}
+
+fn error_of(spec: &str) -> String {
+    match upsampler(&spec.parse::<PluginSpec>().unwrap()) {
+        Ok(_) => panic!("{spec} should fail"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn bad_models_give_clear_errors() {
+    let e = error_of("onnx:/no/such/model.onnx");
+    assert!(
+        e.contains("/no/such/model.onnx") && e.contains("no such file"),
+        "{e}"
+    );
+    let e = error_of("onnx:no_such_model");
+    assert!(
+        e.contains("no model 'no_such_model'") && e.contains("span_x4_ch48"),
+        "{e}"
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let fake = dir.path().join("fake.onnx");
+    std::fs::write(&fake, b"not a protobuf at all").unwrap();
+    std::fs::write(fake.with_extension("toml"), "scale = 4\n").unwrap();
+    let e = error_of(&format!("onnx:{}", fake.display()));
+    assert!(
+        e.contains("fake.onnx") && e.contains("not a readable ONNX model"),
+        "{e}"
+    );
+
+    let (_d, x2) = shared_model("span_x2_ch48", 4, 8); // the sidecar lies about the scale
+    let e = error_of(&format!("onnx:{}", x2.display()));
+    assert!(
+        e.contains("scale mismatch") && e.contains("×4") && e.contains("16×16"),
+        "{e}"
+    );
+
+    let lonely = dir.path().join("lonely.onnx");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("models/span_x4_ch48.onnx"),
+        &lonely,
+    )
+    .unwrap();
+    let e = error_of(&format!("onnx:{}", lonely.display()));
+    assert!(e.contains("lonely.toml") && e.contains("sidecar"), "{e}");
+
+    // A ×4 network cannot make ×2.
+    let up = build("onnx:span_x4_ch48");
+    let e = up
+        .upsample(&[real_render()], 2, Border::Wrap)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("×2") && e.contains("×4"), "{e}");
+}
