@@ -1,37 +1,63 @@
-//! `matup list`: the registered plugins.
+//! `matup list`: the registered plugins (and the ONNX models found).
+
+use std::io::Write;
 
 use matup_core::{shading_models, upsamplers, PluginOption};
 
-fn print_entry(name: &str, description: &str, options: &[PluginOption]) {
-    println!("  {name:<12} {description}");
+fn print_entry(
+    out: &mut impl Write,
+    name: &str,
+    description: &str,
+    options: &[PluginOption],
+) -> std::io::Result<()> {
+    writeln!(out, "  {name:<12} {description}")?;
     for o in options {
-        println!("  {:<12}   option {}={} : {}", "", o.key, o.default, o.help);
+        writeln!(
+            out,
+            "  {:<12}   option {}={} : {}",
+            "", o.key, o.default, o.help
+        )?;
+    }
+    Ok(())
+}
+
+/// Prints the list; a closed pipe (`matup list | head`) just ends it.
+pub fn run() -> anyhow::Result<()> {
+    match print_list(&mut std::io::stdout().lock()) {
+        Err(e)
+            if e.downcast_ref::<std::io::Error>()
+                .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe) =>
+        {
+            Ok(())
+        }
+        other => other,
     }
 }
 
-pub fn run() -> anyhow::Result<()> {
-    println!("Upsamplers (--upsampler NAME[:OPTIONS]):");
+fn print_list(out: &mut impl Write) -> anyhow::Result<()> {
+    writeln!(out, "Upsamplers (--upsampler NAME[:OPTIONS]):")?;
     for r in upsamplers()? {
-        print_entry(r.name, r.description, r.options);
+        print_entry(out, r.name, r.description, r.options)?;
     }
     #[cfg(feature = "onnx")]
     {
-        println!();
-        println!("Models for onnx:NAME (folders: $MATUP_MODELS, --models-dir, ./models, matup's models/):");
+        writeln!(out)?;
+        writeln!(out, "Models for onnx:NAME (folders: --models-dir, $MATUP_MODELS, ./models, matup's models/):")?;
         for (name, path, info) in matup_upsamplers::onnx::available_models() {
-            println!(
+            writeln!(
+                out,
                 "  {name:<20} ×{} {} [{}] {}",
                 info.scale,
                 info.description,
                 info.licence,
                 path.display()
-            );
+            )?;
         }
     }
-    println!();
-    println!("Shading models (--shading NAME[:OPTIONS]):");
+    writeln!(out)?;
+    writeln!(out, "Shading models (--shading NAME[:OPTIONS]):")?;
     for r in shading_models()? {
-        print_entry(r.name, r.description, r.options);
+        print_entry(out, r.name, r.description, r.options)?;
     }
     Ok(())
 }
