@@ -11,6 +11,17 @@ use crate::lights::Light;
 use crate::loss::LossNorm;
 use crate::shading::{ShadingModel, Svbrdf, Texel};
 
+/// The f32 values of a contiguous CPU tensor, as custom ops receive it (storage and layout).
+pub fn contiguous_f32<'a>(
+    storage: &'a CpuStorage,
+    layout: &Layout,
+) -> candle_core::Result<&'a [f32]> {
+    match layout.contiguous_offsets() {
+        Some((start, end)) => Ok(&storage.as_slice::<f32>()?[start..end]),
+        None => candle_core::bail!("matup's ops need contiguous f32 tensors"),
+    }
+}
+
 /// A loss that is a sum of independent terms, one per texel of a batch, each a function of
 /// that texel's row of parameters.
 pub trait TexelObjective: Send + Sync {
@@ -67,10 +78,7 @@ impl<T: TexelObjective> CustomOp1 for TexelLossOp<T> {
         if dims != [b, w] {
             candle_core::bail!("texel loss expects [{b}, {w}] parameters, got {dims:?}");
         }
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("texel loss needs contiguous parameters");
-        };
-        let (losses, grads) = self.evaluate(&storage.as_slice::<f32>()?[start..end]);
+        let (losses, grads) = self.evaluate(contiguous_f32(storage, layout)?);
         *self.gradient.lock().unwrap() = Some(grads);
         Ok((CpuStorage::F32(losses), Shape::from(b)))
     }

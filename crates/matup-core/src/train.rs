@@ -18,7 +18,7 @@ use crate::lights::Light;
 use crate::loss::LossNorm;
 use crate::map::Map;
 use crate::material::texel_position;
-use crate::op::{TexelLossOp, TexelObjective};
+use crate::op::{contiguous_f32, TexelLossOp, TexelObjective};
 use crate::progress::Progress;
 use crate::resample::Border;
 use crate::shading::{ShadingModel, Svbrdf, Texel};
@@ -214,10 +214,7 @@ impl candle_core::CustomOp1 for Consistency {
         storage: &CpuStorage,
         layout: &Layout,
     ) -> candle_core::Result<(CpuStorage, candle_core::Shape)> {
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("consistency needs contiguous input");
-        };
-        let raw = &storage.as_slice::<f32>()?[start..end];
+        let raw = contiguous_f32(storage, layout)?;
         let ex = &self.examples;
         let n = self.group_size;
         let mut grads = vec![0f32; raw.len()];
@@ -400,9 +397,8 @@ impl Adam {
             let Storage::Cpu(cpu) = &*storage else {
                 return Err(Error::Invalid("adam runs on CPU tensors".into()));
             };
-            let (start, end) = layout.contiguous_offsets().expect("made contiguous above");
             let update = AdamUpdate {
-                grad: &cpu.as_slice::<f32>()?[start..end],
+                grad: contiguous_f32(cpu, layout)?,
                 moments,
                 learning_rate: learning_rate as f32,
                 step: self.step,

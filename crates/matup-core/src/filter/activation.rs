@@ -4,15 +4,10 @@
 
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 
+use crate::op::contiguous_f32;
+
 /// `max(x, slope·x)` for 0 ≤ slope < 1 (ReLU at 0).
 pub struct LeakyRelu(pub f32);
-
-fn contiguous<'a>(storage: &'a CpuStorage, layout: &Layout) -> candle_core::Result<&'a [f32]> {
-    match layout.contiguous_offsets() {
-        Some((start, end)) => Ok(&storage.as_slice::<f32>()?[start..end]),
-        None => candle_core::bail!("leaky relu needs a contiguous f32 tensor"),
-    }
-}
 
 impl CustomOp1 for LeakyRelu {
     fn name(&self) -> &'static str {
@@ -25,7 +20,7 @@ impl CustomOp1 for LeakyRelu {
         layout: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let slope = self.0;
-        let out = contiguous(storage, layout)?
+        let out = contiguous_f32(storage, layout)?
             .iter()
             .map(|&x| if x > 0.0 { x } else { slope * x })
             .collect();
@@ -46,9 +41,9 @@ impl CustomOp1 for LeakyRelu {
         let (candle_core::Storage::Cpu(xs), candle_core::Storage::Cpu(gs)) = (&*xs, &*gs) else {
             candle_core::bail!("leaky relu runs on the CPU");
         };
-        let grad = contiguous(xs, xl)?
+        let grad = contiguous_f32(xs, xl)?
             .iter()
-            .zip(contiguous(gs, gl)?)
+            .zip(contiguous_f32(gs, gl)?)
             .map(|(&x, &g)| if x > 0.0 { g } else { slope * g })
             .collect();
         Ok(Some(Tensor::from_vec(grad, arg.shape(), arg.device())?))

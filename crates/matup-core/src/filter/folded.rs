@@ -293,10 +293,7 @@ impl CustomOp1 for FoldedLinear {
         storage: &CpuStorage,
         layout: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("folded layer needs contiguous weights");
-        };
-        let weights = &storage.as_slice::<f32>()?[start..end];
+        let weights = crate::op::contiguous_f32(storage, layout)?;
         if weights.len() != self.layer.weight_len() {
             candle_core::bail!(
                 "folded layer expects {} weights, got {}",
