@@ -16,18 +16,6 @@ fn sample() -> Material {
     load(&common::sample_material()).unwrap()
 }
 
-fn max_abs_diff(a: &Map, b: &Map) -> f32 {
-    assert_eq!(
-        (a.width(), a.height(), a.channels()),
-        (b.width(), b.height(), b.channels())
-    );
-    a.data()
-        .iter()
-        .zip(b.data())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
-}
-
 /// Mean angle between two unit normal maps, in degrees.
 fn mean_angle_degrees(a: &Map, b: &Map) -> f64 {
     let n = a.texels();
@@ -117,7 +105,7 @@ fn base_colour_is_decoded_from_srgb() {
     let dir = saved(&m, FileFormat::ExrFloat, NormalConvention::DirectX);
     let from_exr = load(dir.path()).unwrap();
     // EXR stores linear values: what was decoded from sRGB comes back unchanged.
-    assert!(max_abs_diff(&m.base_color, &from_exr.base_color) < 1e-6);
+    assert!(common::max_abs_diff(&m.base_color, &from_exr.base_color) < 1e-6);
     // An sRGB mid-grey (128/255) is linear 0.2158.
     assert!((matup::color::srgb_to_linear(128.0 / 255.0) - 0.2158).abs() < 1e-4);
 }
@@ -202,7 +190,7 @@ fn ambientcg_names_with_both_normal_conventions() {
     assert!(mean_angle_degrees(&default.normal, &m.normal) < 0.3);
     assert!(mean_angle_degrees(&opengl.normal, &m.normal) < 0.3);
     // JPEG is lossy, but close.
-    assert!(max_abs_diff(&default.base_color, &m.base_color) < 0.08);
+    assert!(common::max_abs_diff(&default.base_color, &m.base_color) < 0.08);
 }
 
 #[test]
@@ -293,8 +281,8 @@ fn polyhaven_names_with_packed_arm_and_exr_normal() {
         "wood_cabinet_arm_1k.png"
     );
     assert!(mean_angle_degrees(&loaded.normal, &m.normal) < 0.1);
-    assert!(max_abs_diff(&loaded.roughness, &m.roughness) < 0.5 / 255.0 + 1e-6);
-    assert!(max_abs_diff(&loaded.metallic, &m.metallic) < 0.5 / 255.0 + 1e-6);
+    assert!(common::max_abs_diff(&loaded.roughness, &m.roughness) < 0.5 / 255.0 + 1e-6);
+    assert!(common::max_abs_diff(&loaded.metallic, &m.metallic) < 0.5 / 255.0 + 1e-6);
 }
 
 #[test]
@@ -319,7 +307,7 @@ fn gloss_becomes_roughness_and_explicit_paths_win() {
         .save(dir.path().join("gloss.png"))
         .unwrap();
     let loaded = load(dir.path()).unwrap();
-    assert!(max_abs_diff(&loaded.roughness, &m.roughness) < 0.5 / 255.0 + 1e-6);
+    assert!(common::max_abs_diff(&loaded.roughness, &m.roughness) < 0.5 / 255.0 + 1e-6);
 
     // An explicit roughness file wins over the gloss map found in the folder.
     let other = tempfile::tempdir().unwrap();
@@ -357,7 +345,7 @@ fn formats_round_trip_and_are_kept_on_save() {
         let dir = saved(&m, format, NormalConvention::DirectX);
         let back = load(dir.path()).unwrap();
         for kind in [MapKind::Roughness, MapKind::Metallic, MapKind::Height] {
-            let d = max_abs_diff(back.map(kind).unwrap(), m.map(kind).unwrap());
+            let d = common::max_abs_diff(back.map(kind).unwrap(), m.map(kind).unwrap());
             assert!(d <= tolerance, "{format} {kind}: {d}");
         }
         assert!(

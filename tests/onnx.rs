@@ -25,14 +25,6 @@ fn build(spec: &str) -> Box<dyn RgbUpsampler> {
     upsampler(&spec.parse::<PluginSpec>().unwrap()).unwrap_or_else(|e| panic!("{spec}: {e}"))
 }
 
-fn max_abs_diff(a: &Map, b: &Map) -> f32 {
-    a.data()
-        .iter()
-        .zip(b.data())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
-}
-
 fn shared_model(name: &str, scale: usize, overlap: usize) -> (tempfile::TempDir, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join(format!("{name}.onnx"));
@@ -144,7 +136,7 @@ fn tiles_match_the_whole_image_when_the_overlap_covers_the_receptive_field() {
         .upsample(std::slice::from_ref(&image), 4, Border::Mirror)
         .unwrap()
         .remove(0);
-    let diff = max_abs_diff(&whole, &tiled);
+    let diff = common::max_abs_diff(&whole, &tiled);
     assert!(diff <= 2.0 / 255.0, "tiled differs from whole by {diff}");
 }
 
@@ -169,7 +161,7 @@ fn wrap_around_tiles_keep_tileable_inputs_tileable() {
         .upsample(&[roll(&image, 20)], 4, Border::Wrap)
         .unwrap()
         .remove(0);
-    let diff = max_abs_diff(&a, &b);
+    let diff = common::max_abs_diff(&a, &b);
     assert!(diff <= 2.0 / 255.0, "shifted input, shifted output: {diff}");
 }
 

@@ -148,12 +148,7 @@ fn supersampling_a_constant_material_changes_nothing() {
     );
     let fine = render(&m, model.as_ref(), &lights[..8], RenderOptions::default());
     for (a, b) in plain.iter().zip(&fine) {
-        let worst = a
-            .data()
-            .iter()
-            .zip(b.data())
-            .map(|(x, y)| (x - y).abs())
-            .fold(0.0, f32::max);
+        let worst = common::max_abs_diff(a, b);
         // Only the sub-texel positions differ, and the lighting varies slowly across a texel.
         assert!(worst < 5e-3, "{worst}");
     }

@@ -328,6 +328,33 @@ fn feather(u: f32, core: f32, margin: f32) -> f32 {
     (d / margin).clamp(0.0, 1.0)
 }
 
+/// Along one axis of a tile whose core starts at LR texel `origin` and is `core` long (read
+/// with `overlap` texels of context, keeping `margin` of them), the output texels that land in
+/// the image (`len` LR texels, ×`scale`): (index in the tile's output, index in the image's
+/// output, feathering weight).
+fn kept_texels(
+    origin: usize,
+    core: usize,
+    len: usize,
+    overlap: usize,
+    margin: usize,
+    scale: usize,
+) -> Vec<(usize, usize, f32)> {
+    (0..(core + 2 * overlap) * scale)
+        .filter_map(|t| {
+            // LR coordinate of this output texel relative to the tile's core.
+            let u = (t as f32 + 0.5) / scale as f32 - overlap as f32;
+            let weight = feather(u, core as f32, margin as f32);
+            let global = (origin * scale + t) as isize - (overlap * scale) as isize;
+            (weight > 0.0 && global >= 0 && global < (len * scale) as isize).then_some((
+                t,
+                global as usize,
+                weight,
+            ))
+        })
+        .collect()
+}
+
 impl RgbUpsampler for OnnxUpsampler {
     fn native_scale(&self) -> Option<usize> {
         Some(self.info.scale)
@@ -374,22 +401,11 @@ impl RgbUpsampler for OnnxUpsampler {
                     .collect();
                 let outputs = self.run_batch(&tiles, ph, pw)?;
                 for (&(y0, x0), out) in group.iter().zip(&outputs) {
-                    for oy in 0..ph * s {
-                        // LR coordinate of this output row relative to the tile's core.
-                        let u = (oy as f32 + 0.5) / s as f32 - o as f32;
-                        let wy = feather(u, th as f32, margin as f32);
-                        let gy = (y0 * s + oy) as isize - (o * s) as isize;
-                        if wy <= 0.0 || gy < 0 || gy >= (h * s) as isize {
-                            continue;
-                        }
-                        for ox in 0..pw * s {
-                            let v = (ox as f32 + 0.5) / s as f32 - o as f32;
-                            let wx = feather(v, tw as f32, margin as f32);
-                            let gx = (x0 * s + ox) as isize - (o * s) as isize;
-                            if wx <= 0.0 || gx < 0 || gx >= (w * s) as isize {
-                                continue;
-                            }
-                            let k = gy as usize * w * s + gx as usize;
+                    let rows = kept_texels(y0, th, h, o, margin, s);
+                    let columns = kept_texels(x0, tw, w, o, margin, s);
+                    for &(oy, gy, wy) in &rows {
+                        for &(ox, gx, wx) in &columns {
+                            let k = gy * w * s + gx;
                             let wt = wy * wx;
                             weight[k] += wt;
                             for c in 0..3 {
