@@ -93,7 +93,7 @@ mod tests {
         let image = Map::from_fn(9, 6, 3, |c, _, _| [0.2, 0.5, 0.9][c]);
         for name in ["bilinear", "bicubic", "lanczos3"] {
             for border in [Border::Wrap, Border::Clamp, Border::Mirror] {
-                let out = build(name).upsample(&[image.clone()], 4, border).unwrap();
+                let out = build(name).upsample(std::slice::from_ref(&image), 4, border).unwrap();
                 for c in 0..3 {
                     let want = [0.2, 0.5, 0.9][c];
                     let worst = out[0]
@@ -114,7 +114,7 @@ mod tests {
         for name in ["bilinear", "bicubic"] {
             for scale in [2, 3, 4] {
                 let out = &build(name)
-                    .upsample(&[image.clone()], scale, Border::Clamp)
+                    .upsample(std::slice::from_ref(&image), scale, Border::Clamp)
                     .unwrap()[0];
                 let margin = 2 * scale;
                 let mut worst = 0f32;
@@ -150,7 +150,7 @@ mod tests {
         for name in ["bilinear", "bicubic", "lanczos3"] {
             let up = |m: &Map, border| {
                 build(name)
-                    .upsample(&[m.clone()], scale, border)
+                    .upsample(std::slice::from_ref(m), scale, border)
                     .unwrap()
                     .remove(0)
             };

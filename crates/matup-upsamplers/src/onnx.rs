@@ -10,13 +10,14 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex};
 
 use matup_core::plugin::{option_value, parse_options, PluginOption};
 use matup_core::resample::Border;
 use matup_core::upsample::{RgbUpsampler, UpsamplerRegistration};
 use matup_core::{Error, Map, Result};
 use serde::Deserialize;
+use tract_linalg::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::prelude::*;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
@@ -153,6 +154,7 @@ pub struct OnnxUpsampler {
     pub info: ModelInfo,
     model: InferenceModel,
     plans: Mutex<HashMap<[usize; 3], Plan>>,
+    executor: Executor,
 }
 
 fn model_error(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
@@ -162,17 +164,15 @@ fn model_error(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
     }
 }
 
-/// tract's matrix products on every core, once per process.
-fn use_all_cores() {
-    static DONE: OnceLock<()> = OnceLock::new();
-    DONE.get_or_init(|| {
-        let n = std::thread::available_parallelism().map_or(1, |n| n.get());
-        if n > 1 {
-            tract_linalg::multithread::set_default_executor(
-                tract_linalg::multithread::Executor::multithread(n),
-            );
-        }
-    });
+/// tract's matrix products split across `threads` threads (measured on 2 cores: SPAN ×4 on a
+/// 128² render took 0.74 s on one thread, 0.35 s on two). Running tiles concurrently on
+/// single-threaded plans measured the same, so the simpler multithreaded product is used.
+fn executor(threads: usize) -> Executor {
+    if threads > 1 {
+        Executor::multithread_with_name(threads, "matup-onnx")
+    } else {
+        Executor::SingleThread
+    }
 }
 
 impl OnnxUpsampler {
@@ -193,7 +193,6 @@ impl OnnxUpsampler {
                 "scale, tile and batch must be positive, channel_order rgb or bgr",
             ));
         }
-        use_all_cores();
         let model = tract_onnx::onnx()
             .model_for_path(path)
             .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
@@ -213,6 +212,8 @@ impl OnnxUpsampler {
             info,
             model,
             plans: Mutex::new(HashMap::new()),
+            // As many as the pool matup runs on (`RAYON_NUM_THREADS`, or one per core).
+            executor: executor(rayon::current_num_threads()),
         };
         // Probe: the output must be the input times the sidecar's scale, 3 channels.
         let probe = Map::filled(8, 8, 3, 0.5);
@@ -275,9 +276,9 @@ impl OnnxUpsampler {
             .map_err(|e| model_error(&self.path, "input", e))?
             .into();
         let plan = self.plan(tiles.len(), h, w)?;
-        let outputs = plan
-            .run(tvec!(input.into()))
-            .map_err(|e| model_error(&self.path, "inference failed", format!("{e:#}")))?;
+        let outputs =
+            multithread_tract_scope(self.executor.clone(), || plan.run(tvec!(input.into())))
+                .map_err(|e| model_error(&self.path, "inference failed", format!("{e:#}")))?;
         let view = outputs[0]
             .to_plain_array_view::<f32>()
             .map_err(|e| model_error(&self.path, "output", e))?;
@@ -443,9 +444,14 @@ const OPTIONS: &[PluginOption] = &[
         default: "",
         help: "tiles per network call (default: the sidecar's)",
     },
+    PluginOption {
+        key: "threads",
+        default: "",
+        help: "threads for the network's matrix products (default: matup's thread count)",
+    },
 ];
 
-/// `onnx:MODEL[,tile=N,overlap=N,batch=N]`, MODEL a path to a `.onnx` file or a name in the
+/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N]`, MODEL a path to a `.onnx` file or a name in the
 /// model folders.
 fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let argument = argument.unwrap_or("");
@@ -466,6 +472,9 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
         if !values[key].is_empty() {
             *slot = option_value("onnx", &values, key)?;
         }
+    }
+    if !values["threads"].is_empty() {
+        upsampler.executor = executor(option_value("onnx", &values, "threads")?);
     }
     if upsampler.info.tile == 0 || upsampler.info.batch == 0 {
         return Err(Error::Plugin {

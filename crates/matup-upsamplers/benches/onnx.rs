@@ -1,0 +1,139 @@
+//! Per-render upsampling time of each ONNX model matup knows: the shipped SPAN ×4 and, from
+//! `../shared/models` when it is there, SPAN ×2 and Real-ESRGAN ×4. Each model runs on 128²
+//! and 512² LR images (a real base-colour map), as one tile without context and as the
+//! sidecar's tiles with their context, on 1 and 2 threads. Prints a table of medians.
+//!
+//! `cargo bench -p matup-upsamplers --bench onnx` (`MATUP_BENCH_SLOW=1` adds Real-ESRGAN at
+//! 512², several minutes).
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use matup_core::{load_material, upsampler, Border, LoadOptions, Map, PluginSpec};
+use matup_upsamplers as _;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+struct Model {
+    name: &'static str,
+    path: PathBuf,
+    scale: usize,
+    tile: usize,
+    overlap: usize,
+}
+
+/// The shared models have no sidecars: write them into `dir` next to a copy of the network.
+fn shared_model(dir: &Path, name: &'static str, scale: usize, overlap: usize) -> Option<Model> {
+    let source = repo().join("../shared/models").join(format!("{name}.onnx"));
+    if !source.is_file() {
+        return None;
+    }
+    let path = dir.join(format!("{name}.onnx"));
+    std::fs::copy(&source, &path).unwrap();
+    std::fs::write(
+        path.with_extension("toml"),
+        format!("scale = {scale}\ntile = 128\noverlap = {overlap}\n"),
+    )
+    .unwrap();
+    Some(Model {
+        name,
+        path,
+        scale,
+        tile: 128,
+        overlap,
+    })
+}
+
+/// Median seconds per call of `f`, over at least 3 calls (after one untimed call that builds
+/// the plan) or as many as fit in `budget`, whichever is fewer.
+fn median_seconds(mut f: impl FnMut(), budget: Duration) -> (f64, usize) {
+    f();
+    let start = Instant::now();
+    let mut times = Vec::new();
+    while times.len() < 3 && (times.is_empty() || start.elapsed() < budget) {
+        let t = Instant::now();
+        f();
+        times.push(t.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    (times[times.len() / 2], times.len())
+}
+
+fn main() {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let slow = std::env::var("MATUP_BENCH_SLOW").is_ok_and(|v| v == "1");
+    let shared = tempfile::tempdir().unwrap();
+    let mut models = vec![Model {
+        name: "span_x4_ch48",
+        path: repo().join("models/span_x4_ch48.onnx"),
+        scale: 4,
+        tile: 128,
+        overlap: 22,
+    }];
+    // SPAN's receptive-field radius is 21 LR texels; Real-ESRGAN's is far larger, and 10 is
+    // what its own ncnn app pads tiles with (../shared/models/README.md).
+    models.extend(shared_model(shared.path(), "span_x2_ch48", 2, 22));
+    models.extend(shared_model(shared.path(), "realesrgan_x4plus", 4, 10));
+
+    let wood = load_material(
+        Some(&repo().join("../shared/materials/polyhaven_wood_cabinet_worn_long")),
+        &LoadOptions::default(),
+    )
+    .map(|m| m.base_color)
+    .unwrap_or_else(|_| {
+        load_material(
+            Some(&repo().join("samples/victorian_wood")),
+            &Default::default(),
+        )
+        .unwrap()
+        .base_color
+    });
+
+    let mut rows = Vec::new();
+    for model in &models {
+        for lr in [128, 512] {
+            if lr > wood.width() || (model.name.starts_with("realesrgan") && lr > 128 && !slow) {
+                continue;
+            }
+            let image: Map = wood.crop(0, 0, lr, lr);
+            let tiled = format!("{}² tiles + {} context", model.tile, model.overlap);
+            for (tiling, tile, overlap) in [
+                ("one tile, no context".to_string(), lr, 0),
+                (tiled, model.tile, model.overlap),
+            ] {
+                for threads in [1, 2] {
+                    let spec = format!(
+                        "onnx:{},tile={tile},overlap={overlap},threads={threads}",
+                        model.path.display()
+                    );
+                    let up = upsampler(&spec.parse::<PluginSpec>().unwrap())
+                        .unwrap_or_else(|e| panic!("{spec}: {e}"));
+                    let (seconds, runs) = median_seconds(
+                        || {
+                            up.upsample(std::slice::from_ref(&image), model.scale, Border::Wrap)
+                                .unwrap();
+                        },
+                        Duration::from_secs(30),
+                    );
+                    eprintln!("{} {lr}² {tiling} {threads}t: {seconds:.3} s", model.name);
+                    rows.push(format!(
+                        "| {} | {lr}² | {tiling} | {threads} | {seconds:.3} | {:.1} | {runs} |",
+                        model.name,
+                        100.0 * seconds * (128.0 * 128.0) / (lr * lr) as f64,
+                    ));
+                }
+            }
+        }
+    }
+
+    println!("\nONNX upsampling with tract, {cores} cores (median seconds per render)\n");
+    println!(
+        "| model | LR size | tiling | threads | s / render | s / 100 renders of 128² | runs |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for row in rows {
+        println!("{row}");
+    }
+}
