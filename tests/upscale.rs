@@ -179,6 +179,7 @@ fn resuming_after_an_interruption_gives_the_uninterrupted_result() {
     let options = RunOptions {
         checkpoint_folder: Some(folder.path().to_path_buf()),
         resume: true,
+        ..Default::default()
     };
     // 128² texels / 128 per batch = 128 steps an epoch: stop during the second epoch.
     let stop = StopAfter {

@@ -4,8 +4,12 @@
 //! It is a library too, so that a binary linking more plugins (a researcher's upsampler or
 //! shading model) gets the whole command line with one call: see `examples/nearest-upsampler`.
 
+mod downsample;
+mod eval;
+mod experiment;
 mod list;
 mod material_args;
+mod plot;
 mod progress_bars;
 mod render;
 mod upscale;
@@ -46,6 +50,14 @@ enum Command {
     Upscale(Box<upscale::UpscaleArgs>),
     /// Render a material under one light or a contact sheet of the training lights.
     Render(Box<render::RenderArgs>),
+    /// Compare a material with a reference: renders under held-out lights, maps, seams.
+    Eval(eval::EvalArgs),
+    /// Make the LR material a lower-resolution capture would give (box filter).
+    Downsample(Box<downsample::DownsampleArgs>),
+    /// Downsample true materials, upscale them with baselines and matup, evaluate, plot.
+    Bench(Box<experiment::BenchArgs>),
+    /// Run an experiment file: matup over a grid of settings, resumable.
+    Sweep(experiment::SweepArgs),
 }
 
 /// matup's own loops run on the global rayon pool, one thread per core. candle splits every
@@ -90,6 +102,10 @@ pub fn main() -> ExitCode {
         Command::List => list::run(),
         Command::Upscale(args) => upscale::run(&args),
         Command::Render(args) => render::run(&args),
+        Command::Eval(args) => eval::run(&args),
+        Command::Downsample(args) => downsample::run(&args),
+        Command::Bench(args) => experiment::bench(&args),
+        Command::Sweep(args) => experiment::sweep(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

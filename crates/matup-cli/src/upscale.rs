@@ -182,6 +182,7 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
     let options = RunOptions {
         checkpoint_folder: Some(args.output.join(".matup-checkpoint")),
         resume: args.resume,
+        oracle: None,
     };
     let (result, report) = upscale(&material, &config, &options, &bars)?;
     bars.finish();

@@ -211,3 +211,136 @@ fn upscale_writes_maps_preview_and_run_json() {
         "a finished run leaves no checkpoint"
     );
 }
+
+fn shared(name: &str) -> String {
+    format!(
+        "{}/../../../shared/materials/{name}",
+        env!("CARGO_MANIFEST_DIR")
+    )
+}
+
+#[test]
+fn downsample_then_eval_reports_a_table_and_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let lr = dir.path().join("lr");
+    let o = matup(&[
+        "downsample",
+        &sample(),
+        "-o",
+        lr.to_str().unwrap(),
+        "--factor",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let base = image::open(lr.join("baseColor.png")).unwrap();
+    assert_eq!((base.width(), base.height()), (32, 32));
+    // Never into the input folder; factors that do not divide are refused.
+    let o = matup(&["downsample", &sample(), "-o", &sample()]);
+    assert!(!o.status.success());
+    let o = matup(&[
+        "downsample",
+        &sample(),
+        "-o",
+        lr.to_str().unwrap(),
+        "--factor",
+        "3",
+    ]);
+    assert!(
+        stderr(&o).contains("not divisible by --factor 3"),
+        "{}",
+        stderr(&o)
+    );
+
+    let o = matup(&[
+        "eval",
+        "--reference",
+        &sample(),
+        "--candidate",
+        &sample(),
+        "--lights",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        table.contains("render PSNR (dB)") && table.contains("100.00"),
+        "{table}"
+    );
+
+    let o = matup(&[
+        "eval",
+        "--reference",
+        &sample(),
+        "--candidate",
+        lr.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("128×128") && stderr(&o).contains("32×32"),
+        "{}",
+        stderr(&o)
+    );
+
+    let denim = shared("polyhaven_denim_fabric");
+    let metal = shared("ambientcg_Metal053C");
+    let o = matup(&[
+        "eval",
+        "--reference",
+        &denim,
+        "--candidate",
+        &metal,
+        "--json",
+        "--lights",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(e["render_psnr"].as_f64().unwrap() < 30.0);
+    assert!(
+        e["metallic_rmse"].as_f64().unwrap() > 0.1,
+        "metal against cloth"
+    );
+}
+
+#[test]
+fn sweep_rejects_bad_files_before_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("exp.toml");
+    std::fs::write(
+        &file,
+        "materials = [\"m\"]\n[axes]\nupsampler = [\"esrgan\"]\n",
+    )
+    .unwrap();
+    let o = matup(&[
+        "sweep",
+        file.to_str().unwrap(),
+        "-o",
+        dir.path().join("out").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("esrgan") && stderr(&o).contains("known"),
+        "{}",
+        stderr(&o)
+    );
+    let o = matup(&["sweep", dir.path().join("missing.toml").to_str().unwrap()]);
+    assert!(stderr(&o).contains("missing.toml"), "{}", stderr(&o));
+}
+
+#[test]
+fn the_shipped_sweeps_parse_and_expand() {
+    // Expanding checks the plugins each point names: link the built-in ones.
+    use matup_shading as _;
+    use matup_upsamplers as _;
+    for (name, points) in [("loss_norms", 4), ("window", 4), ("lights", 4)] {
+        let path = format!("{}/../../sweeps/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+        let e = matup_core::experiment::Experiment::from_file(std::path::Path::new(&path))
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(e.points().unwrap().len(), points, "{name}");
+        assert!(
+            e.materials.iter().all(|m| m.is_dir()),
+            "{name}: {:?}",
+            e.materials
+        );
+    }
+}

@@ -1,9 +1,11 @@
 //! matup's core: the material model and its I/O, the plugin traits (`RgbUpsampler`,
 //! `ShadingModel`) with their registries, lights, resampling and rendering.
 
+pub mod baseline;
 pub mod color;
 pub mod config;
 mod error;
+pub mod experiment;
 pub mod filter;
 pub mod height;
 pub mod io;
@@ -11,6 +13,7 @@ pub mod lights;
 pub mod loss;
 pub mod map;
 pub mod material;
+pub mod metrics;
 pub mod op;
 pub mod pipeline;
 pub mod plugin;

@@ -74,6 +74,10 @@ pub struct LevelReport {
 pub struct RunOptions {
     pub checkpoint_folder: Option<PathBuf>,
     pub resume: bool,
+    /// The true material at the output size, for benchmarks: its exact renders replace the
+    /// upsampled ones as targets, which measures the method's ceiling (what the RGB upsampler
+    /// costs).
+    pub oracle: Option<Material>,
 }
 
 /// The 7 filter features of a material: linear base colour, metallic, normal x and y, alpha.
@@ -134,7 +138,10 @@ pub fn upscale(
 
     let model: Arc<dyn ShadingModel> =
         Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
-    let (upsampler_used, upsampler) = choose_upsampler(config)?;
+    let (mut upsampler_used, upsampler) = choose_upsampler(config)?;
+    if options.oracle.is_some() {
+        upsampler_used = "oracle (exact renders of the true material)".into();
+    }
     let (tileable, seam) = match config.tileable {
         Some(t) => (t, None),
         None => {
@@ -266,6 +273,45 @@ fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> 
     Err(last.expect("AUTO_UPSAMPLERS is not empty"))
 }
 
+/// Exact renders of the true material (box-filtered to `w × h` for the first of two levels)
+/// as targets, for the oracle.
+fn oracle_targets(
+    truth: &Material,
+    w: usize,
+    h: usize,
+    lights: &[Light],
+    ctx: &Context,
+) -> Result<Targets> {
+    let factor = truth.width() / w;
+    if factor == 0 || truth.width() != factor * w || truth.height_px() != factor * h {
+        return Err(Error::Invalid(format!(
+            "the oracle material is {}×{}, not a multiple of the {w}×{h} output",
+            truth.width(),
+            truth.height_px()
+        )));
+    }
+    let truth = if factor > 1 {
+        truth.box_downsample(factor)
+    } else {
+        truth.clone()
+    };
+    let mut targets = Targets::new(w * h, lights.len());
+    for (k, chunk) in lights.chunks(RENDER_CHUNK).enumerate() {
+        let renders = render(
+            &truth,
+            ctx.model.as_ref(),
+            chunk,
+            RenderOptions {
+                supersample: true,
+                border: ctx.border,
+            },
+        );
+        targets.fill(k * RENDER_CHUNK, &renders);
+        ctx.progress.advance(chunk.len() as u64, None);
+    }
+    Ok(targets)
+}
+
 /// A digest of what a level's training depends on, so a checkpoint is resumed only for the
 /// same input and settings.
 fn fingerprint(material_features: &Map, config: &Config, level: usize) -> String {
@@ -359,8 +405,12 @@ fn run_level(
     // 2. Upsampled renders become the targets, stored compactly.
     ctx.progress
         .stage(&tag("upsample renders"), renders.len() as u64);
+    let (w, h) = (lr.width() * scale, lr.height_px() * scale);
     let targets = timed(timings, tag("upsample renders"), || {
-        let mut targets = Targets::new(lr.width() * scale * lr.height_px() * scale, renders.len());
+        if let Some(truth) = &ctx.options.oracle {
+            return oracle_targets(truth, w, h, &lights, ctx);
+        }
+        let mut targets = Targets::new(w * h, renders.len());
         for (k, chunk) in renders.chunks(RENDER_CHUNK).enumerate() {
             let up = ctx.upsampler.upsample(chunk, scale, ctx.border)?;
             targets.fill(k * RENDER_CHUNK, &up);
@@ -369,7 +419,6 @@ fn run_level(
         Ok(targets)
     })?;
 
-    let (w, h) = (lr.width() * scale, lr.height_px() * scale);
     let examples = |features: &Map, heights: Option<&Map>, targets: Targets| Examples {
         residual_base: upsample(features, scale, config.filter.residual_base.0, ctx.border),
         metallic_bilinear: upsample(

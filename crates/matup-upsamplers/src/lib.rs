@@ -93,7 +93,9 @@ mod tests {
         let image = Map::from_fn(9, 6, 3, |c, _, _| [0.2, 0.5, 0.9][c]);
         for name in ["bilinear", "bicubic", "lanczos3"] {
             for border in [Border::Wrap, Border::Clamp, Border::Mirror] {
-                let out = build(name).upsample(std::slice::from_ref(&image), 4, border).unwrap();
+                let out = build(name)
+                    .upsample(std::slice::from_ref(&image), 4, border)
+                    .unwrap();
                 for c in 0..3 {
                     let want = [0.2, 0.5, 0.9][c];
                     let worst = out[0]

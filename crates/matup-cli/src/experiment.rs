@@ -1,0 +1,183 @@
+//! `matup bench` and `matup sweep`: experiments over true materials, with a results table,
+//! `results.csv`, `results.json` and `time_vs_error.png` in the output folder.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::Args;
+use matup_core::experiment::{run_experiment, Experiment, Row};
+
+use crate::plot::plot_time_vs_error;
+use crate::progress_bars::Bars;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Folders of true (HR) materials.
+    #[arg(required = true)]
+    pub materials: Vec<PathBuf>,
+    /// Output folder for results.csv, results.json and time_vs_error.png.
+    #[arg(short, long, default_value = "bench-results")]
+    pub output: PathBuf,
+    /// HR → LR factor, and the upscale factor.
+    #[arg(long, default_value_t = 4)]
+    pub factor: usize,
+    /// Use only the top-left N×N texels of each material.
+    #[arg(long)]
+    pub crop: Option<usize>,
+    /// Per-map baselines, comma-separated (default: bilinear, bicubic, lanczos3 and the
+    /// shipped SR network when it loads).
+    #[arg(long, value_delimiter = ',')]
+    pub baselines: Option<Vec<String>>,
+    /// RGB upsamplers of matup's renders, one matup run each (default: lanczos3 and the
+    /// shipped SR network when it loads).
+    #[arg(long, value_delimiter = ',')]
+    pub upsamplers: Option<Vec<String>>,
+    /// matup settings (a TOML file, keys as in `matup upscale --config`).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Training epochs of every matup run (overrides the config).
+    #[arg(long)]
+    pub epochs: Option<usize>,
+    /// Also train matup on exact renders of the truth: the method's ceiling.
+    #[arg(long)]
+    pub oracle: bool,
+    /// Held-out lights of the evaluation.
+    #[arg(long, default_value_t = 16)]
+    pub eval_lights: usize,
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct SweepArgs {
+    /// The experiment file (see sweeps/*.toml).
+    pub experiment: PathBuf,
+    /// Output folder (default: results/NAME, NAME the file's stem).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// The shipped SR network's spec, when this build has it and it loads.
+fn shipped_network() -> Option<String> {
+    let spec = matup_core::config::AUTO_UPSAMPLERS[0];
+    spec.parse()
+        .ok()
+        .and_then(|s| matup_core::upsampler(&s).ok())
+        .map(|_| spec.to_string())
+}
+
+pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
+    let network = shipped_network();
+    let with_network = |mut v: Vec<String>| {
+        v.extend(network.clone());
+        v
+    };
+    let mut base = match &args.config {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            // Checked as a whole configuration first: unknown keys name the line.
+            matup_core::Config::from_toml(&text, &path.display().to_string())?;
+            toml::from_str::<toml::Table>(&text)?
+        }
+        None => toml::Table::new(),
+    };
+    if let Some(e) = args.epochs {
+        let train = base
+            .entry("train")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        if let Some(t) = train.as_table_mut() {
+            t.insert("epochs".into(), toml::Value::Integer(e as i64));
+        }
+    }
+    let upsamplers = args
+        .upsamplers
+        .clone()
+        .unwrap_or_else(|| with_network(vec!["lanczos3".into()]));
+    let experiment = Experiment {
+        materials: args.materials.clone(),
+        factor: args.factor,
+        crop: args.crop,
+        eval_lights: args.eval_lights,
+        eval_shading: "ggx".into(),
+        baselines: args.baselines.clone().unwrap_or_else(|| {
+            with_network(vec!["bilinear".into(), "bicubic".into(), "lanczos3".into()])
+        }),
+        oracle: args.oracle,
+        base,
+        axes: BTreeMap::from([(
+            "upsampler".to_string(),
+            upsamplers.into_iter().map(toml::Value::String).collect(),
+        )]),
+        mode: Default::default(),
+    };
+    execute(&experiment, &args.output, args.quiet)
+}
+
+pub fn sweep(args: &SweepArgs) -> anyhow::Result<()> {
+    let experiment = Experiment::from_file(&args.experiment)?;
+    let output = args.output.clone().unwrap_or_else(|| {
+        Path::new("results").join(args.experiment.file_stem().unwrap_or_default())
+    });
+    execute(&experiment, &output, args.quiet)
+}
+
+fn execute(experiment: &Experiment, output: &Path, quiet: bool) -> anyhow::Result<()> {
+    let runs = experiment.runs()?;
+    for m in &experiment.materials {
+        matup_core::io::check_output_folder(output, None)?;
+        anyhow::ensure!(
+            output.canonicalize().ok() != m.canonicalize().ok(),
+            "{}: the output folder is a material folder",
+            output.display()
+        );
+    }
+    let bars = Bars::new(quiet);
+    if !quiet {
+        eprintln!("{} runs; results in {}", runs.len(), output.display());
+    }
+    let rows = run_experiment(experiment, &runs, output, &bars);
+    bars.finish();
+    let rows = rows?;
+    plot_time_vs_error(&rows, &output.join("time_vs_error.png"))?;
+    print_table(&rows);
+    let failures: Vec<&Row> = rows.iter().filter(|r| r.error.is_some()).collect();
+    if !failures.is_empty() {
+        eprintln!("\n{} run(s) failed:", failures.len());
+        for r in &failures {
+            eprintln!("  {}: {}", r.id, r.error.as_deref().unwrap_or(""));
+        }
+    }
+    eprintln!(
+        "\nwrote {}, {} and {}",
+        output.join("results.csv").display(),
+        output.join("results.json").display(),
+        output.join("time_vs_error.png").display()
+    );
+    Ok(())
+}
+
+/// A Markdown table of the finished runs.
+fn print_table(rows: &[Row]) {
+    println!("| run | seconds | PSNR dB | SSIM | FLIP | base colour RMSE | normal ° | roughness RMSE | metallic RMSE | seam |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        let Some(e) = &r.evaluation else { continue };
+        println!(
+            "| {} | {:.1} | {:.2} | {:.4} | {:.4} | {:.4} | {:.2} | {:.4} | {:.4} | {:.2} |",
+            r.id,
+            r.seconds,
+            e["render_psnr"],
+            e["render_ssim"],
+            e["render_flip"],
+            e["base_color_rmse"],
+            e["normal_error_degrees"],
+            e["roughness_rmse"],
+            e["metallic_rmse"],
+            e["seam_ratio"],
+        );
+    }
+}

@@ -1,0 +1,126 @@
+//! `time_vs_error.png`: wall time against render error, one point per method and setting
+//! (averaged over materials), the Pareto front drawn through the points no other beats on both.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::anyhow;
+use matup_core::experiment::Row;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+/// The font the labels are drawn in, shipped so a machine without fonts can plot.
+static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+/// (label, mean seconds, mean FLIP) per method and setting over the finished rows.
+pub fn method_means(rows: &[Row]) -> Vec<(String, f64, f64)> {
+    let mut sums: BTreeMap<String, (f64, f64, usize)> = BTreeMap::new();
+    for r in rows {
+        let Some(e) = &r.evaluation else { continue };
+        let label =
+            r.id.split_once('/')
+                .map_or(r.id.as_str(), |p| p.1)
+                .to_string();
+        let s = sums.entry(label).or_default();
+        s.0 += r.seconds;
+        s.1 += e["render_flip"];
+        s.2 += 1;
+    }
+    sums.into_iter()
+        .map(|(k, (t, f, n))| (k, t / n as f64, f / n as f64))
+        .collect()
+}
+
+/// Indices of the points on the Pareto front (no other point is both faster and better).
+pub fn pareto_front(points: &[(String, f64, f64)]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    order.sort_by(|&a, &b| points[a].1.total_cmp(&points[b].1));
+    let mut best = f64::INFINITY;
+    order
+        .into_iter()
+        .filter(|&i| {
+            let keep = points[i].2 < best;
+            best = best.min(points[i].2);
+            keep
+        })
+        .collect()
+}
+
+pub fn plot_time_vs_error(rows: &[Row], path: &Path) -> anyhow::Result<()> {
+    let points = method_means(rows);
+    if points.is_empty() {
+        return Ok(());
+    }
+    let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    // Written beside the target and renamed over it, like every output.
+    let tmp = path.with_extension("partial.png");
+    draw(&points, &tmp).map_err(|e| anyhow!("{}: cannot draw the plot: {e}", path.display()))?;
+    std::fs::rename(&tmp, path)?;
+    Ok(())
+}
+
+fn draw(points: &[(String, f64, f64)], path: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let root = BitMapBackend::new(path, (1100, 700)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (t_min, t_max) = points.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), p| {
+        (lo.min(p.1), hi.max(p.1))
+    });
+    let (e_min, e_max) = points.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), p| {
+        (lo.min(p.2), hi.max(p.2))
+    });
+    // Room on the right for the labels, which start at their point.
+    let t_range = (t_min.max(1e-3) / 2.0)..(t_max.max(1e-3) * 8.0);
+    let pad = (e_max - e_min).max(1e-4) * 0.15;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "run time against render error (mean over materials)",
+            ("sans-serif", 24),
+        )
+        .margin(20)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(t_range.log_scale(), (e_min - pad)..(e_max + pad))?;
+    chart
+        .configure_mesh()
+        .x_desc("wall time (s, log scale)")
+        .y_desc("render FLIP (lower is better)")
+        .label_style(("sans-serif", 15))
+        .draw()?;
+    let front = pareto_front(points);
+    chart.draw_series(LineSeries::new(
+        front.iter().map(|&i| (points[i].1, points[i].2)),
+        RED.stroke_width(2),
+    ))?;
+    for (i, (label, t, e)) in points.iter().enumerate() {
+        let on_front = front.contains(&i);
+        let colour = if on_front { RED } else { BLUE };
+        chart.draw_series(std::iter::once(Circle::new((*t, *e), 5, colour.filled())))?;
+        chart.draw_series(std::iter::once(Text::new(
+            label.clone(),
+            (*t, *e),
+            ("sans-serif", 13).into_font().color(&BLACK),
+        )))?;
+    }
+    root.present()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_front_keeps_points_no_other_beats_on_both() {
+        let p = |t: f64, e: f64| (String::new(), t, e);
+        let points = vec![
+            p(1.0, 0.5),
+            p(2.0, 0.6),
+            p(3.0, 0.3),
+            p(0.5, 0.9),
+            p(10.0, 0.31),
+        ];
+        let mut front = pareto_front(&points);
+        front.sort();
+        assert_eq!(front, vec![0, 2, 3]);
+    }
+}

@@ -1,0 +1,85 @@
+//! What users do without matup: every map upsampled on its own by an RGB upsampler, the way
+//! an artist runs each texture file through Lanczos or an SR network.
+
+use crate::color::{linear_to_srgb, srgb_to_linear};
+use crate::map::Map;
+use crate::material::{MapKind, Material};
+use crate::resample::Border;
+use crate::upsample::RgbUpsampler;
+use crate::Result;
+
+/// Upsamples each map of `material` by `scale` with `upsampler`, as the map's file would be:
+/// base colour sRGB-encoded, normals as `(n + 1) / 2` colours, grey maps as grey RGB images
+/// (the three results averaged back). Normals are renormalised and values clamped after.
+pub fn upscale_per_map(
+    material: &Material,
+    upsampler: &dyn RgbUpsampler,
+    scale: usize,
+    border: Border,
+) -> Result<Material> {
+    let kinds: Vec<MapKind> = MapKind::ALL
+        .into_iter()
+        .filter(|&k| material.map(k).is_some())
+        .collect();
+    let images: Vec<Map> = kinds
+        .iter()
+        .map(|&k| {
+            let m = material.map(k).expect("filtered to present maps");
+            match k {
+                MapKind::BaseColor => m.clone().map_values(linear_to_srgb),
+                MapKind::Normal => m.clone().map_values(|v| 0.5 * (v + 1.0)),
+                _ => Map::stack(&[m, m, m]),
+            }
+        })
+        .collect();
+    let upsampled = upsampler.upsample(&images, scale, border)?;
+    let mut out = material.clone();
+    for (&k, up) in kinds.iter().zip(upsampled) {
+        let decoded = match k {
+            MapKind::BaseColor => up.map_values(|v| srgb_to_linear(v.clamp(0.0, 1.0))),
+            MapKind::Normal => up.map_values(|v| 2.0 * v - 1.0),
+            _ => {
+                let (w, h) = (up.width(), up.height());
+                Map::from_fn(w, h, 1, |_, y, x| {
+                    (up.get(0, y, x) + up.get(1, y, x) + up.get(2, y, x)) / 3.0
+                })
+            }
+        };
+        *out.map_mut(k).expect("present in the clone") = decoded;
+    }
+    out.restore_invariants();
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::resample::{upsample, Kernel};
+
+    struct Bilinear;
+    impl RgbUpsampler for Bilinear {
+        fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+            Ok(images
+                .iter()
+                .map(|m| upsample(m, scale, Kernel::Bilinear, border))
+                .collect())
+        }
+    }
+
+    #[test]
+    fn grey_maps_upsample_like_the_kernel_and_colours_stay() {
+        let mut m = Material::uniform(8, [0.2, 0.4, 0.6], 0.5, 0.0);
+        m.roughness = Map::from_fn(8, 8, 1, |_, y, x| 0.1 + 0.05 * ((x + y) % 5) as f32);
+        let up = upscale_per_map(&m, &Bilinear, 4, Border::Wrap).unwrap();
+        assert_eq!((up.width(), up.height_px()), (32, 32));
+        let direct = upsample(&m.roughness, 4, Kernel::Bilinear, Border::Wrap);
+        for (a, b) in up.roughness.data().iter().zip(direct.data()) {
+            assert!((a - b).abs() < 1e-6);
+        }
+        // A constant colour survives the sRGB round trip.
+        for (c, want) in [0.2, 0.4, 0.6].into_iter().enumerate() {
+            assert!((up.base_color.mean(c) - want).abs() < 1e-5);
+        }
+        assert!((up.normal.mean(2) - 1.0).abs() < 1e-6);
+    }
+}
