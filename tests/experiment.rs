@@ -220,9 +220,7 @@ fn experiments_record_failures_and_resume_without_rerunning() {
         ok.iter()
             .find(|r| r.id.ends_with(id))
             .unwrap()
-            .evaluation
-            .as_ref()
-            .unwrap()["render_psnr"]
+            .metric("render_psnr")
     };
     assert!(psnr("per-map upsampler=lanczos3") > psnr("per-map upsampler=bilinear"));
     let csv = std::fs::read_to_string(out.path().join("results.csv")).unwrap();

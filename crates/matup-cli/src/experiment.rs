@@ -128,10 +128,9 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<()> {
 fn execute(experiment: &Experiment, output: &Path, quiet: bool) -> anyhow::Result<()> {
     let runs = experiment.runs()?;
     for m in &experiment.materials {
-        matup_core::io::check_output_folder(output, None)?;
         anyhow::ensure!(
             output.canonicalize().ok() != m.canonicalize().ok(),
-            "{}: the output folder is a material folder",
+            "{}: the output folder is a material folder; matup never writes into its input",
             output.display()
         );
     }
@@ -141,7 +140,13 @@ fn execute(experiment: &Experiment, output: &Path, quiet: bool) -> anyhow::Resul
     }
     let rows = run_experiment(experiment, &runs, output, &bars);
     bars.finish();
-    let rows = rows?;
+    let rows = match rows {
+        Err(matup_core::Error::Cancelled { .. }) => anyhow::bail!(
+            "interrupted; run the same command again to continue (finished runs are skipped, \
+             the interrupted one resumes from its last epoch)"
+        ),
+        other => other?,
+    };
     plot_time_vs_error(&rows, &output.join("time_vs_error.png"))?;
     print_table(&rows);
     let failures: Vec<&Row> = rows.iter().filter(|r| r.error.is_some()).collect();
@@ -164,20 +169,19 @@ fn execute(experiment: &Experiment, output: &Path, quiet: bool) -> anyhow::Resul
 fn print_table(rows: &[Row]) {
     println!("| run | seconds | PSNR dB | SSIM | FLIP | base colour RMSE | normal ° | roughness RMSE | metallic RMSE | seam |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
-    for r in rows {
-        let Some(e) = &r.evaluation else { continue };
+    for r in rows.iter().filter(|r| r.error.is_none()) {
         println!(
             "| {} | {:.1} | {:.2} | {:.4} | {:.4} | {:.4} | {:.2} | {:.4} | {:.4} | {:.2} |",
             r.id,
             r.seconds,
-            e["render_psnr"],
-            e["render_ssim"],
-            e["render_flip"],
-            e["base_color_rmse"],
-            e["normal_error_degrees"],
-            e["roughness_rmse"],
-            e["metallic_rmse"],
-            e["seam_ratio"],
+            r.metric("render_psnr"),
+            r.metric("render_ssim"),
+            r.metric("render_flip"),
+            r.metric("base_color_rmse"),
+            r.metric("normal_error_degrees"),
+            r.metric("roughness_rmse"),
+            r.metric("metallic_rmse"),
+            r.metric("seam_ratio"),
         );
     }
 }

@@ -15,15 +15,14 @@ static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 /// (label, mean seconds, mean FLIP) per method and setting over the finished rows.
 pub fn method_means(rows: &[Row]) -> Vec<(String, f64, f64)> {
     let mut sums: BTreeMap<String, (f64, f64, usize)> = BTreeMap::new();
-    for r in rows {
-        let Some(e) = &r.evaluation else { continue };
+    for r in rows.iter().filter(|r| r.error.is_none()) {
         let label =
             r.id.split_once('/')
                 .map_or(r.id.as_str(), |p| p.1)
                 .to_string();
         let s = sums.entry(label).or_default();
         s.0 += r.seconds;
-        s.1 += e["render_flip"];
+        s.1 += r.metric("render_flip");
         s.2 += 1;
     }
     sums.into_iter()

@@ -118,6 +118,17 @@ pub struct Row {
 /// [`Evaluation`] as stored (deserialisable).
 pub type EvaluationRow = BTreeMap<String, f64>;
 
+impl Row {
+    /// A metric of the run ([`METRICS`]); NaN when the run failed.
+    pub fn metric(&self, name: &str) -> f64 {
+        self.evaluation
+            .as_ref()
+            .and_then(|e| e.get(name))
+            .copied()
+            .unwrap_or(f64::NAN)
+    }
+}
+
 impl Experiment {
     /// Reads an experiment file; errors name the file, the line and the key.
     pub fn from_file(path: &Path) -> Result<Experiment> {
@@ -179,15 +190,14 @@ impl Experiment {
                     .map(|(k, v)| format!("{k} = {v}"))
                     .collect::<Vec<_>>()
                     .join(", ");
-                let config = Config::from_toml(&toml::to_string(&table).expect("a table"), "")
-                    .map_err(|e| {
-                        Error::Invalid(format!(
-                            "sweep point [{point}]: {}",
-                            e.to_string().trim_start_matches(": ")
-                        ))
-                    })?;
-                check_plugins(&config)
-                    .map_err(|e| Error::Invalid(format!("sweep point [{point}]: {e}")))?;
+                let in_point = |e: String| Error::Invalid(format!("sweep point [{point}]: {e}"));
+                let config: Config = toml::Value::Table(table)
+                    .try_into()
+                    .map_err(|e: toml::de::Error| in_point(e.message().to_string()))?;
+                config
+                    .validate()
+                    .and_then(|_| check_plugins(&config))
+                    .map_err(|e| in_point(e.to_string()))?;
                 Ok((settings, config))
             })
             .collect()
@@ -212,10 +222,7 @@ impl Experiment {
         let points = self.points()?;
         let mut runs = Vec::new();
         for material in &self.materials {
-            let name = material.file_name().map_or_else(
-                || material.display().to_string(),
-                |n| n.to_string_lossy().into_owned(),
-            );
+            let name = material_name(material);
             let run = |kind: &'static str, method: Method, settings: BTreeMap<String, String>| {
                 let label = settings
                     .iter()
@@ -379,7 +386,7 @@ pub fn run_experiment(
                         match evaluate(&p.truth, &material, eval_model.as_ref(), &eval_lights) {
                             Ok(ev) => Row {
                                 id: run.id.clone(),
-                                material: material_name(run),
+                                material: material_name(&run.material),
                                 kind: run.kind.into(),
                                 settings: run.settings.clone(),
                                 seconds,
@@ -393,13 +400,15 @@ pub fn run_experiment(
                 }
             }
         };
-        progress.note(&match (&row.evaluation, &row.error) {
-            (Some(ev), _) => format!(
+        progress.note(&match &row.error {
+            None => format!(
                 "  {:.1} s, render PSNR {:.2} dB, SSIM {:.4}, FLIP {:.4}",
-                row.seconds, ev["render_psnr"], ev["render_ssim"], ev["render_flip"]
+                row.seconds,
+                row.metric("render_psnr"),
+                row.metric("render_ssim"),
+                row.metric("render_flip")
             ),
-            (_, Some(e)) => format!("  failed: {e}"),
-            _ => String::new(),
+            Some(e) => format!("  failed: {e}"),
         });
         append_journal(&journal, &row)?;
         rows.push(row);
@@ -409,9 +418,10 @@ pub fn run_experiment(
     Ok(rows)
 }
 
-fn material_name(run: &Run) -> String {
-    run.material.file_name().map_or_else(
-        || run.material.display().to_string(),
+/// A material's name in run ids and tables: its folder's name.
+fn material_name(path: &Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     )
 }
@@ -419,7 +429,7 @@ fn material_name(run: &Run) -> String {
 fn failed(run: &Run, error: String) -> Row {
     Row {
         id: run.id.clone(),
-        material: material_name(run),
+        material: material_name(&run.material),
         kind: run.kind.into(),
         settings: run.settings.clone(),
         seconds: 0.0,
