@@ -124,6 +124,81 @@ fn every_model_loads_and_upsamples_a_real_render() {
     );
 }
 
+/// The shipped SPAN ×4 re-declared with a fixed 1×3×80×80 input, as some exported networks
+/// are, with a sidecar of overlap `overlap`.
+fn fixed_size_span(dir: &Path, overlap: usize) -> PathBuf {
+    use prost::Message;
+    use tract_onnx::pb::tensor_shape_proto::dimension::Value;
+    use tract_onnx::pb::type_proto;
+    let source = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/span_x4_ch48.onnx");
+    let mut model =
+        tract_onnx::pb::ModelProto::decode(std::fs::read(source).unwrap().as_slice()).unwrap();
+    let input = &mut model.graph.as_mut().unwrap().input[0];
+    let Some(type_proto::Value::TensorType(tensor)) = &mut input.r#type.as_mut().unwrap().value
+    else {
+        panic!("SPAN's input is a tensor");
+    };
+    for (d, v) in tensor
+        .shape
+        .as_mut()
+        .unwrap()
+        .dim
+        .iter_mut()
+        .zip([1, 3, 80, 80])
+    {
+        d.value = Some(Value::DimValue(v));
+    }
+    let path = dir.join("span_fixed.onnx");
+    std::fs::write(&path, model.encode_to_vec()).unwrap();
+    std::fs::write(
+        path.with_extension("toml"),
+        format!("scale = 4\noverlap = {overlap}\n"),
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn networks_with_a_fixed_input_size_are_tiled_to_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let fixed = build(&format!(
+        "onnx:{}",
+        fixed_size_span(dir.path(), 22).display()
+    ));
+    let dynamic = build("onnx:span_x4_ch48,tile=128,overlap=24");
+    let image = real_render();
+    // 64² in 80² windows: cores of 36 texels, four tiles; and 24², shorter than a core,
+    // read with 28 texels of context on each side.
+    for image in [image.clone(), image.crop(8, 8, 24, 24)] {
+        let a = fixed
+            .upsample(std::slice::from_ref(&image), 4, Border::Wrap)
+            .unwrap()
+            .remove(0);
+        let b = dynamic
+            .upsample(std::slice::from_ref(&image), 4, Border::Wrap)
+            .unwrap()
+            .remove(0);
+        let diff = common::max_abs_diff(&a, &b);
+        assert!(
+            diff <= 2.0 / 255.0,
+            "{}²: fixed-size tiles differ by {diff}",
+            image.width()
+        );
+    }
+    // An overlap that leaves no core in an 80² window is refused, naming the model.
+    let e = build(&format!(
+        "onnx:{},overlap=40",
+        fixed_size_span(dir.path(), 22).display()
+    ))
+    .upsample(std::slice::from_ref(&image), 4, Border::Wrap)
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("span_fixed.onnx") && e.contains("overlap"),
+        "{e}"
+    );
+}
+
 #[test]
 fn tiles_match_the_whole_image_when_the_overlap_covers_the_receptive_field() {
     let image = real_render();

@@ -19,6 +19,7 @@ use matup_core::{Error, Map, Result};
 use serde::Deserialize;
 use tract_linalg::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::prelude::*;
+use tract_onnx::tract_hir::infer::Factoid;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
 #[derive(Clone, Debug, Deserialize)]
@@ -155,6 +156,28 @@ pub struct OnnxUpsampler {
     model: InferenceModel,
     plans: Mutex<HashMap<[usize; 3], Plan>>,
     executor: Executor,
+    /// The input's batch, height and width where the network fixes them.
+    fixed: [Option<usize>; 3],
+}
+
+/// The [batch, height, width] an ONNX input declares, `None` where it is symbolic.
+fn fixed_input(model: &InferenceModel) -> [Option<usize>; 3] {
+    let Ok(fact) = model.input_fact(0) else {
+        return [None; 3];
+    };
+    let dims: Vec<Option<usize>> = fact
+        .shape
+        .dims()
+        .map(|d| {
+            d.concretize()
+                .and_then(|d| d.as_i64())
+                .and_then(|v| usize::try_from(v).ok())
+        })
+        .collect();
+    match dims.as_slice() {
+        [b, _, h, w] => [*b, *h, *w],
+        _ => [None; 3],
+    }
 }
 
 fn model_error(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
@@ -207,6 +230,7 @@ impl OnnxUpsampler {
                 ),
             ));
         }
+        let fixed = fixed_input(&model);
         let upsampler = OnnxUpsampler {
             path: path.to_path_buf(),
             info,
@@ -214,17 +238,19 @@ impl OnnxUpsampler {
             plans: Mutex::new(HashMap::new()),
             // As many as the pool matup runs on (`RAYON_NUM_THREADS`, or one per core).
             executor: executor(rayon::current_num_threads()),
+            fixed,
         };
         // Probe: the output must be the input times the sidecar's scale, 3 channels.
-        let probe = Map::filled(8, 8, 3, 0.5);
-        let out = upsampler.run_batch(&[probe_tile(&probe)], 8, 8)?;
-        let got = out[0].width() / 8;
-        if got != upsampler.info.scale || out[0].height() != 8 * got {
+        let (ph, pw) = (fixed[1].unwrap_or(8), fixed[2].unwrap_or(8));
+        let probe = vec![0.5; 3 * ph * pw];
+        let out = upsampler.run_batch(&vec![probe; fixed[0].unwrap_or(1)], ph, pw)?;
+        let got = out[0].width() / pw;
+        if got != upsampler.info.scale || out[0].height() != ph * got {
             return Err(model_error(
                 path,
                 "scale mismatch",
                 format!(
-                    "the sidecar says ×{}, the network upsamples an 8×8 probe to {}×{}",
+                    "the sidecar says ×{}, the network upsamples a {pw}×{ph} probe to {}×{}",
                     upsampler.info.scale,
                     out[0].width(),
                     out[0].height()
@@ -303,10 +329,6 @@ impl OnnxUpsampler {
     }
 }
 
-fn probe_tile(map: &Map) -> Vec<f32> {
-    map.data().to_vec()
-}
-
 /// Start of each tile along an axis of `len` texels, tiles of `tile` (the last one shifted
 /// back to end at the edge).
 fn tile_starts(len: usize, tile: usize) -> Vec<usize> {
@@ -329,24 +351,31 @@ fn feather(u: f32, core: f32, margin: f32) -> f32 {
     (d / margin).clamp(0.0, 1.0)
 }
 
-/// Along one axis of a tile whose core starts at LR texel `origin` and is `core` long (read
-/// with `overlap` texels of context, keeping `margin` of them), the output texels that land in
-/// the image (`len` LR texels, ×`scale`): (index in the tile's output, index in the image's
-/// output, feathering weight).
+/// How tiles cover one axis of an image: cores of `core` LR texels, each read in a window of
+/// `window` texels that starts `before` texels ahead of the core (the context).
+#[derive(Clone, Copy, Debug)]
+struct TileAxis {
+    core: usize,
+    before: usize,
+    window: usize,
+}
+
+/// Along one axis of a tile whose core starts at LR texel `origin`, keeping `margin` texels of
+/// context on each side, the output texels that land in the image (`len` LR texels,
+/// ×`scale`): (index in the tile's output, index in the image's output, feathering weight).
 fn kept_texels(
     origin: usize,
-    core: usize,
+    axis: TileAxis,
     len: usize,
-    overlap: usize,
     margin: usize,
     scale: usize,
 ) -> Vec<(usize, usize, f32)> {
-    (0..(core + 2 * overlap) * scale)
+    (0..axis.window * scale)
         .filter_map(|t| {
             // LR coordinate of this output texel relative to the tile's core.
-            let u = (t as f32 + 0.5) / scale as f32 - overlap as f32;
-            let weight = feather(u, core as f32, margin as f32);
-            let global = (origin * scale + t) as isize - (overlap * scale) as isize;
+            let u = (t as f32 + 0.5) / scale as f32 - axis.before as f32;
+            let weight = feather(u, axis.core as f32, margin as f32);
+            let global = (origin * scale + t) as isize - (axis.before * scale) as isize;
             (weight > 0.0 && global >= 0 && global < (len * scale) as isize).then_some((
                 t,
                 global as usize,
@@ -354,6 +383,42 @@ fn kept_texels(
             ))
         })
         .collect()
+}
+
+impl OnnxUpsampler {
+    /// The tiling of an axis of `len` texels: cores of the sidecar's `tile` with `overlap`
+    /// texels of context on each side; for a network with a fixed input size (`fixed`),
+    /// windows of exactly that size, their cores as large as the overlap allows (or the whole
+    /// axis, with more context, when it is shorter).
+    fn tile_axis(&self, len: usize, fixed: Option<usize>) -> Result<TileAxis> {
+        let o = self.info.overlap;
+        match fixed {
+            None => {
+                let core = self.info.tile.min(len);
+                Ok(TileAxis {
+                    core,
+                    before: o,
+                    window: core + 2 * o,
+                })
+            }
+            Some(window) if window > 2 * o => {
+                let core = (window - 2 * o).min(len);
+                Ok(TileAxis {
+                    core,
+                    before: (window - core) / 2,
+                    window,
+                })
+            }
+            Some(window) => Err(model_error(
+                &self.path,
+                "cannot tile",
+                format!(
+                    "the network takes fixed {window}-texel tiles, too small for {o} texels \
+                     of overlap on both sides; lower `overlap`"
+                ),
+            )),
+        }
+    }
 }
 
 impl RgbUpsampler for OnnxUpsampler {
@@ -370,29 +435,38 @@ impl RgbUpsampler for OnnxUpsampler {
             });
         }
         let mut results = Vec::with_capacity(images.len());
-        let o = self.info.overlap;
-        // Tiles keep `margin` texels of their context, blended with their neighbours'.
-        let margin = o / 2;
+        // Tiles keep half their context, blended with their neighbours'.
+        let margin = self.info.overlap / 2;
+        // A network with a fixed batch gets exactly that many tiles per call.
+        let batch = self.fixed[0].unwrap_or(self.info.batch);
         for image in images {
             let (w, h) = (image.width(), image.height());
-            let (th, tw) = (self.info.tile.min(h), self.info.tile.min(w));
-            let (ph, pw) = (th + 2 * o, tw + 2 * o);
-            let origins: Vec<(usize, usize)> = tile_starts(h, th)
+            let rows = self.tile_axis(h, self.fixed[1])?;
+            let columns = self.tile_axis(w, self.fixed[2])?;
+            let origins: Vec<(usize, usize)> = tile_starts(h, rows.core)
                 .into_iter()
-                .flat_map(|y| tile_starts(w, tw).into_iter().map(move |x| (y, x)))
+                .flat_map(|y| {
+                    tile_starts(w, columns.core)
+                        .into_iter()
+                        .map(move |x| (y, x))
+                })
                 .collect();
             let mut acc = vec![0f32; 3 * h * s * w * s];
             let mut weight = vec![0f32; h * s * w * s];
-            for group in origins.chunks(self.info.batch) {
-                let tiles: Vec<Vec<f32>> = group
+            for group in origins.chunks(batch) {
+                let mut tiles: Vec<Vec<f32>> = group
                     .iter()
                     .map(|&(y0, x0)| {
-                        let mut t = Vec::with_capacity(3 * ph * pw);
+                        let mut t = Vec::with_capacity(3 * rows.window * columns.window);
                         for c in 0..3 {
-                            for ty in 0..ph {
-                                let y = border.index(y0 as isize + ty as isize - o as isize, h);
-                                for tx in 0..pw {
-                                    let x = border.index(x0 as isize + tx as isize - o as isize, w);
+                            for ty in 0..rows.window {
+                                let y = border
+                                    .index(y0 as isize + ty as isize - rows.before as isize, h);
+                                for tx in 0..columns.window {
+                                    let x = border.index(
+                                        x0 as isize + tx as isize - columns.before as isize,
+                                        w,
+                                    );
                                     t.push(image.get(c, y, x));
                                 }
                             }
@@ -400,12 +474,17 @@ impl RgbUpsampler for OnnxUpsampler {
                         t
                     })
                     .collect();
-                let outputs = self.run_batch(&tiles, ph, pw)?;
+                if self.fixed[0].is_some() {
+                    // Fill the fixed batch with copies; their outputs are not used.
+                    let last = tiles.last().expect("chunks are not empty").clone();
+                    tiles.resize(batch, last);
+                }
+                let outputs = self.run_batch(&tiles, rows.window, columns.window)?;
                 for (&(y0, x0), out) in group.iter().zip(&outputs) {
-                    let rows = kept_texels(y0, th, h, o, margin, s);
-                    let columns = kept_texels(x0, tw, w, o, margin, s);
-                    for &(oy, gy, wy) in &rows {
-                        for &(ox, gx, wx) in &columns {
+                    let kept_rows = kept_texels(y0, rows, h, margin, s);
+                    let kept_columns = kept_texels(x0, columns, w, margin, s);
+                    for &(oy, gy, wy) in &kept_rows {
+                        for &(ox, gx, wx) in &kept_columns {
                             let k = gy * w * s + gx;
                             let wt = wy * wx;
                             weight[k] += wt;
