@@ -182,6 +182,8 @@ fn bad_experiment_files_say_what_and_where() {
     assert!(e.contains("zip"), "{e}");
     let e = experiment_error("materials = []\n");
     assert!(e.contains("no materials"), "{e}");
+    let e = experiment_error("materials = [\"/a/wood\", \"/b/wood\"]\n");
+    assert!(e.contains("wood") && e.contains("different names"), "{e}");
 }
 
 #[test]

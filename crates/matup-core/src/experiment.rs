@@ -257,6 +257,13 @@ impl Experiment {
                 }
             }
         }
+        let mut ids = BTreeSet::new();
+        if let Some(r) = runs.iter().find(|r| !ids.insert(r.id.as_str())) {
+            return Err(Error::Invalid(format!(
+                "two runs would both be called '{}': give materials folders of different names",
+                r.id
+            )));
+        }
         Ok(runs)
     }
 }

@@ -17,6 +17,9 @@ use crate::{Error, Result};
 /// 100 dB instead of infinity (JSON has no infinity).
 pub const MAX_PSNR: f64 = 100.0;
 
+/// Lights rendered and compared together by [`evaluate`].
+const LIGHTS_AT_ONCE: usize = 4;
+
 /// The numbers `matup eval` reports. Render metrics are over display-space renders (METHOD.md's
 /// tone mapping and sRGB curve), averaged over the lights.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -70,12 +73,17 @@ pub fn evaluate(
         border: Border::for_tiling(reference_seam < TILEABLE_SEAM_RATIO),
     };
     let lights: Vec<Light> = lights.build();
-    let a = render(reference, model, &lights, options);
-    let b = render(candidate, model, &lights, options);
-    let per_light: Vec<(f64, f64, f64)> = a
-        .par_iter()
-        .zip(&b)
-        .map(|(x, y)| (squared_error(x, y), ssim(x, y), flip(x, y)))
+    // A few lights at a time, so memory stays bounded for large materials.
+    let per_light: Vec<(f64, f64, f64)> = lights
+        .chunks(LIGHTS_AT_ONCE)
+        .flat_map(|chunk| {
+            let a = render(reference, model, chunk, options);
+            let b = render(candidate, model, chunk, options);
+            a.par_iter()
+                .zip(&b)
+                .map(|(x, y)| (squared_error(x, y), ssim(x, y), flip(x, y)))
+                .collect::<Vec<_>>()
+        })
         .collect();
     let n = per_light.len().max(1) as f64;
     let texels = (reference.width() * reference.height_px()) as f64;
