@@ -16,10 +16,11 @@ static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 pub fn method_means(rows: &[Row]) -> Vec<(String, f64, f64)> {
     let mut sums: BTreeMap<String, (f64, f64, usize)> = BTreeMap::new();
     for r in rows.iter().filter(|r| r.error.is_none()) {
+        // The run id without its material, and short: "per-map lanczos3", "matup onnx:…".
         let label =
             r.id.split_once('/')
                 .map_or(r.id.as_str(), |p| p.1)
-                .to_string();
+                .replace("upsampler=", "");
         let s = sums.entry(label).or_default();
         s.0 += r.seconds;
         s.1 += r.metric("render_flip");
