@@ -16,7 +16,9 @@ use crate::io::{load_material, write_atomic, LoadOptions};
 use crate::lights::LightSetSpec;
 use crate::material::Material;
 use crate::metrics::{evaluate, Evaluation};
-use crate::pipeline::{upscale, wrap_seam_ratio, RunOptions, TILEABLE_SEAM_RATIO};
+use crate::pipeline::{
+    choose_upsampler, upscale, wrap_seam_ratio, RunOptions, TILEABLE_SEAM_RATIO,
+};
 use crate::progress::Progress;
 use crate::resample::Border;
 use crate::shading::shading_model;
@@ -294,12 +296,7 @@ fn value_text(v: &toml::Value) -> String {
 /// The configuration's upsampler and shading model exist (a sweep fails before it starts).
 fn check_plugins(config: &Config) -> Result<()> {
     shading_model(&config.shading.parse::<PluginSpec>()?)?;
-    if config.upsampler != "auto" {
-        let up = upsampler(&config.upsampler.parse::<PluginSpec>()?)?;
-        for s in config.levels() {
-            check_scale(&config.upsampler, up.as_ref(), s)?;
-        }
-    }
+    choose_upsampler(config)?;
     Ok(())
 }
 

@@ -251,7 +251,7 @@ pub fn upscale(
 
 /// The configured upsampler, or for `auto` the first of [`AUTO_UPSAMPLERS`] that loads and
 /// supports every level's scale.
-fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
+pub(crate) fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
     let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
         let spec: PluginSpec = spec.parse()?;
         let up = upsampler(&spec)?;
