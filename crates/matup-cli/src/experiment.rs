@@ -128,8 +128,10 @@ pub fn sweep(args: &SweepArgs) -> anyhow::Result<()> {
 fn execute(experiment: &Experiment, output: &Path, quiet: bool) -> anyhow::Result<()> {
     let runs = experiment.runs()?;
     for m in &experiment.materials {
+        // Only folders that exist can be the same (a missing material fails its own runs).
+        let same = matches!((output.canonicalize(), m.canonicalize()), (Ok(a), Ok(b)) if a == b);
         anyhow::ensure!(
-            output.canonicalize().ok() != m.canonicalize().ok(),
+            !same,
             "{}: the output folder is a material folder; matup never writes into its input",
             output.display()
         );

@@ -325,6 +325,24 @@ fn sweep_rejects_bad_files_before_running() {
     );
     let o = matup(&["sweep", dir.path().join("missing.toml").to_str().unwrap()]);
     assert!(stderr(&o).contains("missing.toml"), "{}", stderr(&o));
+    // A missing material fails its runs with its own reason, listed at the end.
+    let out = dir.path().join("bench");
+    let o = matup(&[
+        "bench",
+        "/no/such/material",
+        "-o",
+        out.to_str().unwrap(),
+        "--baselines",
+        "bilinear",
+        "--upsamplers",
+        "bilinear",
+        "--quiet",
+    ]);
+    let e = stderr(&o);
+    assert!(
+        e.contains("2 run(s) failed") && e.contains("/no/such/material"),
+        "{e}"
+    );
 }
 
 #[test]
