@@ -12,6 +12,7 @@ use std::sync::Arc;
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
+use super::gemm::product;
 use super::geometry::WindowGeometry;
 
 #[inline]
@@ -21,44 +22,32 @@ fn axpy(alpha: f32, x: &[f32], y: &mut [f32]) {
     }
 }
 
-/// `c (m×n) = a (m×k, strides rsa, csa) · b (k×n, strides rsb, csb)`, overwriting `c`
-/// (row-major, stride n).
-#[allow(clippy::too_many_arguments)]
-fn gemm(
-    m: usize,
-    k: usize,
-    n: usize,
-    a: &[f32],
-    rsa: isize,
-    csa: isize,
-    b: &[f32],
-    rsb: isize,
-    csb: isize,
-    c: &mut [f32],
-) {
-    if m == 0 || n == 0 {
-        return;
+/// Writes `Σ wt·x` over `terms` into `out` (zeros where there are none). The first term is
+/// assigned, not added, so no buffer needs zero-filling first.
+fn combine_into<'a>(out: &mut [f32], mut terms: impl Iterator<Item = (f32, &'a [f32])>) {
+    match terms.next() {
+        Some((wt, x)) => out.iter_mut().zip(x).for_each(|(o, x)| *o = wt * x),
+        None => out.fill(0.0),
     }
-    assert!(c.len() >= m * n);
-    // SAFETY: the strides describe sub-slices of `a`, `b` and `c` (checked by callers'
-    // shapes); matrixmultiply reads and writes nothing else.
-    unsafe {
-        matrixmultiply::sgemm(
-            m,
-            k,
-            n,
-            1.0,
-            a.as_ptr(),
-            rsa,
-            csa,
-            b.as_ptr(),
-            rsb,
-            csb,
-            0.0,
-            c.as_mut_ptr(),
-            n as isize,
-            1,
-        );
+    for (wt, x) in terms {
+        axpy(wt, x, out);
+    }
+}
+
+/// Appends the row `Σ wt·x` over `terms` (`len` long) to `out`, so buffers are built row by
+/// row in order and never zero-filled first (zero-filling them cost ~5% of a training step).
+fn push_combination<'a>(
+    out: &mut Vec<f32>,
+    len: usize,
+    mut terms: impl Iterator<Item = (f32, &'a [f32])>,
+) {
+    let start = out.len();
+    match terms.next() {
+        Some((wt, x)) => out.extend(x[..len].iter().map(|v| wt * v)),
+        None => out.resize(start + len, 0.0),
+    }
+    for (wt, x) in terms {
+        axpy(wt, x, &mut out[start..]);
     }
 }
 
@@ -95,14 +84,14 @@ impl FoldedLayer {
             .into_par_iter()
             .map(|dy| {
                 let w = &weights[dy * n * row..][..n * row];
-                let mut out = vec![0f32; s * k * row]; // [px][b]
+                let mut out = Vec::with_capacity(s * k * row); // [px][b]
                 for px in 0..s {
-                    for &(dx, b, wt) in &g.axis.weights[px] {
-                        axpy(
-                            wt,
-                            &w[dx * row..][..row],
-                            &mut out[(px * k + b) * row..][..row],
-                        );
+                    for b in 0..k {
+                        let terms = g.axis.weights[px]
+                            .iter()
+                            .filter(|tap| tap.1 == b)
+                            .map(|&(dx, _, wt)| (wt, &w[dx * row..][..row]));
+                        push_combination(&mut out, row, terms);
                     }
                 }
                 out
@@ -112,14 +101,14 @@ impl FoldedLayer {
         let stage2: Vec<Vec<f32>> = (0..s * k)
             .into_par_iter()
             .map(|pb| {
-                let mut out = vec![0f32; s * k * row]; // [py][a]
+                let mut out = Vec::with_capacity(s * k * row); // [py][a]
                 for py in 0..s {
-                    for &(dy, a, wt) in &g.axis.weights[py] {
-                        axpy(
-                            wt,
-                            &stage1[dy][pb * row..][..row],
-                            &mut out[(py * k + a) * row..][..row],
-                        );
+                    for a in 0..k {
+                        let terms = g.axis.weights[py]
+                            .iter()
+                            .filter(|tap| tap.1 == a)
+                            .map(|&(dy, _, wt)| (wt, &stage1[dy][pb * row..][..row]));
+                        push_combination(&mut out, row, terms);
                     }
                 }
                 out
@@ -149,36 +138,36 @@ impl FoldedLayer {
             .into_par_iter()
             .map(|pb| {
                 let (px, b) = (pb / k, pb % k);
-                let mut out = vec![0f32; n * row]; // [dy]
-                for py in 0..s {
-                    let grad = &phase_grads[py * s + px];
-                    if grad.is_empty() {
-                        continue;
-                    }
-                    for &(dy, a, wt) in &g.axis.weights[py] {
-                        axpy(
-                            wt,
-                            &grad[(a * k + b) * row..][..row],
-                            &mut out[dy * row..][..row],
-                        );
-                    }
+                let mut out = Vec::with_capacity(n * row); // [dy]
+                for dy in 0..n {
+                    let terms = (0..s)
+                        .filter(|py| !phase_grads[py * s + px].is_empty())
+                        .flat_map(|py| {
+                            let grad = &phase_grads[py * s + px];
+                            g.axis.weights[py]
+                                .iter()
+                                .filter(move |tap| tap.0 == dy)
+                                .map(move |&(_, a, wt)| (wt, &grad[(a * k + b) * row..][..row]))
+                        });
+                    push_combination(&mut out, row, terms);
                 }
                 out
             })
             .collect();
         // Stage 1 adjoint, per dy: dW[dy][dx] = Σ_px Σ_b Bx_px[dx][b] · dT[px][b][dy].
+        let stage2 = &stage2;
         let mut grad = vec![0f32; self.weight_len()];
         grad.par_chunks_mut(n * row)
             .enumerate()
             .for_each(|(dy, out)| {
-                for px in 0..s {
-                    for &(dx, b, wt) in &g.axis.weights[px] {
-                        axpy(
-                            wt,
-                            &stage2[px * k + b][dy * row..][..row],
-                            &mut out[dx * row..][..row],
-                        );
-                    }
+                for (dx, out) in out.chunks_exact_mut(row).enumerate() {
+                    let terms = (0..s).flat_map(|px| {
+                        g.axis.weights[px]
+                            .iter()
+                            .filter(move |tap| tap.0 == dx)
+                            .map(move |&(_, b, wt)| (wt, &stage2[px * k + b][dy * row..][..row]))
+                    });
+                    combine_into(out, terms);
                 }
             });
         grad
@@ -207,20 +196,8 @@ impl FoldedLayer {
                 for &i in group {
                     x.extend_from_slice(&windows[i * kkc..][..kkc]);
                 }
-                let mut y = vec![0f32; group.len() * h];
                 // y (n×H) = x (n×KKC) · Fᵀ (KKC×H, row-major).
-                gemm(
-                    group.len(),
-                    kkc,
-                    h,
-                    &x,
-                    kkc as isize,
-                    1,
-                    &folded[phase],
-                    h as isize,
-                    1,
-                    &mut y,
-                );
+                let y = product((group.len(), kkc, h), &x, (kkc, 1), &folded[phase], (h, 1));
                 (phase, y)
             })
             .collect();
@@ -255,21 +232,8 @@ impl FoldedLayer {
                     x.extend_from_slice(&windows[i * kkc..][..kkc]);
                     gy.extend_from_slice(&grad_out[i * h..][..h]);
                 }
-                let mut g = vec![0f32; kkc * h];
                 // Gᵀ (KKC×H) = xᵀ (KKC×n) · gy (n×H).
-                gemm(
-                    kkc,
-                    group.len(),
-                    h,
-                    &x,
-                    1,
-                    kkc as isize,
-                    &gy,
-                    h as isize,
-                    1,
-                    &mut g,
-                );
-                g
+                product((kkc, group.len(), h), &x, (1, kkc), &gy, (h, 1))
             })
             .collect()
     }

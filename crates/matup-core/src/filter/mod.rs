@@ -3,7 +3,9 @@
 
 pub mod activation;
 pub mod decode;
+pub mod dense;
 pub mod folded;
+mod gemm;
 pub mod geometry;
 
 use std::collections::HashMap;
@@ -16,6 +18,7 @@ use rand::{Rng, SeedableRng};
 
 use crate::config::{Activation, FilterConfig};
 use crate::{Error, Result};
+use dense::Dense;
 use folded::{FoldedLayer, FoldedLinear};
 use geometry::WindowGeometry;
 
@@ -108,10 +111,19 @@ impl Filter {
                 self.vars[2 * layer].as_tensor(),
                 self.vars[2 * layer + 1].as_tensor(),
             );
-            x = x.matmul(&w.t()?)?.broadcast_add(b)?;
-            if layer + 1 < layers {
-                x = self.activate(&x)?;
-            }
+            x = if layer + 1 == layers {
+                x.apply_op3(w, b, Dense { slope: None })?
+            } else {
+                match self.activation {
+                    Activation::LeakyRelu(slope) => {
+                        x.apply_op3(w, b, Dense { slope: Some(slope) })?
+                    }
+                    Activation::Relu => x.apply_op3(w, b, Dense { slope: Some(0.0) })?,
+                    Activation::Gelu | Activation::Silu => {
+                        self.activate(&x.apply_op3(w, b, Dense { slope: None })?)?
+                    }
+                }
+            };
         }
         Ok(x)
     }
