@@ -61,9 +61,10 @@ enum Command {
 }
 
 /// matup's own loops run on the global rayon pool, one thread per core. candle splits every
-/// matrix product across `RAYON_NUM_THREADS` threads, which for the filter's 128×128
-/// products costs more than it gains (measured: 2.0 ms per step with 2 threads, 1.0 ms with
-/// one), so once the pool exists candle is told to use one thread.
+/// matrix product across `RAYON_NUM_THREADS` threads, which for 128×128 products costs more
+/// than it gains (measured: 2.0 ms per training step with 2 threads, 1.0 ms with one; the
+/// filter's layers now split their rows themselves, `filter/dense.rs`), so once the pool
+/// exists candle is told to use one thread.
 fn configure_threads() {
     let threads = std::env::var("RAYON_NUM_THREADS")
         .ok()
