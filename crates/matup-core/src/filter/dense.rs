@@ -163,20 +163,11 @@ impl CustomOp3 for Dense {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::filter::pseudo_random;
     use candle_core::{Device, Var};
 
     fn var(values: Vec<f32>, shape: (usize, usize)) -> Var {
         Var::from_tensor(&Tensor::from_vec(values, shape, &Device::Cpu).unwrap()).unwrap()
-    }
-
-    fn pseudo_random(n: usize, seed: u32) -> Vec<f32> {
-        (0..n)
-            .map(|i| {
-                (((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) % 1000) as f32
-                    / 500.0
-                    - 1.0
-            })
-            .collect()
     }
 
     /// The fused layer gives candle's own composition's values and gradients, with and

@@ -291,6 +291,7 @@ impl CustomOp1 for FoldedLinear {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::filter::pseudo_random;
     use crate::resample::Kernel;
 
     fn layer() -> FoldedLayer {
@@ -299,16 +300,6 @@ mod tests {
             channels: 2,
             hidden: 3,
         }
-    }
-
-    fn pseudo_random(n: usize, seed: u32) -> Vec<f32> {
-        (0..n)
-            .map(|i| {
-                (((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) % 1000) as f32
-                    / 500.0
-                    - 1.0
-            })
-            .collect()
     }
 
     /// The folded layer equals the plain layer on the unfolded window.

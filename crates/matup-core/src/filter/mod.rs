@@ -190,3 +190,14 @@ impl Filter {
 pub fn tensor_name(index: usize) -> String {
     format!("{}{}", if index % 2 == 0 { "w" } else { "b" }, index / 2)
 }
+
+/// Deterministic values in [−1, 1) for the filter's tests.
+#[cfg(test)]
+pub(crate) fn pseudo_random(n: usize, seed: u32) -> Vec<f32> {
+    (0..n)
+        .map(|i| {
+            (((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) % 1000) as f32 / 500.0
+                - 1.0
+        })
+        .collect()
+}
