@@ -50,11 +50,14 @@ impl FromStr for Activation {
             "silu" => Ok(Activation::Silu),
             _ => s
                 .strip_prefix("leaky-relu:")
-                .and_then(|v| v.parse().ok())
+                .and_then(|v| v.parse::<f32>().ok())
+                // A negative slope is not a leaky ReLU (and the dense layers' backward reads
+                // the sign of the pre-activation from the output's, true only for slope ≥ 0).
+                .filter(|slope| slope.is_finite() && *slope >= 0.0)
                 .map(Activation::LeakyRelu)
                 .ok_or_else(|| {
                     Error::Invalid(format!(
-                        "unknown activation '{s}'; use leaky-relu, leaky-relu:SLOPE, relu, gelu or silu"
+                        "unknown activation '{s}'; use leaky-relu, leaky-relu:SLOPE (SLOPE ≥ 0), relu, gelu or silu"
                     ))
                 }),
         }
@@ -422,6 +425,14 @@ mod tests {
         assert!(
             e.contains("b.toml") && e.contains("epoch") && e.contains("line 2"),
             "{e}"
+        );
+        let e = Config::from_toml("[filter]\nactivation = \"leaky-relu:-0.5\"\n", "d.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("d.toml") && e.contains("SLOPE ≥ 0"), "{e}");
+        assert_eq!(
+            "leaky-relu:0.2".parse::<Activation>().unwrap(),
+            Activation::LeakyRelu(0.2)
         );
         let e = Config::from_toml("scale = 5\n", "c.toml")
             .unwrap_err()
