@@ -5,7 +5,7 @@ use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
 
 use crate::map::Map;
-use crate::resample::{upsample, Border, Kernel};
+use crate::resample::{gaussian_blur, upsample, Border, Kernel};
 
 /// Integrates unit normals (3 channels, geometry frame) into a height field in the units of
 /// the material's square ([−1, 1]² spans the map), least-squares, mean zero. Periodic for
@@ -106,40 +106,12 @@ fn fft2(
     }
 }
 
-/// Separable Gaussian blur of a 1-channel map.
-fn blur(map: &Map, sigma: f32, border: Border) -> Map {
-    let radius = (3.0 * sigma).ceil() as isize;
-    let kernel: Vec<f32> = (-radius..=radius)
-        .map(|d| (-(d * d) as f32 / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let sum: f32 = kernel.iter().sum();
-    let kernel: Vec<f32> = kernel.iter().map(|k| k / sum).collect();
-    let (w, h) = (map.width(), map.height());
-    let pass = |src: &Map, horizontal: bool| {
-        Map::from_fn(w, h, 1, |_, y, x| {
-            kernel
-                .iter()
-                .enumerate()
-                .map(|(k, wt)| {
-                    let d = k as isize - radius;
-                    let (yy, xx) = if horizontal {
-                        (y, border.index(x as isize + d, w))
-                    } else {
-                        (border.index(y as isize + d, h), x)
-                    };
-                    wt * src.get(0, yy, xx)
-                })
-                .sum()
-        })
-    };
-    pass(&pass(map, true), false)
-}
-
+/// The detail of a 1-channel map above a Gaussian blur of width `sigma`.
 fn high_pass(map: &Map, sigma: f32, border: Border) -> Map {
-    let low = blur(map, sigma, border);
-    Map::from_fn(map.width(), map.height(), 1, |_, y, x| {
-        map.get(0, y, x) - low.get(0, y, x)
-    })
+    let (w, h) = (map.width(), map.height());
+    let low = gaussian_blur(map.data(), w, h, sigma, border);
+    let detail = map.data().iter().zip(low).map(|(v, l)| v - l).collect();
+    Map::from_planar(w, h, 1, detail)
 }
 
 /// The HR height: the upsampled LR height plus the high-pass detail of the integrated HR

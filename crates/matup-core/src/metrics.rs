@@ -9,7 +9,7 @@ use crate::map::Map;
 use crate::material::Material;
 use crate::pipeline::{wrap_seam_ratio, TILEABLE_SEAM_RATIO};
 use crate::render::{render, RenderOptions};
-use crate::resample::Border;
+use crate::resample::{gaussian_blur, Border};
 use crate::shading::ShadingModel;
 use crate::{Error, Result};
 
@@ -142,7 +142,7 @@ pub fn mean_angle_degrees(a: &Map, b: &Map) -> f64 {
 }
 
 /// Mean SSIM of two images with values in [0, 1] (Wang et al. 2004: Gaussian window σ = 1.5
-/// truncated at 11 texels, K1 = 0.01, K2 = 0.03), averaged over texels and channels; borders
+/// truncated at 11 texels (3σ each side), K1 = 0.01, K2 = 0.03), averaged over texels and channels; borders
 /// repeat the edge texel.
 pub fn ssim(a: &Map, b: &Map) -> f64 {
     const C1: f32 = 0.01 * 0.01;
@@ -152,7 +152,7 @@ pub fn ssim(a: &Map, b: &Map) -> f64 {
     for c in 0..a.channels() {
         let x = a.plane(c);
         let y = b.plane(c);
-        let blur = |v: Vec<f32>| gaussian_blur(&v, w, h);
+        let blur = |v: Vec<f32>| gaussian_blur(&v, w, h, 1.5, Border::Clamp);
         let mx = blur(x.to_vec());
         let my = blur(y.to_vec());
         let xx = blur(x.iter().map(|v| v * v).collect());
@@ -170,46 +170,6 @@ pub fn ssim(a: &Map, b: &Map) -> f64 {
             .sum::<f64>();
     }
     total / (a.channels() * w * h).max(1) as f64
-}
-
-/// Separable Gaussian blur (σ = 1.5, 11 taps) of a `w × h` plane, edges clamped. Both passes
-/// run as whole-row multiply-adds, which the compiler vectorises.
-fn gaussian_blur(plane: &[f32], w: usize, h: usize) -> Vec<f32> {
-    const RADIUS: isize = 5;
-    let weights: Vec<f32> = {
-        let raw: Vec<f32> = (-RADIUS..=RADIUS)
-            .map(|k| (-(k * k) as f32 / (2.0 * 1.5 * 1.5)).exp())
-            .collect();
-        let sum: f32 = raw.iter().sum();
-        raw.iter().map(|v| v / sum).collect()
-    };
-    let r = RADIUS as usize;
-    // Along rows: each row padded with its edge texels, then one shifted axpy per tap.
-    let mut across = vec![0.0f32; w * h];
-    across
-        .par_chunks_mut(w)
-        .zip(plane.par_chunks(w))
-        .for_each(|(out, row)| {
-            let padded: Vec<f32> = (0..w + 2 * r)
-                .map(|i| row[Border::Clamp.index(i as isize - RADIUS, w)])
-                .collect();
-            for (k, wt) in weights.iter().enumerate() {
-                for (o, v) in out.iter_mut().zip(&padded[k..k + w]) {
-                    *o += wt * v;
-                }
-            }
-        });
-    // Along columns: each output row is a weighted sum of whole input rows.
-    let mut out = vec![0.0f32; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (k, wt) in weights.iter().enumerate() {
-            let yy = Border::Clamp.index(y as isize + k as isize - RADIUS, h);
-            for (o, v) in row.iter_mut().zip(&across[yy * w..(yy + 1) * w]) {
-                *o += wt * v;
-            }
-        }
-    });
-    out
 }
 
 /// Mean FLIP error of two display-space RGB images, through NVIDIA's reference

@@ -205,6 +205,47 @@ pub fn box_downsample(map: &Map, factor: usize) -> Map {
     Map::from_planar(ow, oh, map.channels(), out)
 }
 
+/// Separable Gaussian blur of a `w × h` plane, truncated at 3σ each side, normalised, with
+/// `border` beyond the edges. Both passes run as whole-row multiply-adds, which the compiler
+/// vectorises.
+pub fn gaussian_blur(plane: &[f32], w: usize, h: usize, sigma: f32, border: Border) -> Vec<f32> {
+    let radius = (3.0 * sigma).ceil() as isize;
+    let weights: Vec<f32> = {
+        let raw: Vec<f32> = (-radius..=radius)
+            .map(|k| (-(k * k) as f32 / (2.0 * sigma * sigma)).exp())
+            .collect();
+        let sum: f32 = raw.iter().sum();
+        raw.iter().map(|v| v / sum).collect()
+    };
+    let r = radius as usize;
+    // Along rows: each row padded by the border, then one shifted axpy per tap.
+    let mut across = vec![0.0f32; w * h];
+    across
+        .par_chunks_mut(w)
+        .zip(plane.par_chunks(w))
+        .for_each(|(out, row)| {
+            let padded: Vec<f32> = (0..w + 2 * r)
+                .map(|i| row[border.index(i as isize - radius, w)])
+                .collect();
+            for (k, wt) in weights.iter().enumerate() {
+                for (o, v) in out.iter_mut().zip(&padded[k..k + w]) {
+                    *o += wt * v;
+                }
+            }
+        });
+    // Along columns: each output row is a weighted sum of whole input rows.
+    let mut out = vec![0.0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (k, wt) in weights.iter().enumerate() {
+            let yy = border.index(y as isize + k as isize - radius, h);
+            for (o, v) in row.iter_mut().zip(&across[yy * w..(yy + 1) * w]) {
+                *o += wt * v;
+            }
+        }
+    });
+    out
+}
+
 /// How well an image wraps around: mean |difference| across the wrap-around edges divided by
 /// the mean |difference| between interior neighbours (≈ 1: seamless; ≫ 1: a seam). The larger
 /// of the row and column ratios, over all channels.
