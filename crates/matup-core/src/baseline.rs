@@ -2,14 +2,15 @@
 //! an artist runs each texture file through Lanczos or an SR network.
 
 use crate::color::{linear_to_srgb, srgb_to_linear};
+use crate::io::{decode_normals, encode_normals};
 use crate::map::Map;
-use crate::material::{MapKind, Material};
+use crate::material::{MapKind, Material, NormalConvention};
 use crate::resample::Border;
 use crate::upsample::RgbUpsampler;
 use crate::Result;
 
 /// Upsamples each map of `material` by `scale` with `upsampler`, as the map's file would be:
-/// base colour sRGB-encoded, normals as `(n + 1) / 2` colours, grey maps as grey RGB images
+/// base colour sRGB-encoded, normals as `(n + 1) / 2` colours (io's own encoding), grey maps as grey RGB images
 /// (the three results averaged back). Normals are renormalised and values clamped after.
 pub fn upscale_per_map(
     material: &Material,
@@ -27,7 +28,7 @@ pub fn upscale_per_map(
             let m = material.map(k).expect("filtered to present maps");
             match k {
                 MapKind::BaseColor => m.clone().map_values(linear_to_srgb),
-                MapKind::Normal => m.clone().map_values(|v| 0.5 * (v + 1.0)),
+                MapKind::Normal => encode_normals(m, NormalConvention::DirectX),
                 _ => Map::stack(&[m, m, m]),
             }
         })
@@ -37,7 +38,11 @@ pub fn upscale_per_map(
     for (&k, up) in kinds.iter().zip(upsampled) {
         let decoded = match k {
             MapKind::BaseColor => up.map_values(|v| srgb_to_linear(v.clamp(0.0, 1.0))),
-            MapKind::Normal => up.map_values(|v| 2.0 * v - 1.0),
+            MapKind::Normal => {
+                let mut normals = up;
+                decode_normals(&mut normals, NormalConvention::DirectX);
+                normals
+            }
             _ => {
                 let (w, h) = (up.width(), up.height());
                 Map::from_fn(w, h, 1, |_, y, x| {

@@ -303,7 +303,7 @@ impl Reader {
 }
 
 /// Encoded [0, 1] normals → unit vectors in matup's (DirectX) frame.
-fn decode_normals(normal: &mut Map, convention: NormalConvention) {
+pub(crate) fn decode_normals(normal: &mut Map, convention: NormalConvention) {
     let n = normal.texels();
     let data = normal.data_mut();
     let flip = if convention == NormalConvention::OpenGl {
@@ -397,7 +397,7 @@ pub fn save_material(
 }
 
 /// Unit normals → [0, 1] encoding in `convention`.
-fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
+pub(crate) fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
     let flip = if convention == NormalConvention::OpenGl {
         -1.0
     } else {
