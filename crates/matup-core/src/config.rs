@@ -313,6 +313,18 @@ pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
 /// The scales one level of the method handles.
 pub const LEVEL_SCALES: [usize; 3] = [2, 3, 4];
 
+/// The whole factors matup upsamples by: one level of [`LEVEL_SCALES`], or ×16 as two ×4
+/// levels. `what` names the value in the error (`scale`, `factor`).
+pub fn check_supported_scale(scale: usize, what: &str) -> Result<()> {
+    if LEVEL_SCALES.contains(&scale) || scale == 16 {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "unsupported {what} ×{scale}; use 2, 3, 4 or 16"
+        )))
+    }
+}
+
 impl Config {
     /// Parses TOML; `origin` (a file name) prefixes errors, which carry the line and key.
     pub fn from_toml(text: &str, origin: &str) -> Result<Config> {
@@ -339,12 +351,7 @@ impl Config {
     /// Rejects values the method cannot run with, saying which and why.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::Invalid(m));
-        if !(LEVEL_SCALES.contains(&self.scale) || self.scale == 16) {
-            return bad(format!(
-                "unsupported scale ×{}; use 2, 3, 4 or 16",
-                self.scale
-            ));
-        }
+        check_supported_scale(self.scale, "scale")?;
         let f = &self.filter;
         if f.window == 0 || f.window % 2 == 0 {
             return bad(format!(

@@ -11,7 +11,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::baseline::upscale_per_map;
-use crate::config::Config;
+use crate::config::{check_supported_scale, Config};
 use crate::io::{load_material, write_atomic, LoadOptions};
 use crate::lights::LightSetSpec;
 use crate::material::Material;
@@ -210,12 +210,7 @@ impl Experiment {
         if self.materials.is_empty() {
             return Err(Error::Invalid("the experiment names no materials".into()));
         }
-        if !crate::config::LEVEL_SCALES.contains(&self.factor) && self.factor != 16 {
-            return Err(Error::Invalid(format!(
-                "unsupported factor ×{}; use 2, 3, 4 or 16",
-                self.factor
-            )));
-        }
+        check_supported_scale(self.factor, "factor")?;
         shading_model(&self.eval_shading.parse::<PluginSpec>()?)?;
         for b in &self.baselines {
             let up = upsampler(&b.parse::<PluginSpec>()?)?;
