@@ -30,6 +30,13 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     srgb_encode(v).0
 }
 
+/// A [0, 1] value as 8 bits, rounded (truncation would drift flat normals and dark colours
+/// down by half a step); values outside are clamped.
+#[inline]
+pub fn to_u8(v: f32) -> u8 {
+    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
 /// The display transform of METHOD.md: Reinhard tone mapping `t / (1 + t)`, then the sRGB
 /// transfer curve, per channel. Renders are compared after it.
 #[inline]

@@ -4,6 +4,7 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::color::to_u8;
 use crate::lights::{Light, LightSetSpec};
 use crate::map::Map;
 use crate::material::Material;
@@ -177,9 +178,7 @@ pub fn ssim(a: &Map, b: &Map) -> f64 {
 pub fn flip(reference: &Map, test: &Map) -> f64 {
     let to_rgb8 = |m: &Map| -> Vec<u8> {
         (0..m.texels())
-            .flat_map(|i| {
-                (0..3).map(move |c| (m.plane(c)[i].clamp(0.0, 1.0) * 255.0).round() as u8)
-            })
+            .flat_map(|i| (0..3).map(move |c| to_u8(m.plane(c)[i])))
             .collect()
     };
     let (w, h) = (reference.width() as u32, reference.height() as u32);

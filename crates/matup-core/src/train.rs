@@ -11,6 +11,7 @@ use rand::SeedableRng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::color::to_u8;
 use crate::config::{Schedule, TrainConfig};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES};
@@ -58,8 +59,7 @@ impl Targets {
             .for_each(|(t, row)| {
                 for (l, r) in renders.iter().enumerate() {
                     for c in 0..3 {
-                        row[(first + l) * 3 + c] =
-                            (r.plane(c)[t].clamp(0.0, 1.0) * 255.0).round() as u8;
+                        row[(first + l) * 3 + c] = to_u8(r.plane(c)[t]);
                     }
                 }
             });

@@ -8,6 +8,7 @@ use exr::prelude as ex;
 use exr::prelude::traits::*;
 use image::{DynamicImage, ImageFormat, ImageReader};
 
+use crate::color::to_u8;
 use crate::map::Map;
 use crate::material::FileFormat;
 use crate::{Error, Result};
@@ -231,11 +232,7 @@ fn encode(map: &Map, format: FileFormat) -> std::result::Result<Vec<u8>, String>
     let mut out = Cursor::new(Vec::new());
     match format {
         FileFormat::Png8 | FileFormat::Jpeg => {
-            // Round, do not truncate: truncation drifts flat normals and dark colours.
-            let raw: Vec<u8> = values
-                .iter()
-                .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
-                .collect();
+            let raw: Vec<u8> = values.iter().map(|&v| to_u8(v)).collect();
             let image = if ch == 1 {
                 DynamicImage::ImageLuma8(
                     image::GrayImage::from_raw(w as u32, h as u32, raw).unwrap(),
