@@ -120,7 +120,28 @@ pub struct Row {
 /// [`Evaluation`] as stored (deserialisable).
 pub type EvaluationRow = BTreeMap<String, f64>;
 
+/// How a run ended: its wall time, stage timings and evaluation, or its error.
+type Outcome = std::result::Result<(f64, Vec<(String, f64)>, Evaluation), String>;
+
 impl Row {
+    /// The row of `run`: its time, stage timings and evaluation, or its error.
+    fn new(run: &Run, outcome: Outcome) -> Row {
+        let (seconds, timings, evaluation, error) = match outcome {
+            Ok((seconds, timings, ev)) => (seconds, timings, Some(evaluation_row(&ev)), None),
+            Err(e) => (0.0, Vec::new(), None, Some(e)),
+        };
+        Row {
+            id: run.id.clone(),
+            material: material_name(&run.material),
+            kind: run.kind.into(),
+            settings: run.settings.clone(),
+            seconds,
+            timings,
+            evaluation,
+            error,
+        }
+    }
+
     /// A metric of the run ([`METRICS`]); NaN when the run failed.
     pub fn metric(&self, name: &str) -> f64 {
         self.evaluation
@@ -371,34 +392,25 @@ pub fn run_experiment(
         if pair.as_ref().is_none_or(|(p, _)| *p != run.material) {
             pair = Some((run.material.clone(), make_pair(&run.material, experiment)));
         }
-        let row = match &pair.as_ref().expect("set above").1 {
-            Err(e) => failed(run, e.to_string()),
+        let outcome = match &pair.as_ref().expect("set above").1 {
+            Err(e) => Err(e.to_string()),
             Ok(p) => {
                 let checkpoints = out.join(".checkpoints").join(format!("run{i}"));
                 match run_one(run, p, experiment.factor, &checkpoints, progress) {
                     Err(Error::Cancelled { epochs_done }) => {
                         return Err(Error::Cancelled { epochs_done })
                     }
-                    Err(e) => failed(run, e.to_string()),
+                    Err(e) => Err(e.to_string()),
                     Ok((material, seconds, timings)) => {
                         let _ = std::fs::remove_dir_all(&checkpoints);
-                        match evaluate(&p.truth, &material, eval_model.as_ref(), &eval_lights) {
-                            Ok(ev) => Row {
-                                id: run.id.clone(),
-                                material: material_name(&run.material),
-                                kind: run.kind.into(),
-                                settings: run.settings.clone(),
-                                seconds,
-                                timings,
-                                evaluation: Some(evaluation_row(&ev)),
-                                error: None,
-                            },
-                            Err(e) => failed(run, e.to_string()),
-                        }
+                        evaluate(&p.truth, &material, eval_model.as_ref(), &eval_lights)
+                            .map(|ev| (seconds, timings, ev))
+                            .map_err(|e| e.to_string())
                     }
                 }
             }
         };
+        let row = Row::new(run, outcome);
         progress.note(&match &row.error {
             None => format!(
                 "  {:.1} s, render PSNR {:.2} dB, SSIM {:.4}, FLIP {:.4}",
@@ -423,19 +435,6 @@ fn material_name(path: &Path) -> String {
         || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     )
-}
-
-fn failed(run: &Run, error: String) -> Row {
-    Row {
-        id: run.id.clone(),
-        material: material_name(&run.material),
-        kind: run.kind.into(),
-        settings: run.settings.clone(),
-        seconds: 0.0,
-        timings: Vec::new(),
-        evaluation: None,
-        error: Some(error),
-    }
 }
 
 type Upscaled = (Material, f64, Vec<(String, f64)>);
