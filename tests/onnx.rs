@@ -294,3 +294,106 @@ fn bad_models_give_clear_errors() {
         .to_string();
     assert!(e.contains("×2") && e.contains("×4"), "{e}");
 }
+
+/// The largest difference between two upsamplers' outputs for `image`.
+fn engines_differ(a: &str, b: &str, image: &Map, border: Border) -> f32 {
+    let run = |spec: &str| {
+        build(spec)
+            .upsample(std::slice::from_ref(image), 4, border)
+            .unwrap()
+            .remove(0)
+    };
+    common::max_abs_diff(&run(a), &run(b))
+}
+
+#[test]
+fn matups_executor_matches_tract_on_every_shipped_model() {
+    let image = real_render();
+    let small = image.crop(16, 16, 32, 32);
+    let (_d, x2) = shared_model("span_x2_ch48", 2, 24);
+    let (_d, esrgan) = shared_model("realesrgan_x4plus", 4, 16);
+    for (model, image, scale) in [
+        ("span_x4_ch48".to_string(), &image, 4),
+        (x2.display().to_string(), &image, 2),
+        (esrgan.display().to_string(), &small, 4),
+    ] {
+        let run = |engine: &str| {
+            build(&format!("onnx:{model},engine={engine}"))
+                .upsample(std::slice::from_ref(image), scale, Border::Mirror)
+                .unwrap()
+                .remove(0)
+        };
+        let diff = common::max_abs_diff(&run("matup"), &run("tract"));
+        println!("{model}: max |matup − tract| {diff:e}");
+        // tract approximates the sigmoid, whose input SPAN scales by 255: 1.2·10⁻⁴ of the
+        // original runtime (shared/models/README.md), 0.03 of an 8-bit level.
+        assert!(diff < 1e-4, "{model}: engines differ by {diff}");
+    }
+}
+
+#[test]
+fn a_tileable_image_run_whole_with_wrapping_convolutions_matches_wrap_around_tiles() {
+    let image = real_render();
+    // One 64² tile on matup's executor, its convolutions wrapping; against 16 tiles of 16² on
+    // tract, each read with 44 texels of wrapped-around context, so that the 22 they keep
+    // cover SPAN's receptive field (21).
+    let diff = engines_differ(
+        "onnx:span_x4_ch48,engine=matup,tile=64",
+        "onnx:span_x4_ch48,engine=tract,tile=16,overlap=44,batch=8",
+        &image,
+        Border::Wrap,
+    );
+    println!("max |whole wrapping − wrap-around tiles| {diff:e}");
+    assert!(diff < 1e-4, "whole wrapping vs tiles: {diff}");
+}
+
+#[test]
+fn graphs_with_other_operators_fall_back_to_tract_and_say_why() {
+    use prost::Message;
+    let source = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/span_x4_ch48.onnx");
+    let mut model =
+        tract_onnx::pb::ModelProto::decode(std::fs::read(source).unwrap().as_slice()).unwrap();
+    // The first sigmoid becomes a hard sigmoid, which tract runs and matup's executor does not.
+    let node = model
+        .graph
+        .as_mut()
+        .unwrap()
+        .node
+        .iter_mut()
+        .find(|n| n.op_type == "Sigmoid")
+        .unwrap();
+    node.op_type = "HardSigmoid".into();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hard.onnx");
+    std::fs::write(&path, model.encode_to_vec()).unwrap();
+    std::fs::write(path.with_extension("toml"), "scale = 4\noverlap = 22\n").unwrap();
+
+    let auto = matup::upsamplers::onnx::OnnxUpsampler::load(
+        &path,
+        matup::upsamplers::onnx::EngineChoice::Auto,
+    )
+    .unwrap();
+    assert!(auto.engine().starts_with("tract") && auto.engine().contains("HardSigmoid"));
+    let out = auto
+        .upsample(&[real_render()], 4, Border::Mirror)
+        .unwrap()
+        .remove(0);
+    assert_eq!((out.width(), out.height()), (256, 256));
+
+    let e = error_of(&format!("onnx:{},engine=matup", path.display()));
+    assert!(
+        e.contains("hard.onnx") && e.contains("operator HardSigmoid"),
+        "{e}"
+    );
+    let e = error_of("onnx:span_x4_ch48,engine=fast");
+    assert!(
+        e.contains("engine 'fast'") && e.contains("auto, matup, tract"),
+        "{e}"
+    );
+    let shipped = matup::upsamplers::onnx::OnnxUpsampler::load(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/span_x4_ch48.onnx"),
+        matup::upsamplers::onnx::EngineChoice::Auto,
+    )
+    .unwrap();
+    assert_eq!(shipped.engine(), "matup");
+}

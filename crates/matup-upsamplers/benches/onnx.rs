@@ -1,7 +1,9 @@
 //! Per-render upsampling time of each ONNX model matup knows: the shipped SPAN ×4 and, from
 //! `../shared/models` when it is there, SPAN ×2 and Real-ESRGAN ×4. Each model runs on 128²
-//! and 512² LR images (a real base-colour map), as one tile without context and as the
-//! sidecar's tiles with their context, on 1 and 2 threads. Prints a table of medians.
+//! and 512² LR images (a real base-colour map, treated as tileable), as one tile without
+//! context (matup's executor wraps its convolutions around; tract pads with zeros) and as the
+//! sidecar's tiles with their context, on matup's executor and on tract, on 1 and 2 threads.
+//! Prints a table of medians.
 //!
 //! `cargo bench -p matup-upsamplers --bench onnx` (`MATUP_BENCH_SLOW=1` adds Real-ESRGAN at
 //! 512², several minutes).
@@ -103,9 +105,9 @@ fn main() {
                 ("one tile, no context".to_string(), lr, 0),
                 (tiled, model.tile, model.overlap),
             ] {
-                for threads in [1, 2] {
+                for (engine, threads) in [("matup", 1), ("matup", 2), ("tract", 1), ("tract", 2)] {
                     let spec = format!(
-                        "onnx:{},tile={tile},overlap={overlap},threads={threads}",
+                        "onnx:{},tile={tile},overlap={overlap},threads={threads},engine={engine}",
                         model.path.display()
                     );
                     let up = upsampler(&spec.parse::<PluginSpec>().unwrap())
@@ -117,9 +119,12 @@ fn main() {
                         },
                         Duration::from_secs(30),
                     );
-                    eprintln!("{} {lr}² {tiling} {threads}t: {seconds:.3} s", model.name);
+                    eprintln!(
+                        "{} {lr}² {tiling} {engine} {threads}t: {seconds:.3} s",
+                        model.name
+                    );
                     rows.push(format!(
-                        "| {} | {lr}² | {tiling} | {threads} | {seconds:.3} | {:.1} | {runs} |",
+                        "| {} | {lr}² | {tiling} | {engine} | {threads} | {seconds:.3} | {:.1} | {runs} |",
                         model.name,
                         100.0 * seconds * (128.0 * 128.0) / (lr * lr) as f64,
                     ));
@@ -128,11 +133,11 @@ fn main() {
         }
     }
 
-    println!("\nONNX upsampling with tract, {cores} cores (median seconds per render)\n");
+    println!("\nONNX upsampling, {cores} cores (median seconds per render)\n");
     println!(
-        "| model | LR size | tiling | threads | s / render | s / 100 renders of 128² | runs |"
+        "| model | LR size | tiling | engine | threads | s / render | s / 100 renders of 128² | runs |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
     for row in rows {
         println!("{row}");
     }

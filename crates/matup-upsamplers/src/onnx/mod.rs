@@ -1,12 +1,20 @@
-//! `onnx`: a pre-trained RGB super-resolution network from an ONNX file, run on the CPU with
-//! tract. Facts the file does not state (scale, value range, channel order, tiling, licence)
-//! come from a sidecar `NAME.toml` next to `NAME.onnx`; the scale is checked against the
-//! network's real output on a probe input.
+//! `onnx`: a pre-trained RGB super-resolution network from an ONNX file, run on the CPU.
+//! Facts the file does not state (scale, value range, channel order, tiling, licence) come
+//! from a sidecar `NAME.toml` next to `NAME.onnx`; the scale is checked against the network's
+//! real output on a probe input.
+//!
+//! Two engines run the graph: matup's own executor for convolutional SR graphs ([`convnet`],
+//! several times faster on CPUs), used whenever the graph's operators allow, and tract for
+//! every other graph; the optimised tract plan is built once per input shape and reused.
 //!
 //! Images are processed in tiles read with `overlap` texels of context on every side (wrapping
 //! around for tileable materials), several tiles per call, and blended with feathered weights
-//! where their kept regions overlap, so memory stays bounded and no seam shows. The optimised
-//! tract plan is built once per input shape and reused.
+//! where their kept regions overlap, so memory stays bounded and no seam shows. A tileable
+//! image that fits in one tile runs whole on matup's executor, its convolutions wrapping
+//! around, which needs no context at all.
+
+mod convnet;
+mod kernels;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -19,7 +27,10 @@ use matup_core::{Error, Map, Result};
 use serde::Deserialize;
 use tract_linalg::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::prelude::*;
-use tract_onnx::tract_hir::infer::Factoid;
+
+use convnet::ConvNet;
+use kernels::{Features, Padding};
+use tract_onnx::pb::ModelProto;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
 #[derive(Clone, Debug, Deserialize)]
@@ -149,29 +160,62 @@ fn read_sidecar(model: &Path) -> Result<ModelInfo> {
 
 type Plan = Arc<TypedRunnableModel>;
 
-/// A loaded network and its plans by input shape.
+/// Which engine runs a network: `auto` picks matup's executor where the graph allows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EngineChoice {
+    Auto,
+    Matup,
+    Tract,
+}
+
+/// What runs the network.
+enum Engine {
+    /// matup's executor ([`convnet`]), on `pool` (matup's own thread pool when `None`).
+    Matup {
+        net: ConvNet,
+        pool: Option<rayon::ThreadPool>,
+    },
+    /// tract, with its plans by input shape [batch, height, width].
+    Tract {
+        model: Box<InferenceModel>,
+        plans: Mutex<HashMap<[usize; 3], Plan>>,
+        executor: Executor,
+    },
+}
+
+/// A loaded network.
 pub struct OnnxUpsampler {
     path: PathBuf,
     pub info: ModelInfo,
-    model: InferenceModel,
-    plans: Mutex<HashMap<[usize; 3], Plan>>,
-    executor: Executor,
+    engine: Engine,
+    /// Why matup's executor does not run this graph (tract does), if it does not.
+    tract_because: Option<String>,
     /// The input's batch, height and width where the network fixes them.
     fixed: [Option<usize>; 3],
 }
 
-/// The [batch, height, width] an ONNX input declares, `None` where it is symbolic.
-fn fixed_input(model: &InferenceModel) -> [Option<usize>; 3] {
-    let Ok(fact) = model.input_fact(0) else {
+/// The [batch, height, width] an ONNX file's input declares, `None` where it is symbolic.
+fn fixed_input(model: &ModelProto) -> [Option<usize>; 3] {
+    use tract_onnx::pb::{tensor_shape_proto::dimension::Value, type_proto};
+    let graph = model.graph.as_ref();
+    let input = graph.and_then(|g| {
+        g.input
+            .iter()
+            .find(|i| !g.initializer.iter().any(|t| t.name == i.name))
+    });
+    let Some(type_proto::Value::TensorType(tensor)) = input
+        .and_then(|i| i.r#type.as_ref())
+        .and_then(|t| t.value.as_ref())
+    else {
         return [None; 3];
     };
-    let dims: Vec<Option<usize>> = fact
+    let dims: Vec<Option<usize>> = tensor
         .shape
-        .dims()
-        .map(|d| {
-            d.concretize()
-                .and_then(|d| d.as_i64())
-                .and_then(|v| usize::try_from(v).ok())
+        .iter()
+        .flat_map(|s| &s.dim)
+        .map(|d| match d.value {
+            Some(Value::DimValue(v)) => usize::try_from(v).ok(),
+            _ => None,
         })
         .collect();
     match dims.as_slice() {
@@ -199,8 +243,8 @@ fn executor(threads: usize) -> Executor {
 }
 
 impl OnnxUpsampler {
-    /// Loads `path` and its sidecar, checks the input layout, and probes the real scale.
-    pub fn load(path: &Path) -> Result<OnnxUpsampler> {
+    /// Loads `path` and its sidecar, picks the engine, and probes the real scale.
+    pub fn load(path: &Path, choice: EngineChoice) -> Result<OnnxUpsampler> {
         if !path.is_file() {
             return Err(model_error(path, "cannot open", "no such file"));
         }
@@ -216,34 +260,33 @@ impl OnnxUpsampler {
                 "scale, tile and batch must be positive, channel_order rgb or bgr",
             ));
         }
-        let model = tract_onnx::onnx()
-            .model_for_path(path)
+        let proto = tract_onnx::onnx()
+            .proto_model_for_path(path)
             .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
-        if model.inputs.len() != 1 || model.outputs.len() != 1 {
-            return Err(model_error(
-                path,
-                "unsupported network",
-                format!(
-                    "{} inputs and {} outputs (want 1 and 1)",
-                    model.inputs.len(),
-                    model.outputs.len()
-                ),
-            ));
-        }
-        let fixed = fixed_input(&model);
+        let native = match choice {
+            EngineChoice::Tract => Err("engine=tract was asked for".to_string()),
+            _ => ConvNet::from_model(&proto).map_err(|e| e.to_string()),
+        };
+        let (engine, tract_because) = match native {
+            Ok(net) => (Engine::Matup { net, pool: None }, None),
+            Err(why) if choice == EngineChoice::Matup => {
+                return Err(model_error(path, "matup's executor cannot run it", why))
+            }
+            Err(why) => (tract_engine(path)?, Some(why)),
+        };
         let upsampler = OnnxUpsampler {
             path: path.to_path_buf(),
             info,
-            model,
-            plans: Mutex::new(HashMap::new()),
-            // As many as the pool matup runs on (`RAYON_NUM_THREADS`, or one per core).
-            executor: executor(rayon::current_num_threads()),
-            fixed,
+            engine,
+            tract_because,
+            fixed: fixed_input(&proto),
         };
         // Probe: the output must be the input times the sidecar's scale, 3 channels.
+        let fixed = upsampler.fixed;
         let (ph, pw) = (fixed[1].unwrap_or(8), fixed[2].unwrap_or(8));
         let probe = vec![0.5; 3 * ph * pw];
-        let out = upsampler.run_batch(&vec![probe; fixed[0].unwrap_or(1)], ph, pw)?;
+        let out =
+            upsampler.run_batch(&vec![probe; fixed[0].unwrap_or(1)], ph, pw, Padding::Zero)?;
         let got = out[0].width() / pw;
         if got != upsampler.info.scale || out[0].height() != ph * got {
             return Err(model_error(
@@ -260,13 +303,40 @@ impl OnnxUpsampler {
         Ok(upsampler)
     }
 
+    /// "matup", or "tract" and why matup's executor does not run the graph.
+    pub fn engine(&self) -> String {
+        match &self.tract_because {
+            None => "matup".into(),
+            Some(why) => format!("tract ({why})"),
+        }
+    }
+
+    /// Runs on `threads` threads instead of matup's thread count.
+    fn set_threads(&mut self, threads: usize) -> Result<()> {
+        match &mut self.engine {
+            Engine::Matup { pool, .. } => {
+                let built = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .thread_name(|i| format!("matup-onnx-{i}"))
+                    .build()
+                    .map_err(|e| model_error(&self.path, "threads", e))?;
+                *pool = Some(built);
+            }
+            Engine::Tract { executor: e, .. } => *e = executor(threads),
+        }
+        Ok(())
+    }
+
     fn plan(&self, batch: usize, h: usize, w: usize) -> Result<Plan> {
+        let Engine::Tract { model, plans, .. } = &self.engine else {
+            unreachable!("plans are tract's");
+        };
         let key = [batch, h, w];
-        if let Some(p) = self.plans.lock().unwrap().get(&key) {
+        if let Some(p) = plans.lock().unwrap().get(&key) {
             return Ok(p.clone());
         }
-        let plan = self
-            .model
+        let plan = model
+            .as_ref()
             .clone()
             .with_input_fact(0, f32::fact([batch, 3, h, w]).into())
             .and_then(|m| m.into_optimized())
@@ -278,55 +348,113 @@ impl OnnxUpsampler {
                     format!("{e:#}"),
                 )
             })?;
-        self.plans.lock().unwrap().insert(key, plan.clone());
+        plans.lock().unwrap().insert(key, plan.clone());
         Ok(plan)
     }
 
-    /// Runs the network on tiles of one shape (each 3 planes of `h × w`, values in [0, 1]).
-    fn run_batch(&self, tiles: &[Vec<f32>], h: usize, w: usize) -> Result<Vec<Map>> {
+    /// Runs the network on tiles of one shape (each 3 planes of `h × w`, values in [0, 1]);
+    /// matup's executor pads its convolutions as `padding` says, tract with zeros.
+    fn run_batch(
+        &self,
+        tiles: &[Vec<f32>],
+        h: usize,
+        w: usize,
+        padding: Padding,
+    ) -> Result<Vec<Map>> {
         let [lo, hi] = self.info.input_range;
+        let [olo, ohi] = self.info.output_range;
         let bgr = self.info.channel_order == "bgr";
+        // The network's channel for RGB channel `c` (the same map both ways).
+        let channel = |c: usize| if bgr { 2 - c } else { c };
+        let output = |v: f32| ((v - olo) / (ohi - olo)).clamp(0.0, 1.0);
         let n = h * w;
-        let mut data = Vec::with_capacity(tiles.len() * 3 * n);
-        for tile in tiles {
-            for c in 0..3 {
-                let src = if bgr { 2 - c } else { c };
-                data.extend(
-                    tile[src * n..(src + 1) * n]
-                        .iter()
-                        .map(|v| lo + v * (hi - lo)),
-                );
+        match &self.engine {
+            Engine::Matup { net, pool } => {
+                let run = |tile: &Vec<f32>| {
+                    let input = Features {
+                        height: h,
+                        width: w,
+                        channels: 3,
+                        data: (0..n)
+                            .flat_map(|t| {
+                                (0..3).map(move |c| lo + tile[channel(c) * n + t] * (hi - lo))
+                            })
+                            .collect(),
+                    };
+                    let out = net.run(input, padding);
+                    Map::from_fn(out.width, out.height, 3, |c, y, x| {
+                        output(out.data[(y * out.width + x) * 3 + channel(c)])
+                    })
+                };
+                Ok(match pool {
+                    Some(pool) => pool.install(|| tiles.iter().map(run).collect()),
+                    None => tiles.iter().map(run).collect(),
+                })
+            }
+            Engine::Tract { executor, .. } => {
+                let mut data = Vec::with_capacity(tiles.len() * 3 * n);
+                for tile in tiles {
+                    for c in 0..3 {
+                        let src = channel(c);
+                        data.extend(
+                            tile[src * n..(src + 1) * n]
+                                .iter()
+                                .map(|v| lo + v * (hi - lo)),
+                        );
+                    }
+                }
+                let input: Tensor =
+                    tract_ndarray::Array4::from_shape_vec((tiles.len(), 3, h, w), data)
+                        .map_err(|e| model_error(&self.path, "input", e))?
+                        .into();
+                let plan = self.plan(tiles.len(), h, w)?;
+                let outputs =
+                    multithread_tract_scope(executor.clone(), || plan.run(tvec!(input.into())))
+                        .map_err(|e| {
+                            model_error(&self.path, "inference failed", format!("{e:#}"))
+                        })?;
+                let view = outputs[0]
+                    .to_plain_array_view::<f32>()
+                    .map_err(|e| model_error(&self.path, "output", e))?;
+                let shape = view.shape().to_vec();
+                if shape.len() != 4 || shape[0] != tiles.len() || shape[1] != 3 {
+                    return Err(model_error(
+                        &self.path,
+                        "unsupported output",
+                        format!("shape {shape:?}, want [batch, 3, height, width]"),
+                    ));
+                }
+                let (oh, ow) = (shape[2], shape[3]);
+                Ok((0..tiles.len())
+                    .map(|b| Map::from_fn(ow, oh, 3, |c, y, x| output(view[[b, channel(c), y, x]])))
+                    .collect())
             }
         }
-        let input: Tensor = tract_ndarray::Array4::from_shape_vec((tiles.len(), 3, h, w), data)
-            .map_err(|e| model_error(&self.path, "input", e))?
-            .into();
-        let plan = self.plan(tiles.len(), h, w)?;
-        let outputs =
-            multithread_tract_scope(self.executor.clone(), || plan.run(tvec!(input.into())))
-                .map_err(|e| model_error(&self.path, "inference failed", format!("{e:#}")))?;
-        let view = outputs[0]
-            .to_plain_array_view::<f32>()
-            .map_err(|e| model_error(&self.path, "output", e))?;
-        let shape = view.shape().to_vec();
-        if shape.len() != 4 || shape[0] != tiles.len() || shape[1] != 3 {
-            return Err(model_error(
-                &self.path,
-                "unsupported output",
-                format!("shape {shape:?}, want [batch, 3, height, width]"),
-            ));
-        }
-        let [olo, ohi] = self.info.output_range;
-        let (oh, ow) = (shape[2], shape[3]);
-        Ok((0..tiles.len())
-            .map(|b| {
-                Map::from_fn(ow, oh, 3, |c, y, x| {
-                    let src = if bgr { 2 - c } else { c };
-                    ((view[[b, src, y, x]] - olo) / (ohi - olo)).clamp(0.0, 1.0)
-                })
-            })
-            .collect())
     }
+}
+
+/// tract's engine for the network in `path`.
+fn tract_engine(path: &Path) -> Result<Engine> {
+    let model = tract_onnx::onnx()
+        .model_for_path(path)
+        .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
+    if model.inputs.len() != 1 || model.outputs.len() != 1 {
+        return Err(model_error(
+            path,
+            "unsupported network",
+            format!(
+                "{} inputs and {} outputs (want 1 and 1)",
+                model.inputs.len(),
+                model.outputs.len()
+            ),
+        ));
+    }
+    Ok(Engine::Tract {
+        model: Box::new(model),
+        plans: Mutex::new(HashMap::new()),
+        // As many as the pool matup runs on (`RAYON_NUM_THREADS`, or one per core).
+        executor: executor(rayon::current_num_threads()),
+    })
 }
 
 /// Start of each tile along an axis of `len` texels, tiles of `tile` (the last one shifted
@@ -421,6 +549,17 @@ impl OnnxUpsampler {
     }
 }
 
+impl OnnxUpsampler {
+    /// Whether a `w × h` image with `border` runs as one tile with wrapping convolutions: it
+    /// is tileable, fits in a tile, the network takes any size, and matup's executor runs it.
+    fn runs_whole_wrapping(&self, w: usize, h: usize, border: Border) -> bool {
+        border == Border::Wrap
+            && w.max(h) <= self.info.tile
+            && self.fixed[1..] == [None, None]
+            && matches!(self.engine, Engine::Matup { .. })
+    }
+}
+
 impl RgbUpsampler for OnnxUpsampler {
     fn native_scale(&self) -> Option<usize> {
         Some(self.info.scale)
@@ -441,6 +580,11 @@ impl RgbUpsampler for OnnxUpsampler {
         let batch = self.fixed[0].unwrap_or(self.info.batch);
         for image in images {
             let (w, h) = (image.width(), image.height());
+            if self.runs_whole_wrapping(w, h, border) {
+                let planes = image.data()[..3 * w * h].to_vec();
+                results.extend(self.run_batch(&[planes], h, w, Padding::Wrap)?);
+                continue;
+            }
             let rows = self.tile_axis(h, self.fixed[1])?;
             let columns = self.tile_axis(w, self.fixed[2])?;
             let origins: Vec<(usize, usize)> = tile_starts(h, rows.core)
@@ -479,7 +623,7 @@ impl RgbUpsampler for OnnxUpsampler {
                     let last = tiles.last().expect("chunks are not empty").clone();
                     tiles.resize(batch, last);
                 }
-                let outputs = self.run_batch(&tiles, rows.window, columns.window)?;
+                let outputs = self.run_batch(&tiles, rows.window, columns.window, Padding::Zero)?;
                 for (&(y0, x0), out) in group.iter().zip(&outputs) {
                     let kept_rows = kept_texels(y0, rows, h, margin, s);
                     let kept_columns = kept_texels(x0, columns, w, margin, s);
@@ -526,11 +670,16 @@ const OPTIONS: &[PluginOption] = &[
     PluginOption {
         key: "threads",
         default: "",
-        help: "threads for the network's matrix products (default: matup's thread count)",
+        help: "threads for the network (default: matup's thread count)",
+    },
+    PluginOption {
+        key: "engine",
+        default: "auto",
+        help: "what runs the network: matup (its own executor), tract, or auto (matup where the graph allows)",
     },
 ];
 
-/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N]`, MODEL a path to a `.onnx` file or a name in the
+/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E]`, MODEL a path to a `.onnx` file or a name in the
 /// model folders.
 fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let argument = argument.unwrap_or("");
@@ -541,8 +690,19 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
             message: "name a model: onnx:PATH.onnx or onnx:NAME (see matup list)".into(),
         });
     }
-    let mut upsampler = OnnxUpsampler::load(&resolve(model)?)?;
     let values = parse_options("onnx", Some(options), OPTIONS)?;
+    let choice = match values["engine"].as_str() {
+        "auto" => EngineChoice::Auto,
+        "matup" => EngineChoice::Matup,
+        "tract" => EngineChoice::Tract,
+        other => {
+            return Err(Error::Plugin {
+                plugin: "onnx".into(),
+                message: format!("engine '{other}': known engines are auto, matup, tract"),
+            })
+        }
+    };
+    let mut upsampler = OnnxUpsampler::load(&resolve(model)?, choice)?;
     for (key, slot) in [
         ("tile", &mut upsampler.info.tile),
         ("overlap", &mut upsampler.info.overlap),
@@ -553,7 +713,7 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
         }
     }
     if !values["threads"].is_empty() {
-        upsampler.executor = executor(option_value("onnx", &values, "threads")?);
+        upsampler.set_threads(option_value("onnx", &values, "threads")?)?;
     }
     if upsampler.info.tile == 0 || upsampler.info.batch == 0 {
         return Err(Error::Plugin {
@@ -567,7 +727,7 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
 inventory::submit! {
     UpsamplerRegistration {
         name: "onnx",
-        description: "a pre-trained SR network: onnx:PATH.onnx or onnx:NAME from the model folders (tract, CPU)",
+        description: "a pre-trained SR network: onnx:PATH.onnx or onnx:NAME from the model folders (CPU)",
         options: OPTIONS,
         create,
     }
