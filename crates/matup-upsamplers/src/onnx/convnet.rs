@@ -150,11 +150,7 @@ impl Builder {
         }
     }
 
-    fn constant(
-        &self,
-        node: &NodeProto,
-        index: usize,
-    ) -> Result<Option<Constant>, Unsupported> {
+    fn constant(&self, node: &NodeProto, index: usize) -> Result<Option<Constant>, Unsupported> {
         if node.input.get(index).is_none_or(|n| n.is_empty()) {
             return Ok(None);
         }

@@ -4,6 +4,8 @@
 
 use rayon::prelude::*;
 
+use super::winograd;
+
 /// `height × width` texels of `channels` values each, texel-major.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Features {
@@ -59,35 +61,38 @@ pub enum PerTexel {
 }
 
 impl PerTexel {
-    /// Applies the operation to whole texels of `channels` values. Each case is a plain loop
-    /// over the slice, so that it vectorises.
-    fn apply(&self, data: &mut [f32], channels: usize) {
-        let c = channels;
-        match self {
-            PerTexel::Sigmoid => data.iter_mut().for_each(|v| *v = sigmoid(*v)),
-            PerTexel::Silu => data.iter_mut().for_each(|v| *v *= sigmoid(*v)),
-            PerTexel::Relu => data.iter_mut().for_each(|v| *v = v.max(0.0)),
-            PerTexel::LeakyRelu(a) => data
-                .iter_mut()
-                .for_each(|v| *v = if *v < 0.0 { a * *v } else { *v }),
-            PerTexel::Clip(lo, hi) => data.iter_mut().for_each(|v| *v = v.max(*lo).min(*hi)),
-            PerTexel::PRelu(s) => {
-                with_per_channel(data, c, s, |v, s| if v < 0.0 { s * v } else { v })
-            }
-            // One loop per case, each without a branch inside.
-            PerTexel::Constant {
-                arith,
-                constant: k,
-                constant_first,
-            } => match (arith, constant_first) {
-                (Arith::Add, _) => with_per_channel(data, c, k, |v, k| v + k),
-                (Arith::Mul, _) => with_per_channel(data, c, k, |v, k| v * k),
-                (Arith::Sub, false) => with_per_channel(data, c, k, |v, k| v - k),
-                (Arith::Sub, true) => with_per_channel(data, c, k, |v, k| k - v),
-                (Arith::Div, false) => with_per_channel(data, c, k, |v, k| v / k),
-                (Arith::Div, true) => with_per_channel(data, c, k, |v, k| k / v),
-            },
-        }
+    /// Applies the operation to whole texels of `channels` values.
+    pub(super) fn apply(&self, data: &mut [f32], channels: usize) {
+        with_avx2!(apply_per_texel(self, data, channels))
+    }
+}
+
+/// [`PerTexel::apply`]. Each case is a plain loop over the slice, so that it vectorises.
+#[inline(always)]
+fn apply_per_texel(op: &PerTexel, data: &mut [f32], channels: usize) {
+    let c = channels;
+    match op {
+        PerTexel::Sigmoid => data.iter_mut().for_each(|v| *v = sigmoid(*v)),
+        PerTexel::Silu => data.iter_mut().for_each(|v| *v *= sigmoid(*v)),
+        PerTexel::Relu => data.iter_mut().for_each(|v| *v = v.max(0.0)),
+        PerTexel::LeakyRelu(a) => data
+            .iter_mut()
+            .for_each(|v| *v = if *v < 0.0 { a * *v } else { *v }),
+        PerTexel::Clip(lo, hi) => data.iter_mut().for_each(|v| *v = v.max(*lo).min(*hi)),
+        PerTexel::PRelu(s) => with_per_channel(data, c, s, |v, s| if v < 0.0 { s * v } else { v }),
+        // One loop per case, each without a branch inside.
+        PerTexel::Constant {
+            arith,
+            constant: k,
+            constant_first,
+        } => match (arith, constant_first) {
+            (Arith::Add, _) => with_per_channel(data, c, k, |v, k| v + k),
+            (Arith::Mul, _) => with_per_channel(data, c, k, |v, k| v * k),
+            (Arith::Sub, false) => with_per_channel(data, c, k, |v, k| v - k),
+            (Arith::Sub, true) => with_per_channel(data, c, k, |v, k| k - v),
+            (Arith::Div, false) => with_per_channel(data, c, k, |v, k| v / k),
+            (Arith::Div, true) => with_per_channel(data, c, k, |v, k| k / v),
+        },
     }
 }
 
@@ -176,8 +181,9 @@ pub struct Conv {
     kw: usize,
     cin: usize,
     cout: usize,
-    /// Kernel row `ky` as a `(kw·cin) × cout` matrix, row `kx·cin + ci`.
-    weights: Vec<f32>,
+    /// Kernel row `ky` as a `(kw·cin) × cout` matrix, row `kx·cin + ci`; or, for 3×3
+    /// kernels between channel counts of whole lane groups, Winograd's transformed kernel.
+    weights: Result<winograd::Weights, Vec<f32>>,
     bias: Vec<f32>,
 }
 
@@ -187,6 +193,18 @@ impl Conv {
         let [cout, cin, kh, kw] = shape;
         assert_eq!(onnx_weights.len(), cout * cin * kh * kw);
         assert!(kh % 2 == 1 && kw % 2 == 1, "the kernel keeps the size");
+        let bias = bias.map_or_else(|| vec![0.0; cout], <[f32]>::to_vec);
+        if (kh, kw) == (3, 3) && cin % winograd::LANES == 0 && cout % winograd::LANES == 0 {
+            let weights = Ok(winograd::Weights::new(onnx_weights, cout, cin));
+            return Conv {
+                kh,
+                kw,
+                cin,
+                cout,
+                weights,
+                bias,
+            };
+        }
         let mut weights = vec![0.0; onnx_weights.len()];
         for co in 0..cout {
             for ci in 0..cin {
@@ -203,8 +221,8 @@ impl Conv {
             kw,
             cin,
             cout,
-            weights,
-            bias: bias.map_or_else(|| vec![0.0; cout], <[f32]>::to_vec),
+            weights: Err(weights),
+            bias,
         }
     }
 
@@ -219,10 +237,14 @@ impl Conv {
     ///
     /// `then` is applied to the output rows while they are in cache.
     pub fn apply(&self, x: &Features, padding: Padding, then: &[PerTexel]) -> Features {
+        let weights = match &self.weights {
+            Ok(winograd) => return winograd.apply(x, &self.bias, padding, then),
+            Err(shifted) => shifted,
+        };
         assert_eq!(x.channels, self.cin, "the input has the kernel's channels");
         let (h, w) = (x.height, x.width);
         let (py, px) = (self.kh / 2, self.kw / 2);
-        let padded = pad(x, py, px, padding);
+        let padded = pad(x, (py, py), (px, px), padding);
         let pw = w + 2 * px;
         let (cin, cout) = (self.cin, self.cout);
         let row_weights = self.kw * cin * cout;
@@ -253,7 +275,7 @@ impl Conv {
                             padded.as_ptr().add(start),
                             1,
                             cin as isize,
-                            self.weights.as_ptr().add(ky * row_weights),
+                            weights.as_ptr().add(ky * row_weights),
                             1,
                             cout as isize,
                             1.0,
@@ -286,11 +308,18 @@ impl Conv {
     }
 }
 
-/// `x` with `py` rows above and below and `px` columns left and right, read as `padding` says.
-fn pad(x: &Features, py: usize, px: usize, padding: Padding) -> Vec<f32> {
+/// `x` with `rows.0` rows above, `rows.1` below, `columns.0` columns left and `columns.1`
+/// right, read as `padding` says.
+pub(super) fn pad(
+    x: &Features,
+    rows: (usize, usize),
+    columns: (usize, usize),
+    padding: Padding,
+) -> Vec<f32> {
     let (h, w, c) = (x.height, x.width, x.channels);
-    let pw = w + 2 * px;
-    let mut out = vec![0.0; (h + 2 * py) * pw * c];
+    let (py, px) = (rows.0, columns.0);
+    let pw = w + columns.0 + columns.1;
+    let mut out = vec![0.0; (h + rows.0 + rows.1) * pw * c];
     let source = |i: usize, n: usize, p: usize| -> Option<usize> {
         let i = i as isize - p as isize;
         match padding {
@@ -439,6 +468,10 @@ mod tests {
             ([6, 7, 1, 1], (9, 11)),
             ([3, 2, 5, 3], (4, 6)),
             ([2, 3, 3, 3], (1, 1)),
+            // Winograd: odd and even sizes, one block, several parallel chunks.
+            ([16, 8, 3, 3], (7, 9)),
+            ([8, 16, 3, 3], (1, 1)),
+            ([8, 8, 3, 3], (40, 33)),
         ] {
             let [cout, cin, kh, kw] = shape;
             let x = Features {
