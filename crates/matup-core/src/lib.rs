@@ -7,6 +7,7 @@ pub mod config;
 mod error;
 pub mod experiment;
 pub mod filter;
+pub mod gemm;
 pub mod height;
 pub mod io;
 pub mod lights;

@@ -1,9 +1,9 @@
 //! Per-render upsampling time of each ONNX model matup knows: the shipped SPAN ×4 and, from
 //! `../shared/models` when it is there, SPAN ×2 and Real-ESRGAN ×4. Each model runs on 128²
-//! and 512² LR images (a real base-colour map, treated as tileable), as one tile without
-//! context (matup's executor wraps its convolutions around; tract pads with zeros) and as the
-//! sidecar's tiles with their context, on matup's executor and on tract, on 1 and 2 threads.
-//! Prints a table of medians.
+//! and 512² LR images (a real base-colour map): whole, as one tile without context, treated as
+//! tileable (matup's executor wraps its convolutions around, tract pads with zeros); and, not
+//! tileable, in the sidecar's tiles with mirrored context. Each on matup's executor and on
+//! tract, on 1 and 2 threads. Prints a table of medians.
 //!
 //! `cargo bench -p matup-upsamplers --bench onnx` (`MATUP_BENCH_SLOW=1` adds Real-ESRGAN at
 //! 512², several minutes).
@@ -100,10 +100,13 @@ fn main() {
                 continue;
             }
             let image: Map = wood.crop(0, 0, lr, lr);
-            let tiled = format!("{}² tiles + {} context", model.tile, model.overlap);
-            for (tiling, tile, overlap) in [
-                ("one tile, no context".to_string(), lr, 0),
-                (tiled, model.tile, model.overlap),
+            let tiled = format!(
+                "{}² tiles + {} context, mirrored",
+                model.tile, model.overlap
+            );
+            for (tiling, tile, overlap, border) in [
+                ("whole, tileable".to_string(), lr, 0, Border::Wrap),
+                (tiled, model.tile, model.overlap, Border::Mirror),
             ] {
                 for (engine, threads) in [("matup", 1), ("matup", 2), ("tract", 1), ("tract", 2)] {
                     let spec = format!(
@@ -114,7 +117,7 @@ fn main() {
                         .unwrap_or_else(|e| panic!("{spec}: {e}"));
                     let (seconds, runs) = median_seconds(
                         || {
-                            up.upsample(std::slice::from_ref(&image), model.scale, Border::Wrap)
+                            up.upsample(std::slice::from_ref(&image), model.scale, border)
                                 .unwrap();
                         },
                         Duration::from_secs(30),

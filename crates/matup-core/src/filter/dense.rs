@@ -7,7 +7,7 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::gemm::gemm;
+use crate::gemm::gemm;
 use crate::op::contiguous_f32;
 
 /// The layer's activation: leaky ReLU `max(z, slope·z)` (0 ≤ slope < 1; ReLU at 0), or

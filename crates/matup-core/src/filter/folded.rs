@@ -12,8 +12,8 @@ use std::sync::Arc;
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::gemm::product;
 use super::geometry::WindowGeometry;
+use crate::gemm::product;
 
 #[inline]
 fn axpy(alpha: f32, x: &[f32], y: &mut [f32]) {

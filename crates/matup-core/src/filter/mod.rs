@@ -5,7 +5,6 @@ pub mod activation;
 pub mod decode;
 pub mod dense;
 pub mod folded;
-mod gemm;
 pub mod geometry;
 
 use std::collections::HashMap;

@@ -5,6 +5,7 @@
 use rayon::prelude::*;
 
 use super::winograd;
+use matup_core::gemm::gemm;
 
 /// `height × width` texels of `channels` values each, texel-major.
 #[derive(Clone, Debug, PartialEq)]
@@ -258,34 +259,16 @@ impl Conv {
                 let m = (rows - 1) * pw + w;
                 sums.resize(m * cout, 0.0);
                 for ky in 0..self.kh {
-                    let start = (y0 + ky) * pw * cin;
-                    // The last row read ends at the padded input's end.
-                    assert!(start + (m - 1) * cin + self.kw * cin <= padded.len());
-                    // SAFETY: `sums` holds m × cout values, the weights kw·cin × cout, and
-                    // the overlapping m × kw·cin view of `padded` stays inside it (asserted).
-                    unsafe {
-                        gemm::gemm(
-                            m,
-                            cout,
-                            self.kw * cin,
-                            sums.as_mut_ptr(),
-                            1,
-                            cout as isize,
-                            ky > 0,
-                            padded.as_ptr().add(start),
-                            1,
-                            cin as isize,
-                            weights.as_ptr().add(ky * row_weights),
-                            1,
-                            cout as isize,
-                            1.0,
-                            1.0,
-                            false,
-                            false,
-                            false,
-                            gemm::Parallelism::None,
-                        );
-                    }
+                    gemm(
+                        (m, self.kw * cin, cout),
+                        &padded[(y0 + ky) * pw * cin..],
+                        (cin, 1),
+                        &weights[ky * row_weights..],
+                        (cout, 1),
+                        if ky == 0 { 0.0 } else { 1.0 },
+                        sums,
+                        cout,
+                    );
                 }
                 for r in 0..rows {
                     for (dst, src) in out[r * w * cout..(r + 1) * w * cout]

@@ -9,6 +9,8 @@
 
 use rayon::prelude::*;
 
+use matup_core::gemm::gemm;
+
 use super::kernels::{pad, Features, Padding, PerTexel};
 
 /// Channels per lane group; Winograd is used where both channel counts are multiples of it.
@@ -129,32 +131,16 @@ impl Weights {
                     with_avx2!(input_transform(&padded, pw, cin, by0, bw, v));
                     // M_k = V_k · U_k for each of the 16 positions.
                     for k in 0..16 {
-                        // SAFETY: V_k is blocks × cin with rows 16·cin apart inside `v`, U_k is
-                        // cin × cout inside `u`, M_k blocks × cout with rows 16·cout apart
-                        // inside `m` (the buffers were sized above).
-                        unsafe {
-                            gemm::gemm(
-                                blocks,
-                                cout,
-                                cin,
-                                m.as_mut_ptr().add(k * cout),
-                                1,
-                                (16 * cout) as isize,
-                                false,
-                                v.as_ptr().add(k * cin),
-                                1,
-                                (16 * cin) as isize,
-                                self.u.as_ptr().add(k * cin * cout),
-                                1,
-                                cout as isize,
-                                0.0,
-                                1.0,
-                                false,
-                                false,
-                                false,
-                                gemm::Parallelism::None,
-                            );
-                        }
+                        gemm(
+                            (blocks, cin, cout),
+                            &v[k * cin..],
+                            (16 * cin, 1),
+                            &self.u[k * cin * cout..],
+                            (cout, 1),
+                            0.0,
+                            &mut m[k * cout..],
+                            16 * cout,
+                        );
                     }
                     with_avx2!(output_transform(m, bias, cout, bw, w, out));
                     then.iter().for_each(|op| op.apply(out, cout));

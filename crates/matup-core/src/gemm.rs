@@ -1,6 +1,8 @@
-//! The matrix product matup's own ops use: matrixmultiply's sgemm on one thread (the ops
-//! split their work across matup's threads themselves), with the operands' extents checked so
-//! that callers need no `unsafe`.
+//! The matrix product matup's own ops and its ONNX executor use: the `gemm` crate's f32
+//! kernels (runtime-dispatched to AVX2/AVX-512 and FMA) on one thread, the callers splitting
+//! their work across matup's threads themselves; the operands' extents are checked so that
+//! callers need no `unsafe`. Views may overlap (a row stride below the row's length), which
+//! the ONNX executor's convolutions use.
 
 /// A matrix view's (row stride, column stride) in its slice.
 pub type Strides = (usize, usize);
@@ -30,7 +32,7 @@ pub fn gemm(
     assert!(a.len() >= extent(m, k, sa), "gemm: a is too short");
     assert!(b.len() >= extent(k, n, sb), "gemm: b is too short");
     assert!(c.len() >= extent(m, n, (rsc, 1)), "gemm: c is too short");
-    // SAFETY: the asserts keep every element matrixmultiply reads or writes inside the slices.
+    // SAFETY: the asserts keep every element the product reads or writes inside the slices.
     unsafe { sgemm((m, k, n), a, sa, b, sb, beta, c.as_mut_ptr(), rsc) }
 }
 
@@ -47,8 +49,8 @@ pub fn product(
     assert!(b.len() >= extent(k, n, sb), "product: b is too short");
     let mut c = Vec::with_capacity(m * n);
     // SAFETY: reads stay inside `a` and `b` (asserted), writes inside `c`'s capacity; with
-    // β = 0 matrixmultiply writes every element of C (also for k = 0) and reads none, so
-    // all m·n values are initialised before `set_len`.
+    // β = 0 `sgemm` writes every element of C (also for k = 0) and reads none, so all m·n
+    // values are initialised before `set_len`.
     unsafe {
         sgemm((m, k, n), a, sa, b, sb, 0.0, c.as_mut_ptr(), n);
         c.set_len(m * n);
@@ -73,22 +75,37 @@ unsafe fn sgemm(
     if m == 0 || n == 0 {
         return;
     }
+    if k == 0 {
+        // An empty sum: the gemm crate may leave C untouched.
+        for i in 0..m {
+            for j in 0..n {
+                let v = unsafe { c.add(i * rsc + j) };
+                unsafe { *v = if beta == 0.0 { 0.0 } else { beta * *v } };
+            }
+        }
+        return;
+    }
     unsafe {
-        matrixmultiply::sgemm(
+        gemm::gemm(
             m,
-            k,
             n,
-            1.0,
-            a.as_ptr(),
-            rsa as isize,
-            csa as isize,
-            b.as_ptr(),
-            rsb as isize,
-            csb as isize,
-            beta,
+            k,
             c,
-            rsc as isize,
             1,
+            rsc as isize,
+            beta != 0.0,
+            a.as_ptr(),
+            csa as isize,
+            rsa as isize,
+            b.as_ptr(),
+            csb as isize,
+            rsb as isize,
+            beta,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
         );
     }
 }
