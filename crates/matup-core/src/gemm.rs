@@ -1,5 +1,5 @@
 //! The matrix product matup's own ops and its ONNX executor use: the `gemm` crate's f32
-//! kernels (runtime-dispatched to AVX2/AVX-512 and FMA) on one thread, the callers splitting
+//! kernels (dispatched at run time to the CPU's SIMD, AVX2 and FMA on x86-64) on one thread, the callers splitting
 //! their work across matup's threads themselves; the operands' extents are checked so that
 //! callers need no `unsafe`. Views may overlap (a row stride below the row's length), which
 //! the ONNX executor's convolutions use.

@@ -5,8 +5,8 @@
 //! 3×3 convolutions reach about a fifth of onnxruntime's speed on our CPUs (see
 //! `shared/models/README.md`), and no pure-Rust runtime does better (candle-onnx needs protoc
 //! to build). This executor reads the ONNX graph itself and runs those few operators on
-//! texel-major feature maps ([`super::kernels`]), with the `gemm` crate's AVX-512/AVX2
-//! kernels for the convolutions. Graphs with any other operator or attribute are refused
+//! texel-major feature maps ([`super::kernels`]): 3×3 convolutions by Winograd's algorithm
+//! ([`super::winograd`]), all matrix products on the `gemm` crate's SIMD kernels. Graphs with any other operator or attribute are refused
 //! with the reason, and the caller runs them with tract.
 
 use std::collections::HashMap;
@@ -514,50 +514,26 @@ impl ConvNet {
         let mut values: Vec<Option<Features>> = vec![None; self.last_use.len()];
         values[0] = Some(input);
         for (i, step) in self.steps.iter().enumerate() {
-            let read = |values: &[Option<Features>], k: usize| -> Features {
-                let v = &values[step.inputs[k]];
-                v.clone().expect("values are written before they are read")
-            };
-            let out = {
-                let get = |k: usize| {
-                    values[step.inputs[k]]
-                        .as_ref()
-                        .expect("values are written before they are read")
-                };
-                match &step.op {
-                    Op::Conv(conv, then) => Some(conv.apply(get(0), padding, then)),
-                    Op::Concat => Some(kernels::concat(
-                        &(0..step.inputs.len()).map(get).collect::<Vec<_>>(),
-                    )),
-                    Op::DepthToSpace { block, crd } => {
-                        Some(kernels::depth_to_space(get(0), *block, *crd))
-                    }
-                    Op::ResizeNearest(factor) => Some(kernels::resize_nearest(get(0), *factor)),
-                    Op::PerTexel(_) | Op::Arith(_) => None,
+            let input = |k: usize| written(&values, step.inputs[k]);
+            let out = match &step.op {
+                Op::Conv(conv, then) => conv.apply(input(0), padding, then),
+                Op::Concat => {
+                    kernels::concat(&(0..step.inputs.len()).map(input).collect::<Vec<_>>())
+                }
+                Op::DepthToSpace { block, crd } => kernels::depth_to_space(input(0), *block, *crd),
+                Op::ResizeNearest(factor) => kernels::resize_nearest(input(0), *factor),
+                Op::PerTexel(chain) => {
+                    let mut x = self.first_input(&mut values, i);
+                    kernels::per_texel(chain, &mut x);
+                    x
+                }
+                Op::Arith(arith) => {
+                    let mut x = self.first_input(&mut values, i);
+                    let b = written(&values, step.inputs[1]);
+                    kernels::arith_in_place(&mut x.data, &b.data, *arith);
+                    x
                 }
             };
-            // Per-texel steps write into their first input when nothing reads it later.
-            let out = out.unwrap_or_else(|| {
-                let first = step.inputs[0];
-                let mut x = if self.last_use[first] == i {
-                    values[first]
-                        .take()
-                        .expect("values are written before they are read")
-                } else {
-                    read(&values, 0)
-                };
-                match &step.op {
-                    Op::PerTexel(chain) => kernels::per_texel(chain, &mut x),
-                    Op::Arith(arith) => {
-                        let b = values[step.inputs[1]]
-                            .as_ref()
-                            .expect("values are written before they are read");
-                        kernels::arith_in_place(&mut x.data, &b.data, *arith);
-                    }
-                    _ => unreachable!("the other operators are run above"),
-                }
-                x
-            });
             values[step.output] = Some(out);
             for &v in &step.inputs {
                 if self.last_use[v] == i {
@@ -567,6 +543,26 @@ impl ConvNet {
         }
         values[self.output].take().expect("the output is computed")
     }
+
+    /// Step `i`'s first input, to be written in place: taken when no later step reads it
+    /// (and the step reads it only once), else a copy.
+    fn first_input(&self, values: &mut [Option<Features>], i: usize) -> Features {
+        let inputs = &self.steps[i].inputs;
+        let v = inputs[0];
+        if self.last_use[v] == i && !inputs[1..].contains(&v) {
+            values[v]
+                .take()
+                .expect("values are written before they are read")
+        } else {
+            written(values, v).clone()
+        }
+    }
+}
+
+fn written(values: &[Option<Features>], v: usize) -> &Features {
+    values[v]
+        .as_ref()
+        .expect("values are written before they are read")
 }
 
 /// Fuses per-texel work into fewer passes over memory:
@@ -626,4 +622,91 @@ fn fuse(mut steps: Vec<Step>, output: usize) -> Vec<Step> {
         steps[p].output = step.output;
     }
     steps
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tract_onnx::pb::{GraphProto, ValueInfoProto};
+
+    fn graph(nodes: Vec<NodeProto>, output: &str) -> ModelProto {
+        let value = |name: &str| ValueInfoProto {
+            name: name.into(),
+            ..Default::default()
+        };
+        ModelProto {
+            graph: Some(GraphProto {
+                node: nodes,
+                input: vec![value("x")],
+                output: vec![value(output)],
+                ..Default::default()
+            }),
+            ..Default::default()
+        }
+    }
+
+    fn node(op: &str, inputs: &[&str], output: &str) -> NodeProto {
+        NodeProto {
+            op_type: op.into(),
+            input: inputs.iter().map(|s| s.to_string()).collect(),
+            output: vec![output.into()],
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_map_read_twice_by_one_step_is_not_taken_from_under_it() {
+        // y = x·x, then z = y + x (x read after the square, y read once).
+        let net = ConvNet::from_model(&graph(
+            vec![node("Mul", &["x", "x"], "y"), node("Add", &["y", "x"], "z")],
+            "z",
+        ))
+        .unwrap();
+        let x = Features {
+            height: 1,
+            width: 2,
+            channels: 3,
+            data: vec![1.0, 2.0, 3.0, -1.0, 0.5, 0.0],
+        };
+        let z = net.run(x.clone(), Padding::Zero);
+        let want: Vec<f32> = x.data.iter().map(|v| v * v + v).collect();
+        assert_eq!(z.data, want);
+        // And x·x alone, x read only there.
+        let square = ConvNet::from_model(&graph(vec![node("Mul", &["x", "x"], "y")], "y")).unwrap();
+        let y = square.run(x.clone(), Padding::Zero);
+        assert_eq!(y.data, x.data.iter().map(|v| v * v).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn silu_is_fused_into_the_convolution_and_unknown_operators_are_named() {
+        let mut conv = node("Conv", &["x", "w"], "c");
+        conv.attribute.push(tract_onnx::pb::AttributeProto {
+            name: "pads".into(),
+            ints: vec![1, 1, 1, 1],
+            ..Default::default()
+        });
+        let mut model = graph(
+            vec![
+                conv,
+                node("Sigmoid", &["c"], "s"),
+                node("Mul", &["c", "s"], "y"),
+            ],
+            "y",
+        );
+        let weights = TensorProto {
+            name: "w".into(),
+            dims: vec![3, 3, 3, 3],
+            data_type: DataType::Float as i32,
+            float_data: (0..81).map(|k| (k % 7) as f32 / 10.0 - 0.3).collect(),
+            ..Default::default()
+        };
+        model.graph.as_mut().unwrap().initializer.push(weights);
+        let net = ConvNet::from_model(&model).unwrap();
+        assert_eq!(net.steps.len(), 1);
+        assert!(matches!(&net.steps[0].op, Op::Conv(_, then) if then[..] == [PerTexel::Silu]));
+
+        model.graph.as_mut().unwrap().node[1].op_type = "Softplus".into();
+        let e = ConvNet::from_model(&model).unwrap_err().to_string();
+        assert!(e.contains("operator Softplus"), "{e}");
+    }
 }
