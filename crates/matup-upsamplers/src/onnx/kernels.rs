@@ -182,10 +182,17 @@ pub struct Conv {
     kw: usize,
     cin: usize,
     cout: usize,
-    /// Kernel row `ky` as a `(kw·cin) × cout` matrix, row `kx·cin + ci`; or, for 3×3
-    /// kernels between channel counts of whole lane groups, Winograd's transformed kernel.
-    weights: Result<winograd::Weights, Vec<f32>>,
+    kernel: Kernel,
     bias: Vec<f32>,
+}
+
+/// A convolution's weights, laid out for the algorithm that runs it.
+#[derive(Clone, Debug)]
+enum Kernel {
+    /// Kernel row `ky` as a `(kw·cin) × cout` matrix, row `kx·cin + ci` ([`Conv::shifted`]).
+    Shifted(Vec<f32>),
+    /// For 3×3 kernels between channel counts of whole lane groups.
+    Winograd(winograd::Weights),
 }
 
 impl Conv {
@@ -194,66 +201,69 @@ impl Conv {
         let [cout, cin, kh, kw] = shape;
         assert_eq!(onnx_weights.len(), cout * cin * kh * kw);
         assert!(kh % 2 == 1 && kw % 2 == 1, "the kernel keeps the size");
-        let bias = bias.map_or_else(|| vec![0.0; cout], <[f32]>::to_vec);
-        if (kh, kw) == (3, 3) && cin % winograd::LANES == 0 && cout % winograd::LANES == 0 {
-            let weights = Ok(winograd::Weights::new(onnx_weights, cout, cin));
-            return Conv {
-                kh,
-                kw,
-                cin,
-                cout,
-                weights,
-                bias,
-            };
-        }
-        let mut weights = vec![0.0; onnx_weights.len()];
-        for co in 0..cout {
-            for ci in 0..cin {
-                for ky in 0..kh {
-                    for kx in 0..kw {
-                        weights[((ky * kw + kx) * cin + ci) * cout + co] =
-                            onnx_weights[((co * cin + ci) * kh + ky) * kw + kx];
+        let kernel =
+            if (kh, kw) == (3, 3) && cin % winograd::LANES == 0 && cout % winograd::LANES == 0 {
+                Kernel::Winograd(winograd::Weights::new(onnx_weights, cout, cin))
+            } else {
+                let mut rows = vec![0.0; onnx_weights.len()];
+                for co in 0..cout {
+                    for ci in 0..cin {
+                        for ky in 0..kh {
+                            for kx in 0..kw {
+                                rows[((ky * kw + kx) * cin + ci) * cout + co] =
+                                    onnx_weights[((co * cin + ci) * kh + ky) * kw + kx];
+                            }
+                        }
                     }
                 }
-            }
-        }
+                Kernel::Shifted(rows)
+            };
         Conv {
             kh,
             kw,
             cin,
             cout,
-            weights: Err(weights),
-            bias,
+            kernel,
+            bias: bias.map_or_else(|| vec![0.0; cout], <[f32]>::to_vec),
         }
     }
 
-    /// The convolution of `x` (`cin` channels).
-    ///
+    /// The convolution of `x` (`cin` channels), then `then` on the output rows while they
+    /// are in cache.
+    pub fn apply(&self, x: &Features, padding: Padding, then: &[PerTexel]) -> Features {
+        assert_eq!(x.channels, self.cin, "the input has the kernel's channels");
+        match &self.kernel {
+            Kernel::Winograd(weights) => weights.apply(x, &self.bias, padding, self.cout, then),
+            Kernel::Shifted(rows) => self.shifted(rows, x, padding, then),
+        }
+    }
+
     /// The input is padded to `pw = width + kw − 1` texels per row. Output texel (y, x),
     /// counted over padded rows as p = y·pw + x, reads kernel row ky from the kw·cin
     /// consecutive values that start at padded texel p + ky·pw: a matrix whose rows are p with
     /// a stride of `cin` values. So kernel row ky is one matrix product of that (overlapping)
     /// view with the row's weights, accumulated over ky. The kw − 1 rows computed past each
     /// image row's end are thrown away.
-    ///
-    /// `then` is applied to the output rows while they are in cache.
-    pub fn apply(&self, x: &Features, padding: Padding, then: &[PerTexel]) -> Features {
-        let weights = match &self.weights {
-            Ok(winograd) => return winograd.apply(x, &self.bias, padding, then),
-            Err(shifted) => shifted,
-        };
-        assert_eq!(x.channels, self.cin, "the input has the kernel's channels");
+    fn shifted(
+        &self,
+        weights: &[f32],
+        x: &Features,
+        padding: Padding,
+        then: &[PerTexel],
+    ) -> Features {
         let (h, w) = (x.height, x.width);
         let (py, px) = (self.kh / 2, self.kw / 2);
         let padded = pad(x, (py, py), (px, px), padding);
         let pw = w + 2 * px;
         let (cin, cout) = (self.cin, self.cout);
         let row_weights = self.kw * cin * cout;
-        let mut out = vec![0.0; h * w * cout];
-        out.par_chunks_mut(CONV_ROWS * w * cout)
-            .enumerate()
-            .for_each_init(Vec::new, |sums: &mut Vec<f32>, (block, out)| {
-                let y0 = block * CONV_ROWS;
+        in_row_blocks(
+            h,
+            w,
+            cout,
+            CONV_ROWS,
+            then,
+            |sums: &mut Vec<f32>, y0, out| {
                 let rows = out.len() / (w * cout);
                 // Padded-row texels from the block's first output to its last.
                 let m = (rows - 1) * pw + w;
@@ -280,14 +290,34 @@ impl Conv {
                         }
                     }
                 }
-                then.iter().for_each(|op| op.apply(out, cout));
-            });
-        Features {
-            height: h,
-            width: w,
-            channels: cout,
-            data: out,
-        }
+            },
+        )
+    }
+}
+
+/// A `height × width × channels` map computed in parallel blocks of `rows_per_block` rows:
+/// `compute(scratch, first row, block)` fills a block (each thread keeps its own scratch),
+/// then `then` runs on it while it is in cache.
+pub(super) fn in_row_blocks<S: Default + Send>(
+    height: usize,
+    width: usize,
+    channels: usize,
+    rows_per_block: usize,
+    then: &[PerTexel],
+    compute: impl Fn(&mut S, usize, &mut [f32]) + Sync,
+) -> Features {
+    let mut data = vec![0.0; height * width * channels];
+    data.par_chunks_mut(rows_per_block * width * channels)
+        .enumerate()
+        .for_each_init(S::default, |scratch, (block, out)| {
+            compute(scratch, block * rows_per_block, out);
+            then.iter().for_each(|op| op.apply(out, channels));
+        });
+    Features {
+        height,
+        width,
+        channels,
+        data,
     }
 }
 

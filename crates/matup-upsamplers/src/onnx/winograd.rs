@@ -7,11 +7,9 @@
 //!
 //! Channels are processed 8 at a time as `[f32; 8]` lanes, which the compiler vectorises.
 
-use rayon::prelude::*;
-
 use matup_core::gemm::gemm;
 
-use super::kernels::{pad, Features, Padding, PerTexel};
+use super::kernels::{in_row_blocks, pad, Features, Padding, PerTexel};
 
 /// Channels per lane group; Winograd is used where both channel counts are multiples of it.
 pub const LANES: usize = 8;
@@ -61,14 +59,10 @@ fn output_1d(m: [Lanes; 4]) -> [Lanes; 2] {
     [add(add(m[0], m[1]), m[2]), sub(sub(m[1], m[2]), m[3])]
 }
 
-/// The transformed kernel G·g·Gᵀ of a 3×3 convolution: 16 matrices `cin × cout`.
+/// The transformed kernel G·g·Gᵀ of a 3×3 convolution: 16 matrices `cin × cout`,
+/// `[k][ci][co]`, k = 4·row + column of the 4×4 transformed kernel.
 #[derive(Clone, Debug)]
-pub struct Weights {
-    cin: usize,
-    cout: usize,
-    /// `[k][ci][co]`, k = 4·row + column of the 4×4 transformed kernel.
-    u: Vec<f32>,
-}
+pub struct Weights(Vec<f32>);
 
 impl Weights {
     /// From ONNX's weights `[cout][cin][3][3]`.
@@ -96,62 +90,54 @@ impl Weights {
                 }
             }
         }
-        Weights { cin, cout, u }
+        Weights(u)
     }
 
-    /// The convolution of `x` with this kernel and `bias`, one texel of padding as `padding`
-    /// says, then `then` on the output rows while they are in cache.
+    /// The convolution of `x` with this kernel (`cout` outputs) and `bias`, one texel of
+    /// padding as `padding` says, then `then` on the output rows while they are in cache.
     pub fn apply(
         &self,
         x: &Features,
         bias: &[f32],
         padding: Padding,
+        cout: usize,
         then: &[PerTexel],
     ) -> Features {
-        let (cin, cout) = (self.cin, self.cout);
-        assert_eq!(x.channels, cin, "the input has the kernel's channels");
-        let (h, w) = (x.height, x.width);
+        let (h, w, cin) = (x.height, x.width, x.channels);
         let bw = w.div_ceil(2);
         // One texel around, and one more after an odd size so the last blocks are whole
         // (their extra outputs are thrown away).
         let padded = pad(x, (1, 1 + h % 2), (1, 1 + w % 2), padding);
         let pw = 2 * bw + 2;
         let block_rows = MIN_BLOCKS.div_ceil(bw);
-        let mut out = vec![0.0; h * w * cout];
-        out.par_chunks_mut(2 * block_rows * w * cout)
-            .enumerate()
-            .for_each_init(
-                || (Vec::new(), Vec::new()),
-                |(v, m): &mut (Vec<f32>, Vec<f32>), (chunk, out)| {
-                    let by0 = chunk * block_rows;
-                    let rows = out.len() / (w * cout);
-                    let blocks = rows.div_ceil(2) * bw;
-                    v.resize(blocks * 16 * cin, 0.0);
-                    m.resize(blocks * 16 * cout, 0.0);
-                    with_avx2!(input_transform(&padded, pw, cin, by0, bw, v));
-                    // M_k = V_k · U_k for each of the 16 positions.
-                    for k in 0..16 {
-                        gemm(
-                            (blocks, cin, cout),
-                            &v[k * cin..],
-                            (16 * cin, 1),
-                            &self.u[k * cin * cout..],
-                            (cout, 1),
-                            0.0,
-                            &mut m[k * cout..],
-                            16 * cout,
-                        );
-                    }
-                    with_avx2!(output_transform(m, bias, cout, bw, w, out));
-                    then.iter().for_each(|op| op.apply(out, cout));
-                },
-            );
-        Features {
-            height: h,
-            width: w,
-            channels: cout,
-            data: out,
-        }
+        in_row_blocks(
+            h,
+            w,
+            cout,
+            2 * block_rows,
+            then,
+            |(v, m): &mut (Vec<f32>, Vec<f32>), y0, out| {
+                let rows = out.len() / (w * cout);
+                let blocks = rows.div_ceil(2) * bw;
+                v.resize(blocks * 16 * cin, 0.0);
+                m.resize(blocks * 16 * cout, 0.0);
+                with_avx2!(input_transform(&padded, pw, cin, y0 / 2, bw, v));
+                // M_k = V_k · U_k for each of the 16 positions.
+                for k in 0..16 {
+                    gemm(
+                        (blocks, cin, cout),
+                        &v[k * cin..],
+                        (16 * cin, 1),
+                        &self.0[k * cin * cout..],
+                        (cout, 1),
+                        0.0,
+                        &mut m[k * cout..],
+                        16 * cout,
+                    );
+                }
+                with_avx2!(output_transform(m, bias, cout, bw, w, out));
+            },
+        )
     }
 }
 
