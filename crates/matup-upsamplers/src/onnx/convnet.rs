@@ -12,7 +12,9 @@
 use std::collections::HashMap;
 
 use tract_onnx::data_resolver::MmapDataResolver;
-use tract_onnx::pb::{tensor_proto::DataType, ModelProto, NodeProto, TensorProto};
+use tract_onnx::pb::{
+    tensor_proto::DataType, GraphProto, ModelProto, NodeProto, TensorProto, ValueInfoProto,
+};
 
 use super::kernels::{self, Arith, Conv, Features, Padding, PerTexel};
 
@@ -67,14 +69,15 @@ enum Known {
         channels: usize,
         scale: usize,
     },
-    Constant {
-        shape: Vec<usize>,
-        data: Vec<f32>,
-    },
+    Constant(Constant),
 }
 
-/// A constant's shape and values.
-type Constant = (Vec<usize>, Vec<f32>);
+/// A float constant of the graph: its shape and values.
+#[derive(Clone, Debug)]
+struct Constant {
+    shape: Vec<usize>,
+    data: Vec<f32>,
+}
 
 fn unsupported<T>(what: impl Into<String>) -> Result<T, Unsupported> {
     Err(Unsupported(what.into()))
@@ -88,10 +91,10 @@ fn float_constant(t: &TensorProto) -> Result<Option<Known>, Unsupported> {
     let array = tract_onnx::tensor::load_tensor(&MmapDataResolver, t, None)
         .and_then(|t| t.cast_to::<f32>()?.into_owned().into_plain_array::<f32>())
         .map_err(|e| Unsupported(format!("constant '{}': {e}", t.name)))?;
-    Ok(Some(Known::Constant {
+    Ok(Some(Known::Constant(Constant {
         shape: array.shape().to_vec(),
         data: array.iter().copied().collect(),
-    }))
+    })))
 }
 
 fn attribute<'a>(node: &'a NodeProto, name: &str) -> Option<&'a tract_onnx::pb::AttributeProto> {
@@ -143,7 +146,7 @@ impl Builder {
                 channels,
                 scale,
             } => Ok((*slot, *channels, *scale)),
-            Known::Constant { .. } => unsupported(format!(
+            Known::Constant(_) => unsupported(format!(
                 "{} '{}': input {index} is a constant, not a feature map",
                 node.op_type, node.name
             )),
@@ -155,7 +158,7 @@ impl Builder {
             return Ok(None);
         }
         match self.get(node, index)? {
-            Known::Constant { shape, data } => Ok(Some((shape.clone(), data.clone()))),
+            Known::Constant(c) => Ok(Some(c.clone())),
             Known::Map { .. } => unsupported(format!(
                 "{} '{}': input {index} must be a constant",
                 node.op_type, node.name
@@ -166,7 +169,7 @@ impl Builder {
     fn scalar(&self, node: &NodeProto, index: usize, default: f32) -> Result<f32, Unsupported> {
         match self.constant(node, index)? {
             None => Ok(default),
-            Some((_, data)) if data.len() == 1 => Ok(data[0]),
+            Some(Constant { data, .. }) if data.len() == 1 => Ok(data[0]),
             Some(_) => unsupported(format!(
                 "{} '{}': input {index} is not a scalar",
                 node.op_type, node.name
@@ -215,10 +218,10 @@ impl Builder {
                 let value = attribute(node, "value").and_then(|a| a.t.as_ref());
                 let known = match (value, attribute(node, "value_float")) {
                     (Some(t), _) => float_constant(t)?,
-                    (None, Some(a)) => Some(Known::Constant {
+                    (None, Some(a)) => Some(Known::Constant(Constant {
                         shape: vec![],
                         data: vec![a.f],
-                    }),
+                    })),
                     _ => None,
                 };
                 let Some(known) = known else {
@@ -231,10 +234,14 @@ impl Builder {
             "Cast" if int_attribute(node, "to", 0) == DataType::Float as i64 => self.alias(node)?,
             "Conv" => {
                 let (slot, channels, scale) = self.map(node, 0)?;
-                let Some((shape, weights)) = self.constant(node, 1)? else {
+                let Some(Constant {
+                    shape,
+                    data: weights,
+                }) = self.constant(node, 1)?
+                else {
                     return unsupported(format!("{}: no weights", described()));
                 };
-                let bias = self.constant(node, 2)?.map(|b| b.1);
+                let bias = self.constant(node, 2)?.map(|b| b.data);
                 let [cout, cin, kh, kw] = shape[..] else {
                     return unsupported(format!(
                         "{}: weights of shape {shape:?}, not 2-D",
@@ -290,7 +297,7 @@ impl Builder {
                         )
                     }
                     _ => {
-                        let Some((shape, slope)) = self.constant(node, 1)? else {
+                        let Some(Constant { shape, data: slope }) = self.constant(node, 1)? else {
                             return unsupported(format!("{}: no slope", described()));
                         };
                         PerTexel::PRelu(per_channel(&shape, slope, channels).ok_or_else(|| {
@@ -334,17 +341,17 @@ impl Builder {
                             channels,
                             scale,
                         },
-                        Known::Constant { shape, data },
+                        Known::Constant(Constant { shape, data }),
                     )
                     | (
-                        Known::Constant { shape, data },
+                        Known::Constant(Constant { shape, data }),
                         Known::Map {
                             slot,
                             channels,
                             scale,
                         },
                     ) => {
-                        let constant_first = matches!(self.get(node, 0)?, Known::Constant { .. });
+                        let constant_first = matches!(self.get(node, 0)?, Known::Constant(_));
                         let constant = per_channel(&shape, data, channels).ok_or_else(|| {
                             Unsupported(format!("{}: a constant of shape {shape:?}", described()))
                         })?;
@@ -403,7 +410,7 @@ impl Builder {
                 // Opset 10 has (X, scales); later (X, roi, scales, sizes).
                 let scales = self.constant(node, if node.input.len() == 2 { 1 } else { 2 })?;
                 let factor = match scales {
-                    Some((_, s))
+                    Some(Constant { data: s, .. })
                         if s.len() == 4
                             && s[0] == 1.0
                             && s[1] == 1.0
@@ -433,6 +440,15 @@ impl Builder {
         }
         Ok(())
     }
+}
+
+/// The graph's inputs fed at run time (older files list the initialisers among the inputs
+/// too).
+pub(super) fn data_inputs(graph: &GraphProto) -> impl Iterator<Item = &ValueInfoProto> {
+    graph
+        .input
+        .iter()
+        .filter(|i| !graph.initializer.iter().any(|t| t.name == i.name))
 }
 
 /// A constant that broadcasts over an NCHW map of `channels` channels as one value per
@@ -467,13 +483,7 @@ impl ConvNet {
                 builder.known.insert(t.name.clone(), constant);
             }
         }
-        // Older files list the initialisers among the inputs too.
-        let inputs: Vec<&str> = graph
-            .input
-            .iter()
-            .map(|i| i.name.as_str())
-            .filter(|n| !graph.initializer.iter().any(|t| t.name == *n))
-            .collect();
+        let inputs: Vec<&str> = data_inputs(graph).map(|i| i.name.as_str()).collect();
         let ([input], [output]) = (&inputs[..], &graph.output[..]) else {
             return unsupported("not one input and one output");
         };
@@ -627,7 +637,6 @@ fn fuse(mut steps: Vec<Step>, output: usize) -> Vec<Step> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tract_onnx::pb::{GraphProto, ValueInfoProto};
 
     fn graph(nodes: Vec<NodeProto>, output: &str) -> ModelProto {
         let value = |name: &str| ValueInfoProto {

@@ -227,12 +227,10 @@ pub struct OnnxUpsampler {
 /// The [batch, height, width] an ONNX file's input declares, `None` where it is symbolic.
 fn fixed_input(model: &ModelProto) -> [Option<usize>; 3] {
     use tract_onnx::pb::{tensor_shape_proto::dimension::Value, type_proto};
-    let graph = model.graph.as_ref();
-    let input = graph.and_then(|g| {
-        g.input
-            .iter()
-            .find(|i| !g.initializer.iter().any(|t| t.name == i.name))
-    });
+    let input = model
+        .graph
+        .as_ref()
+        .and_then(|g| convnet::data_inputs(g).next());
     let Some(type_proto::Value::TensorType(tensor)) = input
         .and_then(|i| i.r#type.as_ref())
         .and_then(|t| t.value.as_ref())
