@@ -205,8 +205,10 @@ enum Engine {
         net: ConvNet,
         pool: Option<rayon::ThreadPool>,
     },
-    /// tract, with its plans by input shape [batch, height, width].
+    /// tract, with its plans by input shape [batch, height, width], and why matup's
+    /// executor does not run the graph.
     Tract {
+        because: String,
         model: Box<InferenceModel>,
         plans: Mutex<HashMap<[usize; 3], Plan>>,
         executor: Executor,
@@ -218,8 +220,6 @@ pub struct OnnxUpsampler {
     path: PathBuf,
     pub info: ModelInfo,
     engine: Engine,
-    /// Why matup's executor does not run this graph (tract does), if it does not.
-    tract_because: Option<String>,
     /// The input's batch, height and width where the network fixes them.
     fixed: [Option<usize>; 3],
 }
@@ -295,18 +295,17 @@ impl OnnxUpsampler {
             EngineChoice::Tract => Err("engine=tract was asked for".to_string()),
             _ => ConvNet::from_model(&proto).map_err(|e| e.to_string()),
         };
-        let (engine, tract_because) = match native {
-            Ok(net) => (Engine::Matup { net, pool: None }, None),
+        let engine = match native {
+            Ok(net) => Engine::Matup { net, pool: None },
             Err(why) if choice == EngineChoice::Matup => {
                 return Err(model_error(path, "matup's executor cannot run it", why))
             }
-            Err(why) => (tract_engine(path)?, Some(why)),
+            Err(why) => tract_engine(path, why)?,
         };
         let upsampler = OnnxUpsampler {
             path: path.to_path_buf(),
             info,
             engine,
-            tract_because,
             fixed: fixed_input(&proto),
         };
         // Probe: the output must be the input times the sidecar's scale, 3 channels.
@@ -333,9 +332,9 @@ impl OnnxUpsampler {
 
     /// "matup", or "tract" and why matup's executor does not run the graph.
     pub fn engine(&self) -> String {
-        match &self.tract_because {
-            None => "matup".into(),
-            Some(why) => format!("tract ({why})"),
+        match &self.engine {
+            Engine::Matup { .. } => "matup".into(),
+            Engine::Tract { because, .. } => format!("tract ({because})"),
         }
     }
 
@@ -461,8 +460,8 @@ impl OnnxUpsampler {
     }
 }
 
-/// tract's engine for the network in `path`.
-fn tract_engine(path: &Path) -> Result<Engine> {
+/// tract's engine for the network in `path`, which matup's executor does not run `because`.
+fn tract_engine(path: &Path, because: String) -> Result<Engine> {
     let model = tract_onnx::onnx()
         .model_for_path(path)
         .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
@@ -478,6 +477,7 @@ fn tract_engine(path: &Path) -> Result<Engine> {
         ));
     }
     Ok(Engine::Tract {
+        because,
         model: Box::new(model),
         plans: Mutex::new(HashMap::new()),
         // As many as the pool matup runs on (`RAYON_NUM_THREADS`, or one per core).
