@@ -295,11 +295,11 @@ fn bad_models_give_clear_errors() {
     assert!(e.contains("×2") && e.contains("×4"), "{e}");
 }
 
-/// The largest difference between two upsamplers' outputs for `image`.
-fn engines_differ(a: &str, b: &str, image: &Map, border: Border) -> f32 {
+/// The largest difference between two upsamplers' outputs for `image` upsampled ×`scale`.
+fn max_difference(a: &str, b: &str, image: &Map, scale: usize, border: Border) -> f32 {
     let run = |spec: &str| {
         build(spec)
-            .upsample(std::slice::from_ref(image), 4, border)
+            .upsample(std::slice::from_ref(image), scale, border)
             .unwrap()
             .remove(0)
     };
@@ -317,13 +317,13 @@ fn matups_executor_matches_tract_on_every_shipped_model() {
         (x2.display().to_string(), &image, 2),
         (esrgan.display().to_string(), &small, 4),
     ] {
-        let run = |engine: &str| {
-            build(&format!("onnx:{model},engine={engine}"))
-                .upsample(std::slice::from_ref(image), scale, Border::Mirror)
-                .unwrap()
-                .remove(0)
-        };
-        let diff = common::max_abs_diff(&run("matup"), &run("tract"));
+        let diff = max_difference(
+            &format!("onnx:{model},engine=matup"),
+            &format!("onnx:{model},engine=tract"),
+            image,
+            scale,
+            Border::Mirror,
+        );
         println!("{model}: max |matup − tract| {diff:e}");
         // tract approximates the sigmoid, whose input SPAN scales by 255: 1.2·10⁻⁴ of the
         // original runtime (shared/models/README.md), 0.03 of an 8-bit level.
@@ -337,10 +337,11 @@ fn a_tileable_image_run_whole_with_wrapping_convolutions_matches_wrap_around_til
     // One 64² tile on matup's executor, its convolutions wrapping; against 16 tiles of 16² on
     // tract, each read with 44 texels of wrapped-around context, so that the 22 they keep
     // cover SPAN's receptive field (21).
-    let diff = engines_differ(
+    let diff = max_difference(
         "onnx:span_x4_ch48,engine=matup,tile=64",
         "onnx:span_x4_ch48,engine=tract,tile=16,overlap=44,batch=8",
         &image,
+        4,
         Border::Wrap,
     );
     println!("max |whole wrapping − wrap-around tiles| {diff:e}");
