@@ -12,6 +12,7 @@ use serde::Serialize;
 
 use crate::config::{Chain, Config, AUTO_UPSAMPLERS};
 use crate::filter::decode::decode;
+use crate::filter::input::UpsampledInput;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
 use crate::height::reconstruct_height;
 use crate::lights::Light;
@@ -419,7 +420,19 @@ fn run_level(
         Ok(targets)
     })?;
 
+    let filter = Filter::new(
+        &config.filter,
+        scale,
+        input_channels.clone(),
+        config.seed.wrapping_add(level as u64),
+    )?;
     let examples = |features: &Map, heights: Option<&Map>, targets: Targets| Examples {
+        input: UpsampledInput::new(
+            features,
+            &filter.input_channels,
+            ctx.border,
+            filter.geometry(),
+        ),
         residual_base: upsample(features, scale, config.filter.residual_base.0, ctx.border),
         metallic_bilinear: upsample(
             &features.select_channels(&[3]),
@@ -429,7 +442,6 @@ fn run_level(
         ),
         heights: heights.map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border)),
         features: features.clone(),
-        border: ctx.border,
         width: features.width() * scale,
         height: features.height() * scale,
         targets,
@@ -463,12 +475,6 @@ fn run_level(
     };
     drop(renders);
 
-    let filter = Filter::new(
-        &config.filter,
-        scale,
-        input_channels.clone(),
-        config.seed.wrapping_add(level as u64),
-    )?;
     let shading = Shading {
         model: ctx.model.clone(),
         lights: lights.clone().into(),
@@ -528,23 +534,13 @@ fn infer_material(
     ctx: &Context,
 ) -> Result<Material> {
     let lr_features = features(lr);
-    let config = ctx.config;
-    let examples = Examples {
-        residual_base: upsample(
-            &lr_features,
-            scale,
-            config.filter.residual_base.0,
-            ctx.border,
-        ),
-        metallic_bilinear: Map::filled(1, 1, 1, 0.0),
-        heights: None,
-        features: lr_features,
-        border: ctx.border,
-        width: lr.width() * scale,
-        height: lr.height_px() * scale,
-        targets: Targets::default(),
-    };
-    let (w, h) = (examples.width, examples.height);
+    let residual_base = upsample(
+        &lr_features,
+        scale,
+        ctx.config.filter.residual_base.0,
+        ctx.border,
+    );
+    let (w, h) = (lr.width() * scale, lr.height_px() * scale);
     let n = w * h;
     ctx.progress.stage("infer", n as u64);
     let folded = filter.folded_weights()?;
@@ -555,17 +551,17 @@ fn infer_material(
     hr.metallic = Map::filled(w, h, 1, 0.0);
     let all: Vec<usize> = (0..n).collect();
     for chunk in all.chunks(16384) {
-        let (windows, phases) = examples.gather(filter, chunk);
         let raw = if filter.input_channels.is_empty() {
             vec![0.0; chunk.len() * FEATURES]
         } else {
+            let (windows, phases) = filter.lr_windows(&lr_features, ctx.border, chunk);
             filter.infer(&folded, &windows, &phases)?
         };
         let decoded: Vec<_> = chunk
             .par_iter()
             .zip(raw.par_chunks(FEATURES))
             .map(|(&t, r)| {
-                let base: [f32; FEATURES] = examples.residual_base.texel(t);
+                let base: [f32; FEATURES] = residual_base.texel(t);
                 decode(r, &base, &fixed).params
             })
             .collect();

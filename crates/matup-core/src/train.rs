@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::color::to_u8;
 use crate::config::{Schedule, TrainConfig};
 use crate::filter::decode::decode;
+use crate::filter::input::UpsampledInput;
 use crate::filter::{Filter, FEATURES};
 use crate::lights::Light;
 use crate::loss::LossNorm;
@@ -21,7 +22,6 @@ use crate::map::Map;
 use crate::material::texel_position;
 use crate::op::{contiguous_f32, TexelLossOp, TexelObjective};
 use crate::progress::Progress;
-use crate::resample::Border;
 use crate::shading::{ShadingModel, Svbrdf, Texel};
 use crate::{Error, Result};
 
@@ -82,9 +82,10 @@ impl Targets {
 
 /// Training examples at one scale: the filter's inputs and what its answers are judged by.
 pub struct Examples {
-    /// The 7 features of the input material (the filter reads windows of these).
+    /// The 7 features of the input material (the LR-consistency term's reference).
     pub features: Map,
-    pub border: Border,
+    /// The filter's input features upsampled to the output size (its windows are read here).
+    pub input: UpsampledInput,
     /// Output size.
     pub width: usize,
     pub height: usize,
@@ -102,30 +103,15 @@ impl Examples {
         self.width * self.height
     }
 
-    /// Gathers the filter's input windows and phases for output texels `batch`.
-    pub fn gather(&self, filter: &Filter, batch: &[usize]) -> (Vec<f32>, Vec<usize>) {
-        let g = filter.geometry();
-        let len = g.window_len(filter.input_channels.len());
+    /// The filter's input windows (`[B][N·N·C]`) of output texels `batch`.
+    pub fn windows(&self, batch: &[usize]) -> Vec<f32> {
+        let len = self.input.window_len();
         let mut windows = vec![0f32; batch.len() * len];
         windows
-            .par_chunks_mut(len)
+            .par_chunks_mut(len.max(1))
             .zip(batch)
-            .for_each(|(out, &t)| {
-                let (row, col) = (t / self.width, t % self.width);
-                g.gather(
-                    &self.features,
-                    &filter.input_channels,
-                    self.border,
-                    row,
-                    col,
-                    out,
-                );
-            });
-        let phases = batch
-            .iter()
-            .map(|&t| g.phase(t / self.width, t % self.width))
-            .collect();
-        (windows, phases)
+            .for_each(|(out, &t)| self.input.window(t / self.width, t % self.width, out));
+        windows
     }
 }
 
@@ -307,8 +293,7 @@ fn consistency_loss(
             }
         }
     }
-    let (windows, phases) = examples.gather(filter, &batch);
-    let raw = filter.forward(Arc::new(windows), Arc::new(phases))?;
+    let raw = filter.forward(examples.windows(&batch))?;
     Ok(raw.apply_op1(Consistency {
         examples: examples.clone(),
         batch,
@@ -659,8 +644,7 @@ fn batch_loss(
     metallic_weight: f32,
     indices: &[usize],
 ) -> Result<Tensor> {
-    let (windows, phases) = examples.gather(filter, indices);
-    let raw = filter.forward(Arc::new(windows), Arc::new(phases))?;
+    let raw = filter.forward(examples.windows(indices))?;
     let objective = FilterObjective {
         examples: examples.clone(),
         shading: shading.clone(),

@@ -23,6 +23,8 @@ pub struct WindowGeometry {
     pub window: usize,
     /// K: LR texels per axis that any phase's window touches.
     pub taps: usize,
+    /// The upsampling kernel the window is read through.
+    pub kernel: Kernel,
     pub axis: AxisTaps,
 }
 
@@ -78,6 +80,7 @@ impl WindowGeometry {
             scale,
             window,
             taps,
+            kernel,
             axis: AxisTaps { start, weights },
         }
     }

@@ -6,6 +6,7 @@ pub mod decode;
 pub mod dense;
 pub mod folded;
 pub mod geometry;
+pub mod input;
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -14,11 +15,14 @@ use std::sync::Arc;
 use candle_core::{DType, Device, Tensor, Var};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
 
 use crate::config::{Activation, FilterConfig};
+use crate::map::Map;
+use crate::resample::Border;
 use crate::{Error, Result};
-use dense::Dense;
-use folded::{FoldedLayer, FoldedLinear};
+use dense::{Dense, WeightLayout};
+use folded::FoldedLayer;
 use geometry::WindowGeometry;
 
 /// The features the filter reads and answers, per texel: linear base colour (3), metallic,
@@ -68,8 +72,9 @@ impl Filter {
         for (i, &(out, fan_in, scale)) in shapes.iter().enumerate() {
             let bound = scale / (fan_in as f32).sqrt();
             let w = uniform(out * fan_in, bound);
+            // The first layer's weights are `[dy][dx][c][h]`: input-major.
             let w = if i == 0 {
-                Tensor::from_vec(w, layer1.weight_len(), &Device::Cpu)?
+                Tensor::from_vec(w, (fan_in, out), &Device::Cpu)?
             } else {
                 Tensor::from_vec(w, (out, fan_in), &Device::Cpu)?
             };
@@ -101,44 +106,43 @@ impl Filter {
         })
     }
 
-    /// Everything after the first layer's matrix product: its bias, then the other layers.
-    fn tail(&self, first: Tensor) -> Result<Tensor> {
-        let mut x = self.activate(&first.broadcast_add(self.vars[1].as_tensor())?)?;
-        let layers = self.vars.len() / 2;
-        for layer in 1..layers {
-            let (w, b) = (
-                self.vars[2 * layer].as_tensor(),
-                self.vars[2 * layer + 1].as_tensor(),
-            );
-            x = if layer + 1 == layers {
-                x.apply_op3(w, b, Dense { slope: None })?
-            } else {
-                match self.activation {
-                    Activation::LeakyRelu(slope) => {
-                        x.apply_op3(w, b, Dense { slope: Some(slope) })?
-                    }
-                    Activation::Relu => x.apply_op3(w, b, Dense { slope: Some(0.0) })?,
-                    Activation::Gelu | Activation::Silu => {
-                        self.activate(&x.apply_op3(w, b, Dense { slope: None })?)?
-                    }
-                }
-            };
+    /// Dense layer `index` on `x`, with the filter's activation after every layer but the
+    /// output layer.
+    fn dense(&self, index: usize, x: &Tensor, layout: WeightLayout) -> Result<Tensor> {
+        let (w, b) = (
+            self.vars[2 * index].as_tensor(),
+            self.vars[2 * index + 1].as_tensor(),
+        );
+        let output_layer = index + 1 == self.vars.len() / 2;
+        let fused = |slope| x.apply_op3(w, b, Dense { slope, layout });
+        Ok(match self.activation {
+            _ if output_layer => fused(None)?,
+            Activation::LeakyRelu(slope) => fused(Some(slope))?,
+            Activation::Relu => fused(Some(0.0))?,
+            Activation::Gelu | Activation::Silu => self.activate(&fused(None)?)?,
+        })
+    }
+
+    /// The layers after the first, on the first layer's activations.
+    fn after_first(&self, mut x: Tensor) -> Result<Tensor> {
+        for index in 1..self.vars.len() / 2 {
+            x = self.dense(index, &x, WeightLayout::OutputMajor)?;
         }
         Ok(x)
     }
 
-    /// Raw residuals `[B, 7]` for a batch of gathered windows, differentiable in every weight.
-    pub fn forward(&self, windows: Arc<Vec<f32>>, phases: Arc<Vec<usize>>) -> Result<Tensor> {
-        let first = self.vars[0].as_tensor().apply_op1(FoldedLinear {
-            layer: self.layer1.clone(),
-            windows,
-            phases,
-        })?;
-        self.tail(first)
+    /// Raw residuals `[B, 7]` for a batch of upsampled windows `[B][N·N·C]` (training's
+    /// input, [`input::UpsampledInput`]), differentiable in every weight.
+    pub fn forward(&self, windows: Vec<f32>) -> Result<Tensor> {
+        let inputs = self.vars[0].dims()[0];
+        let rows = windows.len() / inputs;
+        let x = Tensor::from_vec(windows, (rows, inputs), &Device::Cpu)?;
+        let first = self.dense(0, &x, WeightLayout::InputMajor)?;
+        self.after_first(first)
     }
 
-    /// Raw residuals `[B][7]` for many windows with fixed weights (inference): the first layer
-    /// is folded once for all of them.
+    /// Raw residuals `[B][7]` for many LR windows with fixed weights (inference): the first
+    /// layer is folded once for all of them.
     pub fn infer(
         &self,
         folded: &[Vec<f32>],
@@ -147,14 +151,41 @@ impl Filter {
     ) -> Result<Vec<f32>> {
         let first = self.layer1.apply(folded, windows, phases);
         let first = Tensor::from_vec(first, (phases.len(), self.layer1.hidden), &Device::Cpu)?;
-        Ok(self.tail(first)?.flatten_all()?.to_vec1::<f32>()?)
+        let first = self.activate(&first.broadcast_add(self.vars[1].as_tensor())?)?;
+        Ok(self.after_first(first)?.flatten_all()?.to_vec1::<f32>()?)
+    }
+
+    /// The LR windows (`[B][K·K·C]`, [`WindowGeometry::gather`]) and phases of output texels
+    /// `batch` of `features` upsampled by the filter's scale, for [`infer`](Self::infer).
+    pub fn lr_windows(
+        &self,
+        features: &Map,
+        border: Border,
+        batch: &[usize],
+    ) -> (Vec<f32>, Vec<usize>) {
+        let g = self.geometry();
+        let width = features.width() * g.scale;
+        let len = g.window_len(self.input_channels.len());
+        let mut windows = vec![0f32; batch.len() * len];
+        windows
+            .par_chunks_mut(len.max(1))
+            .zip(batch)
+            .for_each(|(out, &t)| {
+                let (row, col) = (t / width, t % width);
+                g.gather(features, &self.input_channels, border, row, col, out);
+            });
+        let phases = batch
+            .iter()
+            .map(|&t| g.phase(t / width, t % width))
+            .collect();
+        (windows, phases)
     }
 
     /// The first layer folded per phase with the current weights.
     pub fn folded_weights(&self) -> Result<Vec<Vec<f32>>> {
         Ok(self
             .layer1
-            .fold(&self.vars[0].as_tensor().to_vec1::<f32>()?))
+            .fold(&self.vars[0].as_tensor().flatten_all()?.to_vec1::<f32>()?))
     }
 
     /// The weights by name (`w0`, `b0`, `w1`, …), for checkpoints.
