@@ -186,6 +186,8 @@ struct Consistency {
     /// The LR texel of each group.
     parents: Vec<usize>,
     group_size: usize,
+    /// Groups in the whole step (this op may see a part of them): the loss is their mean.
+    step_groups: usize,
     fixed: [Option<f32>; FEATURES],
     gradient: Mutex<Option<Vec<f32>>>,
 }
@@ -244,7 +246,7 @@ impl candle_core::CustomOp1 for Consistency {
                 grads[(g * n + j) * FEATURES..][..FEATURES].copy_from_slice(&d.backward(&up));
             }
         }
-        let groups = self.parents.len().max(1) as f32;
+        let groups = self.step_groups.max(1) as f32;
         grads.iter_mut().for_each(|v| *v /= groups);
         *self.gradient.lock().unwrap() = Some(grads);
         Ok((
@@ -270,23 +272,29 @@ impl candle_core::CustomOp1 for Consistency {
     }
 }
 
-/// The LR-consistency loss of `groups` random LR texels (all their output texels).
+/// `groups` random LR texels, for the LR-consistency term.
+fn draw_parents(examples: &Examples, groups: usize, rng: &mut StdRng) -> Vec<usize> {
+    use rand::Rng;
+    let lr_texels = examples.features.texels();
+    (0..groups)
+        .map(|_| rng.random_range(0..lr_texels))
+        .collect()
+}
+
+/// The LR-consistency loss of the LR texels `parents` (all their output texels), as their
+/// share of the mean over `step_groups` groups.
 fn consistency_loss(
     filter: &Filter,
     examples: &Arc<Examples>,
     fixed: [Option<f32>; FEATURES],
-    groups: usize,
-    rng: &mut StdRng,
+    parents: &[usize],
+    step_groups: usize,
 ) -> Result<Tensor> {
-    use rand::Rng;
     let s = filter.geometry().scale;
-    let (lw, lh) = (examples.features.width(), examples.features.height());
-    let mut batch = Vec::with_capacity(groups * s * s);
-    let mut parents = Vec::with_capacity(groups);
-    for _ in 0..groups {
-        let parent = rng.random_range(0..lw * lh);
+    let lw = examples.features.width();
+    let mut batch = Vec::with_capacity(parents.len() * s * s);
+    for &parent in parents {
         let (py, px) = (parent / lw, parent % lw);
-        parents.push(parent);
         for dy in 0..s {
             for dx in 0..s {
                 batch.push((py * s + dy) * examples.width + px * s + dx);
@@ -297,8 +305,9 @@ fn consistency_loss(
     Ok(raw.apply_op1(Consistency {
         examples: examples.clone(),
         batch,
-        parents,
+        parents: parents.to_vec(),
         group_size: s * s,
+        step_groups,
         fixed,
         gradient: Mutex::new(None),
     })?)
@@ -315,8 +324,12 @@ const BETA1: f32 = 0.9;
 const BETA2: f32 = 0.999;
 const EPSILON: f32 = 1e-8;
 
+/// Elements per parallel task of the update.
+const ADAM_CHUNK: usize = 4096;
+
 struct AdamUpdate<'a> {
-    grad: &'a [f32],
+    /// The gradient in parts (one per part of the batch), summed here.
+    grads: &'a [&'a [f32]],
     moments: &'a Mutex<(Vec<f32>, Vec<f32>)>,
     learning_rate: f32,
     step: u64,
@@ -340,12 +353,21 @@ impl InplaceOp1 for AdamUpdate<'_> {
         let c2 = 1.0 - BETA2.powi(self.step as i32);
         let lr = self.learning_rate;
         weights
-            .par_chunks_mut(4096)
-            .zip(self.grad.par_chunks(4096))
-            .zip(m.par_chunks_mut(4096).zip(v.par_chunks_mut(4096)))
-            .for_each(|((w, g), (m, v))| {
+            .par_chunks_mut(ADAM_CHUNK)
+            .zip(
+                m.par_chunks_mut(ADAM_CHUNK)
+                    .zip(v.par_chunks_mut(ADAM_CHUNK)),
+            )
+            .enumerate()
+            .for_each(|(k, (w, (m, v)))| {
+                let mut sum = [0f32; ADAM_CHUNK];
+                let g = &mut sum[..w.len()];
+                for part in self.grads {
+                    let part = &part[k * ADAM_CHUNK..][..w.len()];
+                    g.iter_mut().zip(part).for_each(|(g, p)| *g += p);
+                }
                 // Zipped, not indexed: without bounds checks the loop vectorises.
-                for (((w, g), m), v) in w.iter_mut().zip(g).zip(m).zip(v) {
+                for (((w, g), m), v) in w.iter_mut().zip(&*g).zip(m).zip(v) {
                     *m = BETA1 * *m + (1.0 - BETA1) * g;
                     *v = BETA2 * *v + (1.0 - BETA2) * g * g;
                     *w -= lr * (*m / c1) / ((*v / c2).sqrt() + EPSILON);
@@ -366,25 +388,31 @@ impl Adam {
         }
     }
 
-    /// One update of every weight from its gradient in `grads`.
+    /// One update of every weight from its gradient, the sum of its parts in `parts`.
     pub fn update(
         &mut self,
         vars: &[Var],
-        grads: &candle_core::backprop::GradStore,
+        parts: &[candle_core::backprop::GradStore],
         learning_rate: f64,
     ) -> Result<()> {
         self.step += 1;
         for (var, moments) in vars.iter().zip(&self.moments) {
-            let Some(grad) = grads.get(var.as_tensor()) else {
+            let grads = (parts.iter())
+                .filter_map(|p| p.get(var.as_tensor()))
+                .map(|g| g.contiguous())
+                .collect::<candle_core::Result<Vec<_>>>()?;
+            if grads.is_empty() {
                 continue;
-            };
-            let grad = grad.contiguous()?;
-            let (storage, layout) = grad.storage_and_layout();
-            let Storage::Cpu(cpu) = &*storage else {
-                return Err(Error::Invalid("adam runs on CPU tensors".into()));
-            };
+            }
+            let storages: Vec<_> = grads.iter().map(|g| g.storage_and_layout()).collect();
+            let slices = (storages.iter())
+                .map(|(storage, layout)| match &**storage {
+                    Storage::Cpu(cpu) => Ok(contiguous_f32(cpu, layout)?),
+                    _ => Err(Error::Invalid("adam runs on CPU tensors".into())),
+                })
+                .collect::<Result<Vec<_>>>()?;
             let update = AdamUpdate {
-                grad: contiguous_f32(cpu, layout)?,
+                grads: &slices,
                 moments,
                 learning_rate: learning_rate as f32,
                 step: self.step,
@@ -572,47 +600,69 @@ pub fn train(
                     base_lr * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())
                 }
             };
-            let mut loss = batch_loss(
-                filter,
-                main,
-                shading,
-                fixed,
-                config.metallic_weight,
-                indices,
-            )?;
-            if let Some((examples, weight)) = cross {
+            let cross_picked = cross.map(|(examples, weight)| {
                 let n = examples.texels();
                 let start = (step_in_epoch * batch) % n;
                 let picked: Vec<usize> = (0..indices.len())
                     .map(|k| cross_order[(start + k) % n])
                     .collect();
-                let extra = batch_loss(
-                    filter,
-                    examples,
-                    shading,
-                    fixed,
-                    config.metallic_weight,
-                    &picked,
-                )?;
-                loss = (loss + extra.affine(weight as f64, 0.0)?)?;
-            }
-            if config.lr_consistency > 0.0 {
+                (examples, weight, picked)
+            });
+            let parents = if config.lr_consistency > 0.0 {
                 let s = filter.geometry().scale;
-                let groups = (indices.len() / (s * s)).max(1);
-                let extra = consistency_loss(filter, main, fixed, groups, &mut rng)?;
-                loss = (loss + extra.affine(config.lr_consistency as f64, 0.0)?)?;
-            }
+                draw_parents(main, (indices.len() / (s * s)).max(1), &mut rng)
+            } else {
+                Vec::new()
+            };
             if progress.cancelled() {
                 return Err(Error::Cancelled { epochs_done: epoch });
             }
-            let value = loss.to_scalar::<f32>()? as f64;
+            // The batch in one part per thread, each run forward and backward on its own:
+            // the loss is a sum over texels, so the parts' gradients add up to the batch's,
+            // and the threads meet once a step instead of in every op.
+            let parts = rayon::current_num_threads().min(indices.len()).max(1);
+            let share =
+                |items: usize, part: usize| items * part / parts..items * (part + 1) / parts;
+            let results = (0..parts)
+                .into_par_iter()
+                .map(|part| -> Result<(f64, candle_core::backprop::GradStore)> {
+                    let mut loss = batch_loss(
+                        filter,
+                        main,
+                        shading,
+                        fixed,
+                        config.metallic_weight,
+                        &indices[share(indices.len(), part)],
+                        indices.len(),
+                    )?;
+                    if let Some((examples, weight, picked)) = &cross_picked {
+                        let extra = batch_loss(
+                            filter,
+                            examples,
+                            shading,
+                            fixed,
+                            config.metallic_weight,
+                            &picked[share(picked.len(), part)],
+                            picked.len(),
+                        )?;
+                        loss = (loss + extra.affine(*weight as f64, 0.0)?)?;
+                    }
+                    let mine = &parents[share(parents.len(), part)];
+                    if !mine.is_empty() {
+                        let extra = consistency_loss(filter, main, fixed, mine, parents.len())?;
+                        loss = (loss + extra.affine(config.lr_consistency as f64, 0.0)?)?;
+                    }
+                    Ok((loss.to_scalar::<f32>()? as f64, loss.backward()?))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let (values, grads): (Vec<f64>, Vec<_>) = results.into_iter().unzip();
+            let value: f64 = values.iter().sum();
             if !value.is_finite() {
                 return Err(Error::Invalid(format!(
                     "training diverged: loss {value} at epoch {}",
                     epoch + 1
                 )));
             }
-            let grads = loss.backward()?;
             adam.update(&filter.vars, &grads, lr)?;
             epoch_loss += value * indices.len() as f64;
             progress.advance(1, Some(value));
@@ -635,7 +685,8 @@ pub fn train(
     Ok(stats)
 }
 
-/// The mean objective over one batch, as a differentiable scalar.
+/// The objective over texels `indices`, a part of a batch of `batch` texels, as their share
+/// of the batch's mean: a differentiable scalar.
 fn batch_loss(
     filter: &Filter,
     examples: &Arc<Examples>,
@@ -643,6 +694,7 @@ fn batch_loss(
     fixed: [Option<f32>; FEATURES],
     metallic_weight: f32,
     indices: &[usize],
+    batch: usize,
 ) -> Result<Tensor> {
     let raw = filter.forward(examples.windows(indices))?;
     let objective = FilterObjective {
@@ -652,5 +704,6 @@ fn batch_loss(
         fixed,
         metallic_weight,
     };
-    Ok(raw.apply_op1(TexelLossOp::new(objective))?.mean_all()?)
+    let losses = raw.apply_op1(TexelLossOp::new(objective))?;
+    Ok(losses.sum_all()?.affine(1.0 / batch as f64, 0.0)?)
 }
