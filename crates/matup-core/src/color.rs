@@ -1,5 +1,7 @@
 //! Colour transfer functions: sRGB encoding and the display transform renders are compared in.
 
+use crate::simd::{fast_exp, fast_ln};
+
 /// sRGB-encoded value in [0, 1] → linear.
 #[inline]
 pub fn srgb_to_linear(v: f32) -> f32 {
@@ -11,16 +13,19 @@ pub fn srgb_to_linear(v: f32) -> f32 {
 }
 
 /// The sRGB transfer curve and its slope for a linear value in [0, 1]: the one implementation
-/// of the curve (file encoding, display and its gradient). One `powf` serves both: the slope
-/// of `1.055·v^(1/2.4) − 0.055` is `1.055·v^(1/2.4) / (2.4·v)`.
-#[inline]
+/// of the curve (file encoding, display and its gradient). One power serves both: the slope
+/// of `1.055·v^(1/2.4) − 0.055` is `1.055·v^(1/2.4) / (2.4·v)`. The power is
+/// `exp(ln v / 2.4)` from [`crate::simd`] (relative error below 10⁻⁶, tested), written
+/// without branches so that the training loss's loop over lights vectorises.
+#[inline(always)]
 pub fn srgb_encode(v: f32) -> (f32, f32) {
     let v = v.max(0.0);
+    let power = 1.055 * fast_exp(fast_ln(v) * (1.0 / 2.4));
+    let curve = (power - 0.055, power / (2.4 * v));
     if v <= 0.003_130_8 {
         (12.92 * v, 12.92)
     } else {
-        let power = 1.055 * v.powf(1.0 / 2.4);
-        (power - 0.055, power / (2.4 * v))
+        curve
     }
 }
 
@@ -45,7 +50,7 @@ pub fn display(radiance: f32) -> f32 {
 }
 
 /// [`display`] and its derivative with respect to the radiance.
-#[inline]
+#[inline(always)]
 pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
     // Radiance is never negative in practice; below 0 the clamp has no gradient.
     let t = radiance.max(0.0);
@@ -64,6 +69,28 @@ pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn srgb_encoding_matches_the_exact_curve() {
+        let mut worst = 0.0f64;
+        for k in 0..=100_000 {
+            let v = k as f32 / 100_000.0;
+            let (value, slope) = srgb_encode(v);
+            let v = v as f64;
+            let (exact, exact_slope) = if v <= 0.003_130_8 {
+                (12.92 * v, 12.92)
+            } else {
+                (
+                    1.055 * v.powf(1.0 / 2.4) - 0.055,
+                    1.055 * v.powf(1.0 / 2.4) / (2.4 * v),
+                )
+            };
+            worst = worst
+                .max((value as f64 - exact).abs())
+                .max((slope as f64 - exact_slope).abs() / exact_slope);
+        }
+        assert!(worst < 1e-6, "{worst}");
+    }
 
     #[test]
     fn srgb_round_trips() {

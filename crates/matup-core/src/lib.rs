@@ -22,6 +22,7 @@ pub mod progress;
 pub mod render;
 pub mod resample;
 pub mod shading;
+pub mod simd;
 pub mod train;
 pub mod upsample;
 

@@ -30,12 +30,11 @@ impl LossNorm {
     pub fn eval(&self, e: [f32; 3]) -> (f32, [f32; 3]) {
         match *self {
             LossNorm::L21 => {
+                // Without a return, so that loops over lights stay branch-free.
                 let n2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
-                if n2 <= TINY {
-                    return (TINY.sqrt(), [0.0; 3]);
-                }
-                let n = n2.sqrt();
-                (n, e.map(|v| v / n))
+                let tiny = n2 <= TINY;
+                let n = n2.max(TINY).sqrt();
+                (n, e.map(|v| if tiny { 0.0 } else { v / n }))
             }
             LossNorm::L11 => (
                 e[0].abs() + e[1].abs() + e[2].abs(),

@@ -8,7 +8,7 @@ use matup_core::material::MIN_ALPHA;
 use matup_core::shading::{
     texel_loss, ShadingModel, ShadingModelRegistration, Svbrdf, Texel, VIEW,
 };
-use matup_core::{Light, LightSample, LossNorm, Result};
+use matup_core::{with_avx2, Light, LightSample, LossNorm, Result};
 
 use crate::vec3::*;
 
@@ -183,15 +183,40 @@ impl ShadingModel for Ggx {
             return texel_loss(self, texel, lights, targets, norm, None);
         };
         match *norm {
-            LossNorm::L21 => fused_loss(texel, lights, targets, grad, |e| LossNorm::L21.eval(e)),
-            LossNorm::L11 => fused_loss(texel, lights, targets, grad, |e| LossNorm::L11.eval(e)),
-            LossNorm::L22 => fused_loss(texel, lights, targets, grad, |e| LossNorm::L22.eval(e)),
-            other => fused_loss(texel, lights, targets, grad, move |e| other.eval(e)),
+            LossNorm::L21 => {
+                with_avx2!(fused_loss(texel, lights, targets, grad, |e| LossNorm::L21.eval(e)))
+            }
+            LossNorm::L11 => {
+                with_avx2!(fused_loss(texel, lights, targets, grad, |e| LossNorm::L11.eval(e)))
+            }
+            LossNorm::L22 => {
+                with_avx2!(fused_loss(texel, lights, targets, grad, |e| LossNorm::L22.eval(e)))
+            }
+            other => with_avx2!(fused_loss(texel, lights, targets, grad, move |e| other.eval(e))),
         }
     }
 }
 
 const LANES: usize = 16;
+
+/// Per-lane running sums of the loss and its gradient's parts. Each lane adds only to its
+/// own sums (the lanes are reduced once, at the end), so the loop over a chunk's lights has
+/// no dependency between lanes and vectorises.
+#[derive(Default)]
+struct LaneSums {
+    loss: [f32; LANES],
+    base: [[f32; LANES]; 3],
+    metallic: [f32; LANES],
+    /// The gradient with respect to the unit normal, along the light and half vectors.
+    normal: [[f32; LANES]; 3],
+    /// … and along the view vector (through N·V).
+    view: [f32; LANES],
+    a2: [f32; LANES],
+}
+
+fn lane_sum(lanes: &[f32; LANES]) -> f32 {
+    lanes.iter().sum()
+}
 
 /// `ggx`'s fused render + loss + gradient (see [`Ggx::shade_jacobian`] for the derivation),
 /// lights in chunks of [`LANES`].
@@ -214,9 +239,7 @@ fn fused_loss(
     let f0: [f32; 3] = std::array::from_fn(|c| 0.04 * (1.0 - m) + m * base[c]);
     let diffuse: [f32; 3] = std::array::from_fn(|c| (1.0 - m) * base[c] / PI);
 
-    let mut total = 0.0f32;
-    let (mut g_base, mut g_m) = ([0.0f32; 3], 0.0f32);
-    let (mut g_n, mut g_view, mut g_a2) = ([0.0f32; 3], 0.0f32, 0.0f32);
+    let mut sums = LaneSums::default();
     for (chunk, chunk_targets) in lights.chunks(LANES).zip(targets.chunks(LANES)) {
         let mut l = [[0f32; LANES]; 3];
         let mut intensity = [0f32; LANES];
@@ -284,36 +307,39 @@ fn fused_loss(
                 slope[c] = ds;
             }
             let (loss, de) = norm(e);
-            total += valid[i] * loss;
+            sums.loss[i] += valid[i] * loss;
             let w: [f32; 3] = std::array::from_fn(|c| valid[i] * de[c] * slope[c]);
 
             let mut through_nol = 0.0;
             let mut through_spec = 0.0;
             for c in 0..3 {
-                g_base[c] += w[c] * li * nol * ((1.0 - m) / PI + spec * m * (1.0 - schlick));
-                g_m +=
+                sums.base[c][i] += w[c] * li * nol * ((1.0 - m) / PI + spec * m * (1.0 - schlick));
+                sums.metallic[i] +=
                     w[c] * li * nol * (-base[c] / PI + spec * (1.0 - schlick) * (base[c] - 0.04));
                 through_nol += w[c] * li * (diffuse[c] + spec * fresnel[c]);
                 through_spec += w[c] * li * nol * fresnel[c] * chi;
             }
             let on_l = (through_nol + through_spec * dv * dvden_dnol) * nol_free;
             let on_h = through_spec * vis * dd_dnoh * noh_free;
-            g_n[0] += on_l * lx + on_h * hx;
-            g_n[1] += on_l * ly + on_h * hy;
-            g_n[2] += on_l * lz + on_h * hz;
-            g_view += through_spec * dv * dvden_dnov;
-            g_a2 += through_spec * (dd_da2 * vis + dv * dvden_da2);
+            sums.normal[0][i] += on_l * lx + on_h * hx;
+            sums.normal[1][i] += on_l * ly + on_h * hy;
+            sums.normal[2][i] += on_l * lz + on_h * hz;
+            sums.view[i] += through_spec * dv * dvden_dnov;
+            sums.a2[i] += through_spec * (dd_da2 * vis + dv * dvden_da2);
         }
     }
-    g_n[2] += g_view * nov_free; // VIEW = (0, 0, 1)
+    let mut g_n = sums.normal.each_ref().map(lane_sum);
+    g_n[2] += lane_sum(&sums.view) * nov_free; // VIEW = (0, 0, 1)
     let g_normal = normalize_backward(g_n, n, normal_len);
-    for c in 0..3 {
-        grad.base_color[c] += g_base[c];
-        grad.normal[c] += g_normal[c];
+    for ((g, sum), (gn, n)) in
+        (grad.base_color.iter_mut().zip(&sums.base)).zip(grad.normal.iter_mut().zip(g_normal))
+    {
+        *g += lane_sum(sum);
+        *gn += n;
     }
-    grad.metallic += g_m;
-    grad.alpha += g_a2 * 2.0 * a * a_free;
-    total
+    grad.metallic += lane_sum(&sums.metallic);
+    grad.alpha += lane_sum(&sums.a2) * 2.0 * a * a_free;
+    lane_sum(&sums.loss)
 }
 
 fn create(argument: Option<&str>) -> Result<Box<dyn ShadingModel>> {

@@ -13,35 +13,6 @@
 //! image that fits in one tile runs whole on matup's executor, its convolutions wrapping
 //! around, which needs no context at all.
 
-/// Calls `f(args…)` compiled for AVX2 and FMA when the CPU has them. matup builds for
-/// baseline x86-64, whose SSE2 halves the vector width of the executor's per-texel loops and
-/// Winograd transforms and spills their registers; `f` must be `#[inline(always)]` so that
-/// its body is compiled inside the AVX2 function. Results are the same either way (no
-/// operation is fused).
-macro_rules! with_avx2 {
-    ($f:ident($($arg:expr),* $(,)?)) => {{
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                #[target_feature(enable = "avx2,fma")]
-                unsafe fn avx2<F: FnOnce() -> R, R>(f: F) -> R {
-                    f()
-                }
-                // SAFETY: the CPU has AVX2 and FMA.
-                unsafe { avx2(|| $f($($arg),*)) }
-            } else {
-                $f($($arg),*)
-            }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            $f($($arg),*)
-        }
-    }};
-}
-
 mod convnet;
 mod kernels;
 mod winograd;

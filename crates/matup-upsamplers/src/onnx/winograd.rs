@@ -8,6 +8,7 @@
 //! Channels are processed 8 at a time as `[f32; 8]` lanes, which the compiler vectorises.
 
 use matup_core::gemm::gemm;
+use matup_core::with_avx2;
 
 use super::kernels::{in_row_blocks, pad, Features, Padding, PerTexel};
 
