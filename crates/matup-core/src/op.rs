@@ -4,7 +4,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Storage, Tensor};
 use rayon::prelude::*;
 
 use crate::lights::Light;
@@ -19,6 +19,15 @@ pub fn contiguous_f32<'a>(
     match layout.contiguous_offsets() {
         Some((start, end)) => Ok(&storage.as_slice::<f32>()?[start..end]),
         None => candle_core::bail!("matup's ops need contiguous f32 tensors"),
+    }
+}
+
+/// The f32 values of a contiguous tensor whose storage is on the CPU, read in place (from
+/// `Tensor::storage_and_layout`).
+pub fn storage_f32<'a>(storage: &'a Storage, layout: &Layout) -> candle_core::Result<&'a [f32]> {
+    match storage {
+        Storage::Cpu(cpu) => contiguous_f32(cpu, layout),
+        _ => candle_core::bail!("matup's ops run on CPU tensors"),
     }
 }
 

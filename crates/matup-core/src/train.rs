@@ -4,7 +4,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use candle_core::{CpuStorage, Device, InplaceOp1, Layout, Storage, Tensor, Var};
+use candle_core::{CpuStorage, Device, InplaceOp1, Layout, Tensor, Var};
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
@@ -20,10 +20,10 @@ use crate::lights::Light;
 use crate::loss::LossNorm;
 use crate::map::Map;
 use crate::material::texel_position;
-use crate::op::{contiguous_f32, TexelLossOp, TexelObjective};
+use crate::op::{contiguous_f32, storage_f32, TexelLossOp, TexelObjective};
 use crate::progress::Progress;
 use crate::shading::{ShadingModel, Svbrdf, Texel};
-use crate::{Error, Result};
+use crate::{with_avx2, Error, Result};
 
 /// Display-space targets of every texel under every light, 8 bits per channel, texel-major
 /// (`[texel][light][rgb]`): 100 lights × 4K² × RGB is 5 GB instead of 20 GB in f32.
@@ -351,7 +351,8 @@ impl InplaceOp1 for AdamUpdate<'_> {
         let (m, v) = &mut *guard;
         let c1 = 1.0 - BETA1.powi(self.step as i32);
         let c2 = 1.0 - BETA2.powi(self.step as i32);
-        let lr = self.learning_rate;
+        // w -= lr·(m/c1) / (√(v/c2) + ε), with the bias corrections as factors.
+        let (step_size, v_scale) = (self.learning_rate / c1, 1.0 / c2);
         weights
             .par_chunks_mut(ADAM_CHUNK)
             .zip(
@@ -366,14 +367,27 @@ impl InplaceOp1 for AdamUpdate<'_> {
                     let part = &part[k * ADAM_CHUNK..][..w.len()];
                     g.iter_mut().zip(part).for_each(|(g, p)| *g += p);
                 }
-                // Zipped, not indexed: without bounds checks the loop vectorises.
-                for (((w, g), m), v) in w.iter_mut().zip(&*g).zip(m).zip(v) {
-                    *m = BETA1 * *m + (1.0 - BETA1) * g;
-                    *v = BETA2 * *v + (1.0 - BETA2) * g * g;
-                    *w -= lr * (*m / c1) / ((*v / c2).sqrt() + EPSILON);
-                }
+                with_avx2!(adam_chunk(w, g, m, v, step_size, v_scale));
             });
         Ok(())
+    }
+}
+
+/// Adam's update of one chunk of weights (zipped, not indexed: without bounds checks the
+/// loop vectorises).
+#[inline(always)]
+fn adam_chunk(
+    w: &mut [f32],
+    g: &[f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    step_size: f32,
+    v_scale: f32,
+) {
+    for (((w, g), m), v) in w.iter_mut().zip(g).zip(m).zip(v) {
+        *m = BETA1 * *m + (1.0 - BETA1) * g;
+        *v = BETA2 * *v + (1.0 - BETA2) * g * g;
+        *w -= step_size * *m / ((*v * v_scale).sqrt() + EPSILON);
     }
 }
 
@@ -406,11 +420,8 @@ impl Adam {
             }
             let storages: Vec<_> = grads.iter().map(|g| g.storage_and_layout()).collect();
             let slices = (storages.iter())
-                .map(|(storage, layout)| match &**storage {
-                    Storage::Cpu(cpu) => Ok(contiguous_f32(cpu, layout)?),
-                    _ => Err(Error::Invalid("adam runs on CPU tensors".into())),
-                })
-                .collect::<Result<Vec<_>>>()?;
+                .map(|(storage, layout)| storage_f32(storage, layout))
+                .collect::<candle_core::Result<Vec<_>>>()?;
             let update = AdamUpdate {
                 grads: &slices,
                 moments,

@@ -8,7 +8,7 @@ use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::gemm::gemm;
-use crate::op::contiguous_f32;
+use crate::op::{contiguous_f32, storage_f32};
 
 /// How a layer's `O × I` weight matrix is stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -137,13 +137,17 @@ impl CustomOp3 for Dense {
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let (rows, inputs) = x.dims2()?;
         let outputs = b.elem_count();
-        let (xv, wv) = (values(x)?, values(w)?);
+        // The operands are read in place: the first layer's are megabytes.
+        let (x, w, res) = (x.contiguous()?, w.contiguous()?, res.contiguous()?);
+        let ((xs, xl), (ws, wl)) = (x.storage_and_layout(), w.storage_and_layout());
+        let (xv, wv) = (storage_f32(&xs, xl)?, storage_f32(&ws, wl)?);
         let (w_rows, w_cols) = self.layout.strides(inputs, outputs);
         // Through the activation: z > 0 exactly where the output is > 0 (slope ≥ 0).
         let mut gz = values(grad_res)?;
         if let Some(slope) = self.slope {
-            for (g, y) in gz.iter_mut().zip(values(res)?) {
-                if y <= 0.0 {
+            let (ys, yl) = res.storage_and_layout();
+            for (g, y) in gz.iter_mut().zip(storage_f32(&ys, yl)?) {
+                if *y <= 0.0 {
                     *g *= slope;
                 }
             }
@@ -161,7 +165,7 @@ impl CustomOp3 for Dense {
                         (r, outputs, inputs),
                         gz,
                         (outputs, 1),
-                        &wv,
+                        wv,
                         (w_rows, w_cols),
                         0.0,
                         gx,
@@ -175,8 +179,8 @@ impl CustomOp3 for Dense {
         // dW in the weights' layout: a (M×r)ᵀ · c (r×N), M×N = O×I (dzᵀ·x) or I×O (xᵀ·dz),
         // by rows of dW.
         let (m, n, a, c) = match self.layout {
-            WeightLayout::OutputMajor => (outputs, inputs, &gz, &xv),
-            WeightLayout::InputMajor => (inputs, outputs, &xv, &gz),
+            WeightLayout::OutputMajor => (outputs, inputs, &gz[..], xv),
+            WeightLayout::InputMajor => (inputs, outputs, xv, &gz[..]),
         };
         let m_chunk = Self::chunk(m);
         let mut gw = vec![0f32; m * n];
