@@ -105,12 +105,11 @@ impl Examples {
 
     /// The filter's input windows (`[B][N·N·C]`) of output texels `batch`.
     pub fn windows(&self, batch: &[usize]) -> Vec<f32> {
-        let len = self.input.window_len();
-        let mut windows = vec![0f32; batch.len() * len];
-        windows
-            .par_chunks_mut(len.max(1))
-            .zip(batch)
-            .for_each(|(out, &t)| self.input.window(t / self.width, t % self.width, out));
+        let mut windows = Vec::with_capacity(batch.len() * self.input.window_len());
+        for &t in batch {
+            self.input
+                .push_window(t / self.width, t % self.width, &mut windows);
+        }
         windows
     }
 }
@@ -361,11 +360,14 @@ impl InplaceOp1 for AdamUpdate<'_> {
             )
             .enumerate()
             .for_each(|(k, (w, (m, v)))| {
+                let range = k * ADAM_CHUNK..k * ADAM_CHUNK + w.len();
                 let mut sum = [0f32; ADAM_CHUNK];
                 let g = &mut sum[..w.len()];
-                for part in self.grads {
-                    let part = &part[k * ADAM_CHUNK..][..w.len()];
-                    g.iter_mut().zip(part).for_each(|(g, p)| *g += p);
+                g.copy_from_slice(&self.grads[0][range.clone()]);
+                for p in &self.grads[1..] {
+                    g.iter_mut()
+                        .zip(&p[range.clone()])
+                        .for_each(|(g, p)| *g += p);
                 }
                 with_avx2!(adam_chunk(w, g, m, v, step_size, v_scale));
             });

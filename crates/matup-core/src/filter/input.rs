@@ -87,18 +87,16 @@ impl UpsampledInput {
         self.window * self.window * self.channels
     }
 
-    /// Writes the window of output texel (row, col), `[dy][dx][c]`, into `out`.
-    pub fn window(&self, row: usize, col: usize, out: &mut [f32]) {
+    /// Appends the window of output texel (row, col), `[dy][dx][c]`, to `out`: N row copies
+    /// (no zero-filling first).
+    pub fn push_window(&self, row: usize, col: usize, out: &mut Vec<f32>) {
         debug_assert!(row < self.height && col < self.width);
         let (n, c) = (self.window, self.channels);
-        if c == 0 {
-            return;
-        }
         let stride = (self.width + n - 1) * c;
-        for (dy, out) in out.chunks_exact_mut(n * c).enumerate() {
-            // Texel (row, col) sits at (row + margin, col + margin); its window starts at
-            // (row, col).
-            out.copy_from_slice(&self.data[(row + dy) * stride + col * c..][..n * c]);
+        // Texel (row, col) sits at (row + margin, col + margin); its window starts at
+        // (row, col).
+        for dy in 0..n {
+            out.extend_from_slice(&self.data[(row + dy) * stride + col * c..][..n * c]);
         }
     }
 }
@@ -137,11 +135,12 @@ mod tests {
             let weights = pseudo_random(layer.weight_len(), 5);
             let folded = layer.fold(&weights);
             let input = UpsampledInput::new(&lr, &channels, border, &geometry);
-            let mut window = vec![0f32; input.window_len()];
+            let mut window = Vec::with_capacity(input.window_len());
             let mut lr_window = vec![0f32; geometry.window_len(channels.len())];
             for row in 0..lr.height() * 4 {
                 for col in 0..lr.width() * 4 {
-                    input.window(row, col, &mut window);
+                    window.clear();
+                    input.push_window(row, col, &mut window);
                     geometry.gather(&lr, &channels, border, row, col, &mut lr_window);
                     let phase = geometry.phase(row, col);
                     let want = layer.apply(&folded, &lr_window, &[phase]);
