@@ -12,21 +12,34 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     }
 }
 
-/// The sRGB transfer curve and its slope for a linear value in [0, 1]: the one implementation
-/// of the curve (file encoding, display and its gradient). One power serves both: the slope
-/// of `1.055·v^(1/2.4) − 0.055` is `1.055·v^(1/2.4) / (2.4·v)`. The power is
-/// `exp(ln v / 2.4)` from [`crate::simd`] (relative error below 10⁻⁶, tested), written
-/// without branches so that the training loss's loop over lights vectorises.
+/// The sRGB transfer curve and its slope at a linear value `v` in [0, 1], from
+/// `power = v^(1/2.4)`: the one definition of the curve (file encoding, display and its
+/// gradient). The slope of `1.055·v^(1/2.4) − 0.055` is `1.055·v^(1/2.4) / (2.4·v)`.
 #[inline(always)]
-pub fn srgb_encode(v: f32) -> (f32, f32) {
-    let v = v.max(0.0);
-    let power = 1.055 * fast_exp(fast_ln(v) * (1.0 / 2.4));
-    let curve = (power - 0.055, power / (2.4 * v));
+fn srgb_from_power(v: f32, power: f32) -> (f32, f32) {
+    let curve = (1.055 * power - 0.055, 1.055 * power / (2.4 * v));
     if v <= 0.003_130_8 {
         (12.92 * v, 12.92)
     } else {
         curve
     }
+}
+
+/// The sRGB curve and its slope for a linear value in [0, 1], with the standard library's
+/// `powf` (fastest in scalar code: file encoding, renders).
+#[inline]
+pub fn srgb_encode(v: f32) -> (f32, f32) {
+    let v = v.max(0.0);
+    srgb_from_power(v, v.powf(1.0 / 2.4))
+}
+
+/// [`srgb_encode`] with the power as `exp(ln v / 2.4)` from [`crate::simd`], which has no
+/// call or branch, so that loops over many values (the training loss's lights) vectorise.
+/// Within 10⁻⁶ of [`srgb_encode`] (tested).
+#[inline(always)]
+pub fn srgb_encode_vectorisable(v: f32) -> (f32, f32) {
+    let v = v.max(0.0);
+    srgb_from_power(v, fast_exp(fast_ln(v) * (1.0 / 2.4)))
 }
 
 /// Linear value → sRGB-encoded, for values in [0, 1].
@@ -42,20 +55,14 @@ pub fn to_u8(v: f32) -> u8 {
     (v.clamp(0.0, 1.0) * 255.0).round() as u8
 }
 
-/// The display transform of METHOD.md: Reinhard tone mapping `t / (1 + t)`, then the sRGB
-/// transfer curve, per channel. Renders are compared after it.
-#[inline]
-pub fn display(radiance: f32) -> f32 {
-    display_with_derivative(radiance).0
-}
-
-/// [`display`] and its derivative with respect to the radiance.
+/// Reinhard tone mapping `t / (1 + t)`, then the sRGB curve `encode`: the display transform
+/// and its derivative with respect to the radiance.
 #[inline(always)]
-pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
+fn display_through(radiance: f32, encode: impl Fn(f32) -> (f32, f32)) -> (f32, f32) {
     // Radiance is never negative in practice; below 0 the clamp has no gradient.
     let t = radiance.max(0.0);
     let inv = 1.0 / (1.0 + t);
-    let (value, slope) = srgb_encode(t * inv);
+    let (value, slope) = encode(t * inv);
     (
         value,
         if radiance > 0.0 {
@@ -66,28 +73,34 @@ pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
     )
 }
 
+/// The display transform of METHOD.md: Reinhard tone mapping `t / (1 + t)`, then the sRGB
+/// transfer curve, per channel. Renders are compared after it.
+#[inline]
+pub fn display(radiance: f32) -> f32 {
+    display_through(radiance, srgb_encode).0
+}
+
+/// [`display`] and its derivative with respect to the radiance, vectorisable (through
+/// [`srgb_encode_vectorisable`]): the training loss's form.
+#[inline(always)]
+pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
+    display_through(radiance, srgb_encode_vectorisable)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn srgb_encoding_matches_the_exact_curve() {
-        let mut worst = 0.0f64;
+    fn vectorisable_srgb_matches_the_exact_curve() {
+        let mut worst = 0.0f32;
         for k in 0..=100_000 {
             let v = k as f32 / 100_000.0;
-            let (value, slope) = srgb_encode(v);
-            let v = v as f64;
-            let (exact, exact_slope) = if v <= 0.003_130_8 {
-                (12.92 * v, 12.92)
-            } else {
-                (
-                    1.055 * v.powf(1.0 / 2.4) - 0.055,
-                    1.055 * v.powf(1.0 / 2.4) / (2.4 * v),
-                )
-            };
+            let ((value, slope), (exact, exact_slope)) =
+                (srgb_encode_vectorisable(v), srgb_encode(v));
             worst = worst
-                .max((value as f64 - exact).abs())
-                .max((slope as f64 - exact_slope).abs() / exact_slope);
+                .max((value - exact).abs())
+                .max((slope - exact_slope).abs() / exact_slope);
         }
         assert!(worst < 1e-6, "{worst}");
     }
