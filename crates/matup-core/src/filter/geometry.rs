@@ -136,14 +136,13 @@ impl WindowGeometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::filter::test_map;
     use crate::resample::upsample;
 
     /// The window of the upsampled map equals the folded LR window, for every phase.
     #[test]
     fn folding_reproduces_the_upsampled_window() {
-        let lr = Map::from_fn(9, 7, 2, |c, y, x| {
-            ((x * 3 + y * 5 + c * 7) % 11) as f32 / 10.0
-        });
+        let lr = test_map(9, 7, 2);
         for (kernel, border) in [
             (Kernel::Bilinear, Border::Wrap),
             (Kernel::Bilinear, Border::Mirror),

@@ -105,7 +105,7 @@ impl UpsampledInput {
 mod tests {
     use super::*;
     use crate::filter::folded::FoldedLayer;
-    use crate::filter::pseudo_random;
+    use crate::filter::{pseudo_random, test_map};
     use crate::resample::Kernel;
     use std::sync::Arc;
 
@@ -114,9 +114,7 @@ mod tests {
     /// compute the same filter.
     #[test]
     fn upsampled_windows_equal_the_folded_lr_windows() {
-        let lr = Map::from_fn(7, 5, 3, |c, y, x| {
-            ((x * 3 + y * 5 + c * 7) % 11) as f32 / 10.0
-        });
+        let lr = test_map(7, 5, 3);
         let channels = [2, 0];
         let hidden = 3;
         for (kernel, border) in [

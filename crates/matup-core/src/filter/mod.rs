@@ -221,6 +221,14 @@ pub fn tensor_name(index: usize) -> String {
     format!("{}{}", if index % 2 == 0 { "w" } else { "b" }, index / 2)
 }
 
+/// A small LR map with variation in every channel, for the window tests.
+#[cfg(test)]
+pub(crate) fn test_map(width: usize, height: usize, channels: usize) -> Map {
+    Map::from_fn(width, height, channels, |c, y, x| {
+        ((x * 3 + y * 5 + c * 7) % 11) as f32 / 10.0
+    })
+}
+
 /// Deterministic values in [−1, 1) for the filter's tests.
 #[cfg(test)]
 pub(crate) fn pseudo_random(n: usize, seed: u32) -> Vec<f32> {
