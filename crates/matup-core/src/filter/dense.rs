@@ -47,14 +47,6 @@ pub struct Dense {
 }
 
 impl Dense {
-    /// A hidden or output layer (`[out][in]` weights).
-    pub fn hidden(slope: Option<f32>) -> Dense {
-        Dense {
-            slope,
-            layout: WeightLayout::OutputMajor,
-        }
-    }
-
     /// Rows per thread for a batch of `rows`.
     fn chunk(rows: usize) -> usize {
         rows.div_ceil(rayon::current_num_threads()).max(1)
