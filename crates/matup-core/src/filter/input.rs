@@ -32,47 +32,13 @@ impl UpsampledInput {
         geometry: &WindowGeometry,
     ) -> UpsampledInput {
         let s = geometry.scale;
-        let margin = geometry.window / 2;
         let (width, height) = (features.width() * s, features.height() * s);
-        if channels.is_empty() {
-            // Nothing to read: every window is empty.
-            return UpsampledInput {
-                width,
-                height,
-                channels: 0,
-                window: geometry.window,
-                data: Vec::new(),
-            };
-        }
-        // The LR map padded far enough that the upsampling's own border handling never
-        // reaches the crop: the margin's values are then exactly those of the LR map read
-        // beyond its edges, whatever the border.
-        let reach = (geometry.kernel.phase_taps(s).iter().flatten())
-            .map(|&(k, _)| k.unsigned_abs())
-            .max()
-            .unwrap_or(0);
-        let pad = margin.div_ceil(s) + reach + 1;
-        let (lw, lh) = (features.width(), features.height());
-        let padded = Map::from_fn(lw + 2 * pad, lh + 2 * pad, channels.len(), |c, y, x| {
-            features.get(
-                channels[c],
-                border.index(y as isize - pad as isize, lh),
-                border.index(x as isize - pad as isize, lw),
-            )
-        });
-        let up = upsample(&padded, s, geometry.kernel, Border::Clamp);
-        let skip = pad * s - margin;
-        let row_len = (width + 2 * margin) * channels.len();
-        let mut data = vec![0f32; (height + 2 * margin) * row_len];
-        data.par_chunks_mut(row_len)
-            .enumerate()
-            .for_each(|(y, row)| {
-                for (x, texel) in row.chunks_exact_mut(channels.len()).enumerate() {
-                    for (c, v) in texel.iter_mut().enumerate() {
-                        *v = up.get(c, skip + y, skip + x);
-                    }
-                }
-            });
+        // With no channels there is nothing to read: every window is empty.
+        let data = if channels.is_empty() {
+            Vec::new()
+        } else {
+            with_margin(features, channels, border, geometry)
+        };
         UpsampledInput {
             width,
             height,
@@ -99,6 +65,47 @@ impl UpsampledInput {
             out.extend_from_slice(&self.data[(row + dy) * stride + col * c..][..n * c]);
         }
     }
+}
+
+/// `channels` of `features` upsampled with a margin of N/2 texels, texel-major.
+fn with_margin(
+    features: &Map,
+    channels: &[usize],
+    border: Border,
+    geometry: &WindowGeometry,
+) -> Vec<f32> {
+    let s = geometry.scale;
+    let margin = geometry.window / 2;
+    // The LR map padded far enough that the upsampling's own border handling never reaches
+    // the crop: the margin's values are then exactly those of the LR map read beyond its
+    // edges, whatever the border.
+    let reach = (geometry.kernel.phase_taps(s).iter().flatten())
+        .map(|&(k, _)| k.unsigned_abs())
+        .max()
+        .unwrap_or(0);
+    let pad = margin.div_ceil(s) + reach + 1;
+    let (lw, lh) = (features.width(), features.height());
+    let padded = Map::from_fn(lw + 2 * pad, lh + 2 * pad, channels.len(), |c, y, x| {
+        features.get(
+            channels[c],
+            border.index(y as isize - pad as isize, lh),
+            border.index(x as isize - pad as isize, lw),
+        )
+    });
+    let up = upsample(&padded, s, geometry.kernel, Border::Clamp);
+    let skip = pad * s - margin;
+    let row_len = (lw * s + 2 * margin) * channels.len();
+    let mut data = vec![0f32; (lh * s + 2 * margin) * row_len];
+    data.par_chunks_mut(row_len)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, texel) in row.chunks_exact_mut(channels.len()).enumerate() {
+                for (c, v) in texel.iter_mut().enumerate() {
+                    *v = up.get(c, skip + y, skip + x);
+                }
+            }
+        });
+    data
 }
 
 #[cfg(test)]
