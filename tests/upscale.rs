@@ -1,4 +1,5 @@
-//! The method end to end on real materials (small: 32² → 128², few epochs, few lights).
+//! The paper's method end to end on real materials (small: 32² → 128², few epochs, few
+//! lights): the filter trained on upsampled renders.
 
 mod common;
 
@@ -27,7 +28,7 @@ fn quick_config(seed: u64) -> Config {
     let mut c = Config {
         upsampler: "bicubic".into(),
         seed,
-        ..Default::default()
+        ..Config::paper()
     };
     c.lights.count = 24;
     c.train.epochs = 3;

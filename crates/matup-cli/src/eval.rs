@@ -48,6 +48,13 @@ fn print_table(e: &Evaluation) {
         ("render SSIM", format!("{:.4}", e.render_ssim)),
         ("render FLIP", format!("{:.4}", e.render_flip)),
         (
+            "render sharpness (reference)",
+            format!(
+                "{:.4} ({:.4})",
+                e.render_sharpness, e.reference_render_sharpness
+            ),
+        ),
+        (
             "base colour RMSE (linear)",
             format!("{:.4}", e.base_color_rmse),
         ),

@@ -169,16 +169,17 @@ fn execute(experiment: &Experiment, output: &Path, quiet: bool) -> anyhow::Resul
 
 /// A Markdown table of the finished runs.
 fn print_table(rows: &[Row]) {
-    println!("| run | seconds | PSNR dB | SSIM | FLIP | base colour RMSE | normal ° | roughness RMSE | metallic RMSE | seam |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("| run | seconds | PSNR dB | SSIM | FLIP | sharpness / truth's | base colour RMSE | normal ° | roughness RMSE | metallic RMSE | seam |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for r in rows.iter().filter(|r| r.error.is_none()) {
         println!(
-            "| {} | {:.1} | {:.2} | {:.4} | {:.4} | {:.4} | {:.2} | {:.4} | {:.4} | {:.2} |",
+            "| {} | {:.1} | {:.2} | {:.4} | {:.4} | {:.3} | {:.4} | {:.2} | {:.4} | {:.4} | {:.2} |",
             r.id,
             r.seconds,
             r.metric("render_psnr"),
             r.metric("render_ssim"),
             r.metric("render_flip"),
+            r.metric("render_sharpness") / r.metric("reference_render_sharpness"),
             r.metric("base_color_rmse"),
             r.metric("normal_error_degrees"),
             r.metric("roughness_rmse"),

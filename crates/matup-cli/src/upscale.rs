@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use clap::Args;
-use matup_core::config::{Activation, Chain, Interpolation, Schedule};
+use matup_core::config::{
+    Activation, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
+};
 use matup_core::io::{check_output_folder, save_png, write_atomic};
 use matup_core::pipeline::preview;
 use matup_core::{save_material, upscale, Config, FileFormat, LossNorm, RunOptions, SaveOptions};
@@ -68,9 +70,17 @@ pub struct UpscaleArgs {
     /// Upsampler of the LR maps feeding the filter window: bilinear, bicubic, lanczos3.
     #[arg(long)]
     pub input_interpolation: Option<Interpolation>,
-    /// Upsampler of the LR maps the residual is added to: bilinear, bicubic, lanczos3.
+    /// What the residual is added to: bilinear, bicubic, lanczos3 (the LR maps interpolated),
+    /// or upsampler (each LR map through the RGB upsampler on its own).
     #[arg(long)]
-    pub residual_base: Option<Interpolation>,
+    pub residual_base: Option<ResidualBase>,
+    /// Back-project the residual base onto the LR maps (its box-downsample made equal to
+    /// them; the default).
+    #[arg(long, conflicts_with = "no_back_project")]
+    pub back_project: bool,
+    /// Use the residual base as upsampled, without back-projection.
+    #[arg(long)]
+    pub no_back_project: bool,
     /// Learning rate.
     #[arg(long)]
     pub lr: Option<f64>,
@@ -83,14 +93,23 @@ pub struct UpscaleArgs {
     /// constant or cosine.
     #[arg(long)]
     pub schedule: Option<Schedule>,
+    /// Training epochs (default 0: no filter is trained; the residual base is the result).
     #[arg(long)]
     pub epochs: Option<usize>,
     /// l21, l11, l22 or lpq:P,Q.
     #[arg(long)]
     pub loss: Option<LossNorm>,
-    /// α, weight of the metallic regulariser.
+    /// Training targets: direct (the upsampled renders), detail or detail:KERNEL (the
+    /// renders of the kernel-upsampled maps plus what the upsampler adds beyond the kernel).
     #[arg(long)]
-    pub metallic_weight: Option<f32>,
+    pub targets: Option<TargetKind>,
+    /// Prior weights pulling features toward the residual base, e.g.
+    /// `metallic=0.1,normal=1` (keys base_color, metallic, normal, roughness).
+    #[arg(long, value_name = "KEY=W,...")]
+    pub prior: Option<String>,
+    /// auto: choose the settings by validating candidates one scale down; off: as given.
+    #[arg(long)]
+    pub select: Option<Selection>,
     /// β, weight of the LR-consistency term.
     #[arg(long)]
     pub lr_consistency: Option<f32>,
@@ -142,9 +161,13 @@ impl UpscaleArgs {
             hidden_layers => filter.hidden_layers, activation => filter.activation,
             input_interpolation => filter.input, residual_base => filter.residual_base,
             lr => train.learning_rate, batch_size => train.batch_size, schedule => train.schedule,
-            epochs => train.epochs, loss => train.loss, metallic_weight => train.metallic_weight,
+            epochs => train.epochs, loss => train.loss, targets => train.targets,
+            select => select,
             lr_consistency => train.lr_consistency, cross_scale => train.cross_scale,
         );
+        if let Some(p) = &self.prior {
+            c.train.prior.set(p)?;
+        }
         if let Some(t) = self.texels_per_epoch {
             c.train.texels_per_epoch = Some(t);
         }
@@ -159,6 +182,12 @@ impl UpscaleArgs {
         }
         if self.no_skip {
             c.skip = false;
+        }
+        if self.back_project {
+            c.filter.back_project = true;
+        }
+        if self.no_back_project {
+            c.filter.back_project = false;
         }
         c.validate()?;
         Ok(c)
@@ -217,6 +246,18 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         );
         for (stage, seconds) in &report.timings {
             println!("  {stage:<28} {seconds:>7.2} s");
+        }
+        if let Some(selection) = &report.selection {
+            println!(
+                "  settings chosen one scale down ({}×{}): {}",
+                selection.validation_size[0], selection.validation_size[1], selection.chosen
+            );
+            for c in &selection.candidates {
+                println!(
+                    "    {:<30} render PSNR {:6.2} dB, FLIP {:.4}, {:.1} s",
+                    c.name, c.render_psnr, c.render_flip, c.seconds
+                );
+            }
         }
         for s in &report.skipped {
             println!("  skipped: {s}");

@@ -16,9 +16,7 @@ use crate::io::{load_material, write_atomic, LoadOptions};
 use crate::lights::LightSetSpec;
 use crate::material::Material;
 use crate::metrics::{evaluate, Evaluation};
-use crate::pipeline::{
-    choose_upsampler, upscale, wrap_seam_ratio, RunOptions, TILEABLE_SEAM_RATIO,
-};
+use crate::pipeline::{choose_upsampler, detect_tileable, upscale, RunOptions};
 use crate::progress::Progress;
 use crate::resample::Border;
 use crate::shading::shading_model;
@@ -450,7 +448,7 @@ fn run_one(
     match &run.method {
         Method::PerMap(spec) => {
             let up = upsampler(&spec.parse::<PluginSpec>()?)?;
-            let border = Border::for_tiling(wrap_seam_ratio(&pair.lr) < TILEABLE_SEAM_RATIO);
+            let border = Border::for_tiling(detect_tileable(&pair.lr).0);
             let m = upscale_per_map(&pair.lr, up.as_ref(), factor, border)?;
             Ok((m, start.elapsed().as_secs_f64(), Vec::new()))
         }
@@ -502,10 +500,12 @@ fn append_journal(path: &Path, row: &Row) -> Result<()> {
 }
 
 /// The metric columns, in table order.
-pub const METRICS: [&str; 10] = [
+pub const METRICS: [&str; 12] = [
     "render_psnr",
     "render_ssim",
     "render_flip",
+    "render_sharpness",
+    "reference_render_sharpness",
     "base_color_rmse",
     "normal_error_degrees",
     "roughness_rmse",

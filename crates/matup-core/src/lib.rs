@@ -21,8 +21,11 @@ pub mod plugin;
 pub mod progress;
 pub mod render;
 pub mod resample;
+pub mod residual;
+pub mod select;
 pub mod shading;
 pub mod simd;
+pub mod targets;
 pub mod train;
 pub mod upsample;
 

@@ -8,7 +8,7 @@ use crate::color::to_u8;
 use crate::lights::{Light, LightSetSpec};
 use crate::map::Map;
 use crate::material::Material;
-use crate::pipeline::{wrap_seam_ratio, TILEABLE_SEAM_RATIO};
+use crate::pipeline::{detect_tileable, wrap_seam_ratio};
 use crate::render::{render, RenderOptions};
 use crate::resample::{gaussian_blur, Border};
 use crate::shading::ShadingModel;
@@ -41,6 +41,11 @@ pub struct Evaluation {
     /// Wrap-around seam ratio of the candidate (1 is seamless) and of the reference.
     pub seam_ratio: f64,
     pub reference_seam_ratio: f64,
+    /// Sharpness of the candidate's and the reference's renders: the mean gradient magnitude
+    /// ([`sharpness`]), averaged over the lights. A blurry result reads below the reference,
+    /// an oversharpened one above.
+    pub render_sharpness: f64,
+    pub reference_render_sharpness: f64,
 }
 
 /// Renders `reference` and `candidate` under `lights` with `model` and compares them.
@@ -68,39 +73,72 @@ pub fn evaluate(
             candidate.height_px()
         )));
     }
-    let reference_seam = wrap_seam_ratio(reference);
+    let (reference_tiles, reference_seam) = detect_tileable(reference);
     let options = RenderOptions {
         supersample: true,
-        border: Border::for_tiling(reference_seam < TILEABLE_SEAM_RATIO),
+        border: Border::for_tiling(reference_tiles),
     };
     let lights: Vec<Light> = lights.build();
     // A few lights at a time, so memory stays bounded for large materials.
-    let per_light: Vec<(f64, f64, f64)> = lights
+    let per_light: Vec<[f64; 5]> = lights
         .chunks(LIGHTS_AT_ONCE)
         .flat_map(|chunk| {
             let a = render(reference, model, chunk, options);
             let b = render(candidate, model, chunk, options);
             a.par_iter()
                 .zip(&b)
-                .map(|(x, y)| (squared_error(x, y), ssim(x, y), flip(x, y)))
+                .map(|(x, y)| {
+                    let s = [squared_error(x, y), ssim(x, y), flip(x, y)];
+                    [s[0], s[1], s[2], sharpness(y), sharpness(x)]
+                })
                 .collect::<Vec<_>>()
         })
         .collect();
     let n = per_light.len().max(1) as f64;
+    let mean = |k: usize| per_light.iter().map(|p| p[k]).sum::<f64>() / n;
     let texels = (reference.width() * reference.height_px()) as f64;
-    let mse = per_light.iter().map(|p| p.0).sum::<f64>() / (n * 3.0 * texels);
     Ok(Evaluation {
         lights: lights.len(),
-        render_psnr: psnr(mse),
-        render_ssim: per_light.iter().map(|p| p.1).sum::<f64>() / n,
-        render_flip: per_light.iter().map(|p| p.2).sum::<f64>() / n,
+        render_psnr: psnr(mean(0) / (3.0 * texels)),
+        render_ssim: mean(1),
+        render_flip: mean(2),
         base_color_rmse: rmse(&reference.base_color, &candidate.base_color),
         normal_error_degrees: mean_angle_degrees(&reference.normal, &candidate.normal),
         roughness_rmse: rmse(&reference.roughness, &candidate.roughness),
         metallic_rmse: rmse(&reference.metallic, &candidate.metallic),
         seam_ratio: wrap_seam_ratio(candidate) as f64,
         reference_seam_ratio: reference_seam as f64,
+        render_sharpness: mean(3),
+        reference_render_sharpness: mean(4),
     })
+}
+
+/// Sharpness of an image: the gradient magnitude `√(dx² + dy²)` from forward differences
+/// between neighbouring texels, averaged over the texels (the last row and column have no
+/// forward neighbour) and the channels.
+pub fn sharpness(image: &Map) -> f64 {
+    let (w, h) = (image.width(), image.height());
+    if w < 2 || h < 2 {
+        return 0.0;
+    }
+    let total: f64 = (0..image.channels())
+        .map(|c| {
+            let p = image.plane(c);
+            (0..h - 1)
+                .into_par_iter()
+                .map(|y| {
+                    (0..w - 1)
+                        .map(|x| {
+                            let v = p[y * w + x];
+                            let (dx, dy) = (p[y * w + x + 1] - v, p[(y + 1) * w + x] - v);
+                            ((dx * dx + dy * dy) as f64).sqrt()
+                        })
+                        .sum::<f64>()
+                })
+                .sum::<f64>()
+        })
+        .sum();
+    total / (image.channels() * (w - 1) * (h - 1)) as f64
 }
 
 /// PSNR in dB of a mean squared error over values with peak 1.
@@ -209,6 +247,17 @@ mod tests {
         );
         assert!((ssim(&a, &a) - 1.0).abs() < 1e-6);
         assert_eq!(flip(&a, &a), 0.0);
+    }
+
+    #[test]
+    fn sharpness_is_the_mean_gradient_magnitude() {
+        // A ramp rising 0.1 per column: every gradient is (0.1, 0).
+        let ramp = Map::from_fn(5, 4, 3, |_, _, x| 0.1 * x as f32);
+        assert!((sharpness(&ramp) - 0.1).abs() < 1e-6);
+        // A checkerboard of 0 and 1: every gradient is (±1, ±1), magnitude √2.
+        let checker = Map::from_fn(6, 6, 1, |_, y, x| ((x + y) % 2) as f32);
+        assert!((sharpness(&checker) - 2f64.sqrt()).abs() < 1e-6);
+        assert_eq!(sharpness(&Map::filled(8, 8, 3, 0.4)), 0.0);
     }
 
     #[test]

@@ -10,7 +10,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::config::{Chain, Config, AUTO_UPSAMPLERS};
+use crate::config::{Chain, Config, ResidualBase, Selection, AUTO_UPSAMPLERS};
 use crate::filter::decode::decode;
 use crate::filter::input::UpsampledInput;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
@@ -21,17 +21,22 @@ use crate::material::{alpha_from_roughness, Material};
 use crate::progress::Progress;
 use crate::render::{contact_sheet, render, RenderOptions};
 use crate::resample::{seam_ratio, upsample, Border, Kernel};
+use crate::residual::residual_base;
+use crate::select::{self, SelectionReport};
 use crate::shading::{shading_model, ShadingModel};
-use crate::train::{train, Checkpoint, Examples, Shading, Targets, TrainStats};
+use crate::targets::{oracle_targets, upsampled_targets, DetailBase, LrRenders, Targets};
+use crate::train::{train, Checkpoint, Examples, Shading, TrainStats};
 use crate::upsample::{check_scale, upsampler, RgbUpsampler};
 use crate::{Error, PluginSpec, Result};
 
-/// A material whose wrap-around seam ratio (see [`seam_ratio`]) stays below this tiles.
-/// Seamless textures read 1.0–1.3; regular tiles whose joints lie on the border up to ~3.
-pub const TILEABLE_SEAM_RATIO: f32 = 3.0;
-
-/// Renders are upsampled this many at a time (bounds the memory of f32 renders in flight).
-const RENDER_CHUNK: usize = 8;
+/// A material whose wrap-around seam ratio (see [`wrap_seam_ratio`]) stays below this tiles.
+/// Measured on the shared materials box-filtered to 64²–256²: seamless ones read 1.0–1.7
+/// (the shipped sample, a tileable pattern whose grooves meet the border, 2.02); crops of
+/// them 1.65–5.5, every crop above 2.2 but the low-contrast leather's and one of wood, where
+/// wrapping costs least; regular tiles whose joints lie on the border 2.3–18 whole (called not
+/// tileable: `--tileable` forces it). Mirroring a tileable material breaks its tiling, so the
+/// threshold errs toward tileable.
+pub const TILEABLE_SEAM_RATIO: f32 = 2.2;
 
 /// What a run did, for `run.json` and the CLI summary.
 #[derive(Clone, Debug, Serialize)]
@@ -45,6 +50,8 @@ pub struct RunReport {
     pub tileable: bool,
     /// The seam ratio the tileability was detected from (absent when it was given).
     pub seam_ratio: Option<f32>,
+    /// How the settings were chosen, with `select = "auto"` (`config` is the chosen one).
+    pub selection: Option<SelectionReport>,
     pub levels: Vec<LevelReport>,
     /// Seconds per stage, in order.
     pub timings: Vec<(String, f64)>,
@@ -92,6 +99,12 @@ pub fn features(material: &Material) -> Map {
 /// for tileable materials, well above for others.
 pub fn wrap_seam_ratio(material: &Material) -> f32 {
     seam_ratio(&material.base_color).max(seam_ratio(&material.normal))
+}
+
+/// Whether a material tiles, judged from its edges, and the seam ratio that says so.
+pub fn detect_tileable(material: &Material) -> (bool, f32) {
+    let ratio = wrap_seam_ratio(material);
+    (ratio < TILEABLE_SEAM_RATIO, ratio)
 }
 
 fn timed<T>(
@@ -146,8 +159,8 @@ pub fn upscale(
     let (tileable, seam) = match config.tileable {
         Some(t) => (t, None),
         None => {
-            let ratio = wrap_seam_ratio(material);
-            (ratio < TILEABLE_SEAM_RATIO, Some(ratio))
+            let (tileable, ratio) = detect_tileable(material);
+            (tileable, Some(ratio))
         }
     };
     progress.note(&match seam {
@@ -160,6 +173,11 @@ pub fn upscale(
             if tileable { "yes" } else { "no" }
         ),
     });
+    let (chosen, selection) = choose_settings(material, config, options, tileable, progress)?;
+    let config = &chosen;
+    if let Some(s) = &selection {
+        timings.push(("select".to_string(), s.seconds));
+    }
     if material.height.is_none() {
         skipped.push("height stage: the input has no height map (flat geometry)".to_string());
     }
@@ -185,7 +203,21 @@ pub fn upscale(
         let (next, report, filter) = if reuse {
             let trained = single_filter.as_ref().expect("level 1 trained a filter");
             let next = timed(&mut timings, format!("level {}: infer", level + 1), || {
-                infer_material(&current, &trained.filter, trained.fixed, scale, &ctx)
+                let base = residual_base(
+                    &current,
+                    &config.filter,
+                    ctx.upsampler.as_ref(),
+                    scale,
+                    ctx.border,
+                )?;
+                infer_material(
+                    &current,
+                    trained.filter.as_ref(),
+                    trained.fixed,
+                    &base,
+                    scale,
+                    &ctx,
+                )
             })?;
             let report = LevelReport {
                 scale,
@@ -239,6 +271,7 @@ pub fn upscale(
         upsampler_used,
         tileable,
         seam_ratio: seam,
+        selection,
         levels,
         timings,
         total_seconds: start.elapsed().as_secs_f64(),
@@ -248,6 +281,34 @@ pub fn upscale(
         threads: rayon::current_num_threads(),
     };
     Ok((current, report))
+}
+
+/// The settings to run: `config` itself, or with `select = "auto"` the best of its candidates
+/// validated one scale down (not for the oracle, whose targets are the truth's).
+fn choose_settings(
+    material: &Material,
+    config: &Config,
+    options: &RunOptions,
+    tileable: bool,
+    progress: &dyn Progress,
+) -> Result<(Config, Option<SelectionReport>)> {
+    if config.select == Selection::Off || options.oracle.is_some() {
+        return Ok((config.clone(), None));
+    }
+    let scale = config.levels()[0];
+    if let Some(why) = select::too_small(material, scale) {
+        progress.note(&format!(
+            "select: settings as configured; no validation one scale down ({why})"
+        ));
+        return Ok((config.clone(), None));
+    }
+    let candidates = select::candidates(config);
+    let (best, report) = select::select(material, &candidates, scale, tileable, progress)?;
+    progress.note(&format!(
+        "select: {} (validated at {}×{})",
+        report.chosen, report.validation_size[0], report.validation_size[1]
+    ));
+    Ok((candidates[best].config.clone(), Some(report)))
 }
 
 /// The configured upsampler, or for `auto` the first of [`AUTO_UPSAMPLERS`] that loads and
@@ -274,45 +335,6 @@ pub(crate) fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUp
     Err(last.expect("AUTO_UPSAMPLERS is not empty"))
 }
 
-/// Exact renders of the true material (box-filtered to `w × h` for the first of two levels)
-/// as targets, for the oracle.
-fn oracle_targets(
-    truth: &Material,
-    w: usize,
-    h: usize,
-    lights: &[Light],
-    ctx: &Context,
-) -> Result<Targets> {
-    let factor = truth.width() / w;
-    if factor == 0 || truth.width() != factor * w || truth.height_px() != factor * h {
-        return Err(Error::Invalid(format!(
-            "the oracle material is {}×{}, not a multiple of the {w}×{h} output",
-            truth.width(),
-            truth.height_px()
-        )));
-    }
-    let truth = if factor > 1 {
-        truth.box_downsample(factor)
-    } else {
-        truth.clone()
-    };
-    let mut targets = Targets::new(w * h, lights.len());
-    for (k, chunk) in lights.chunks(RENDER_CHUNK).enumerate() {
-        let renders = render(
-            &truth,
-            ctx.model.as_ref(),
-            chunk,
-            RenderOptions {
-                supersample: true,
-                border: ctx.border,
-            },
-        );
-        targets.fill(k * RENDER_CHUNK, &renders);
-        ctx.progress.advance(chunk.len() as u64, None);
-    }
-    Ok(targets)
-}
-
 /// A digest of what a level's training depends on, so a checkpoint is resumed only for the
 /// same input and settings.
 fn fingerprint(material_features: &Map, config: &Config, level: usize) -> String {
@@ -326,13 +348,49 @@ fn fingerprint(material_features: &Map, config: &Config, level: usize) -> String
     format!("{:016x}", h.finish())
 }
 
-/// A trained filter and the features it holds constant.
+/// A trained filter (none where nothing was learned) and the features it holds constant.
 struct TrainedFilter {
-    filter: Filter,
+    filter: Option<Filter>,
     fixed: [Option<f32>; FEATURES],
 }
 
-/// One ×`scale` level: LR renders, upsampled targets, training, inference.
+/// The features of `lr_features` that are constant (kept, not learned, and no input), when
+/// skipping is on.
+fn constant_features(lr_features: &Map, skip: bool) -> [Option<f32>; FEATURES] {
+    std::array::from_fn(|k| {
+        (skip && lr_features.is_constant(k, 0.0)).then(|| lr_features.plane(k)[0])
+    })
+}
+
+/// The anti-aliased LR renders under the lights that light something (all of them with
+/// skipping off).
+fn render_lr(lr: &Material, ctx: &Context) -> Result<(Vec<Light>, Vec<Map>)> {
+    let renders = render(
+        lr,
+        ctx.model.as_ref(),
+        &ctx.lights,
+        RenderOptions {
+            supersample: true,
+            border: ctx.border,
+        },
+    );
+    let (lights, renders): (Vec<Light>, Vec<Map>) = ctx
+        .lights
+        .iter()
+        .zip(renders)
+        .filter(|(_, r)| !ctx.config.skip || r.data().iter().any(|&v| v >= 0.5 / 255.0))
+        .map(|(l, r)| (*l, r))
+        .unzip();
+    if lights.is_empty() {
+        return Err(Error::Invalid(
+            "no light lights the material: every render is black".into(),
+        ));
+    }
+    Ok((lights, renders))
+}
+
+/// One ×`scale` level: residual base, then (unless there is nothing to learn) LR renders,
+/// targets and training, then inference.
 fn run_level(
     lr: &Material,
     scale: usize,
@@ -346,14 +404,7 @@ fn run_level(
     let lr_features = features(lr);
 
     // Constant features are kept, not learned; they are no input either.
-    let mut fixed = [None; FEATURES];
-    if config.skip {
-        for (k, slot) in fixed.iter_mut().enumerate() {
-            if lr_features.is_constant(k, 0.0) {
-                *slot = Some(lr_features.plane(k)[0]);
-            }
-        }
-    }
+    let fixed = constant_features(&lr_features, config.skip);
     let constant_features: Vec<&'static str> = (0..FEATURES)
         .filter(|&k| fixed[k].is_some())
         .map(|k| FEATURE_NAMES[k])
@@ -365,30 +416,84 @@ fn run_level(
             constant_features.join(", ")
         ));
     }
+
+    // What the filter's answers are added to.
+    ctx.progress.stage(&tag("residual base"), 1);
+    let base = timed(timings, tag("residual base"), || {
+        residual_base(
+            lr,
+            &config.filter,
+            ctx.upsampler.as_ref(),
+            scale,
+            ctx.border,
+        )
+    })?;
+    ctx.progress.advance(1, None);
+
+    let (filter, lights_used, training) = if fixed.iter().all(Option::is_some) {
+        skipped.push(format!(
+            "level {}: training: every feature is constant",
+            level + 1
+        ));
+        (None, 0, TrainStats::default())
+    } else if config.train.epochs == 0 {
+        skipped.push(format!(
+            "level {}: training: 0 epochs, the residual base is the result",
+            level + 1
+        ));
+        (None, 0, TrainStats::default())
+    } else {
+        let (filter, lights, stats) = fit_filter(
+            lr,
+            &lr_features,
+            &base,
+            fixed,
+            scale,
+            level,
+            ctx,
+            timings,
+            skipped,
+        )?;
+        (Some(filter), lights, stats)
+    };
+
+    let hr = timed(timings, tag("infer"), || {
+        infer_material(lr, filter.as_ref(), fixed, &base, scale, ctx)
+    })?;
+    let report = LevelReport {
+        scale,
+        input_size: [lr.width(), lr.height_px()],
+        output_size: [hr.width(), hr.height_px()],
+        lights_used,
+        constant_features,
+        training,
+    };
+    Ok((hr, report, TrainedFilter { filter, fixed }))
+}
+
+/// Trains a level's filter on the residual base `base`: LR renders, targets, training.
+/// Returns the filter, the number of lights it was trained under and the training's stats.
+#[allow(clippy::too_many_arguments)]
+fn fit_filter(
+    lr: &Material,
+    lr_features: &Map,
+    base: &Map,
+    fixed: [Option<f32>; FEATURES],
+    scale: usize,
+    level: usize,
+    ctx: &Context,
+    timings: &mut Vec<(String, f64)>,
+    skipped: &mut Vec<String>,
+) -> Result<(Filter, usize, TrainStats)> {
+    let config = ctx.config;
+    let tag = |stage: &str| format!("level {}: {stage}", level + 1);
     let input_channels: Vec<usize> = (0..FEATURES).filter(|&k| fixed[k].is_none()).collect();
 
-    // 1. LR renders (anti-aliased), dropping lights that light nothing.
+    // LR renders (anti-aliased), dropping lights that light nothing.
     ctx.progress
         .stage(&tag("render LR"), ctx.lights.len() as u64);
-    let renders = timed(timings, tag("render LR"), || {
-        Ok(render(
-            lr,
-            ctx.model.as_ref(),
-            &ctx.lights,
-            RenderOptions {
-                supersample: true,
-                border: ctx.border,
-            },
-        ))
-    })?;
+    let (lights, renders) = timed(timings, tag("render LR"), || render_lr(lr, ctx))?;
     ctx.progress.advance(ctx.lights.len() as u64, None);
-    let (lights, renders): (Vec<Light>, Vec<Map>) = ctx
-        .lights
-        .iter()
-        .zip(renders)
-        .filter(|(_, r)| !config.skip || r.data().iter().any(|&v| v >= 0.5 / 255.0))
-        .map(|(l, r)| (*l, r))
-        .unzip();
     if lights.len() < ctx.lights.len() {
         skipped.push(format!(
             "level {}: {} of {} lights light nothing; their renders were not upsampled",
@@ -397,70 +502,91 @@ fn run_level(
             ctx.lights.len()
         ));
     }
-    if lights.is_empty() {
-        return Err(Error::Invalid(
-            "no light lights the material: every render is black".into(),
-        ));
-    }
 
-    // 2. Upsampled renders become the targets, stored compactly.
-    ctx.progress
-        .stage(&tag("upsample renders"), renders.len() as u64);
+    // The targets, stored compactly.
+    ctx.progress.stage(&tag("targets"), renders.len() as u64);
     let (w, h) = (lr.width() * scale, lr.height_px() * scale);
-    let targets = timed(timings, tag("upsample renders"), || {
-        if let Some(truth) = &ctx.options.oracle {
-            return oracle_targets(truth, w, h, &lights, ctx);
-        }
-        let mut targets = Targets::new(w * h, renders.len());
-        for (k, chunk) in renders.chunks(RENDER_CHUNK).enumerate() {
-            let up = ctx.upsampler.upsample(chunk, scale, ctx.border)?;
-            targets.fill(k * RENDER_CHUNK, &up);
-            ctx.progress.advance(chunk.len() as u64, None);
-        }
-        Ok(targets)
+    let heights = (lr.height.as_ref()).map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+    let targets = timed(timings, tag("targets"), || match &ctx.options.oracle {
+        Some(truth) => oracle_targets(
+            truth,
+            w,
+            h,
+            &lights,
+            ctx.model.as_ref(),
+            ctx.border,
+            ctx.progress,
+        ),
+        None => upsampled_targets(
+            config.train.targets,
+            &LrRenders {
+                renders: &renders,
+                lights: &lights,
+                model: ctx.model.as_ref(),
+                scale,
+                border: ctx.border,
+            },
+            ctx.upsampler.as_ref(),
+            &DetailBase {
+                features: base,
+                fixed: &fixed,
+                heights: heights.as_ref(),
+                kernel: match config.filter.residual_base {
+                    ResidualBase::Kernel(k) => Some(k),
+                    ResidualBase::Upsampler => None,
+                },
+            },
+            ctx.progress,
+        ),
     })?;
 
     let filter = Filter::new(
         &config.filter,
         scale,
-        input_channels.clone(),
+        input_channels,
         config.seed.wrapping_add(level as u64),
     )?;
-    let examples = |features: &Map, heights: Option<&Map>, targets: Targets| Examples {
+    let main = Arc::new(Examples {
         input: UpsampledInput::new(
-            features,
+            lr_features,
             &filter.input_channels,
             ctx.border,
             filter.geometry(),
         ),
-        residual_base: upsample(features, scale, config.filter.residual_base.0, ctx.border),
-        metallic_bilinear: upsample(
-            &features.select_channels(&[3]),
-            scale,
-            Kernel::Bilinear,
-            ctx.border,
-        ),
-        heights: heights.map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border)),
-        features: features.clone(),
-        width: features.width() * scale,
-        height: features.height() * scale,
+        residual_base: base.clone(),
+        heights,
+        features: lr_features.clone(),
+        width: w,
+        height: h,
         targets,
-    };
-    let main = Arc::new(examples(&lr_features, lr.height.as_ref(), targets));
-    debug_assert_eq!((main.width, main.height), (w, h));
+    });
 
     // Cross-scale self-supervision: the LR material one scale down is the input, the LR
     // material the answer, its exact renders the targets.
     let cross = if config.train.cross_scale > 0.0 {
         if lr.width() % scale == 0 && lr.height_px() % scale == 0 {
             let lower = lr.box_downsample(scale);
-            let mut ex = examples(
-                &features(&lower),
-                lower.height.as_ref(),
-                Targets::from_renders(&renders),
-            );
-            ex.heights = lr.height.clone();
-            Some(Arc::new(ex))
+            let lower_features = features(&lower);
+            Some(Arc::new(Examples {
+                input: UpsampledInput::new(
+                    &lower_features,
+                    &filter.input_channels,
+                    ctx.border,
+                    filter.geometry(),
+                ),
+                residual_base: residual_base(
+                    &lower,
+                    &config.filter,
+                    ctx.upsampler.as_ref(),
+                    scale,
+                    ctx.border,
+                )?,
+                heights: lr.height.clone(),
+                features: lower_features,
+                width: lr.width(),
+                height: lr.height_px(),
+                targets: Targets::from_renders(&renders),
+            }))
         } else {
             skipped.push(format!(
                 "level {}: cross-scale term: {}×{} is not divisible by {scale}",
@@ -487,63 +613,39 @@ fn run_level(
         .map(|folder| Checkpoint {
             folder: folder.join(format!("level{}", level + 1)),
             resume: ctx.options.resume,
-            fingerprint: fingerprint(&lr_features, config, level),
+            fingerprint: fingerprint(lr_features, config, level),
         });
-    let training = if input_channels.is_empty() {
-        skipped.push(format!(
-            "level {}: training: every feature is constant",
-            level + 1
-        ));
-        TrainStats::default()
-    } else {
-        timed(timings, tag("train"), || {
-            train(
-                &filter,
-                &main,
-                cross.as_ref().map(|c| (c, config.train.cross_scale)),
-                &shading,
-                fixed,
-                &config.train,
-                config.seed.wrapping_add(level as u64),
-                checkpoint.as_ref(),
-                ctx.progress,
-            )
-        })?
-    };
-
-    let hr = timed(timings, tag("infer"), || {
-        infer_material(lr, &filter, fixed, scale, ctx)
+    let stats = timed(timings, tag("train"), || {
+        train(
+            &filter,
+            &main,
+            cross.as_ref().map(|c| (c, config.train.cross_scale)),
+            &shading,
+            fixed,
+            &config.train,
+            config.seed.wrapping_add(level as u64),
+            checkpoint.as_ref(),
+            ctx.progress,
+        )
     })?;
-    let report = LevelReport {
-        scale,
-        input_size: [lr.width(), lr.height_px()],
-        output_size: [w, h],
-        lights_used: lights.len(),
-        constant_features,
-        training,
-    };
-    Ok((hr, report, TrainedFilter { filter, fixed }))
+    Ok((filter, lights.len(), stats))
 }
 
-/// Runs the trained filter over every output texel of `lr` upsampled by `scale`.
+/// Runs the trained filter (none: no residual) over every output texel of `lr` upsampled by
+/// `scale`, adding its answers to `residual_base` (the output-size features).
 fn infer_material(
     lr: &Material,
-    filter: &Filter,
+    filter: Option<&Filter>,
     fixed: [Option<f32>; FEATURES],
+    residual_base: &Map,
     scale: usize,
     ctx: &Context,
 ) -> Result<Material> {
     let lr_features = features(lr);
-    let residual_base = upsample(
-        &lr_features,
-        scale,
-        ctx.config.filter.residual_base.0,
-        ctx.border,
-    );
     let (w, h) = (lr.width() * scale, lr.height_px() * scale);
     let n = w * h;
     ctx.progress.stage("infer", n as u64);
-    let folded = filter.folded_weights()?;
+    let folded = filter.map(Filter::folded_weights).transpose()?;
     let mut hr = Material::uniform(1, [0.0; 3], 0.5, 0.0);
     hr.base_color = Map::filled(w, h, 3, 0.0);
     hr.normal = Map::filled(w, h, 3, 0.0);
@@ -551,11 +653,12 @@ fn infer_material(
     hr.metallic = Map::filled(w, h, 1, 0.0);
     let all: Vec<usize> = (0..n).collect();
     for chunk in all.chunks(16384) {
-        let raw = if filter.input_channels.is_empty() {
-            vec![0.0; chunk.len() * FEATURES]
-        } else {
-            let (windows, phases) = filter.lr_windows(&lr_features, ctx.border, chunk);
-            filter.infer(&folded, &windows, &phases)?
+        let raw = match (filter, &folded) {
+            (Some(filter), Some(folded)) => {
+                let (windows, phases) = filter.lr_windows(&lr_features, ctx.border, chunk);
+                filter.infer(folded, &windows, &phases)?
+            }
+            _ => vec![0.0; chunk.len() * FEATURES],
         };
         let decoded: Vec<_> = chunk
             .par_iter()

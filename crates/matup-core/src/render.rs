@@ -67,7 +67,9 @@ pub fn render(
     }
 }
 
-fn render_texels(
+/// Display-space renders of `texels` (a `width × height` grid, one per output texel) under
+/// each light.
+pub(crate) fn render_texels(
     texels: &[Texel],
     width: usize,
     height: usize,

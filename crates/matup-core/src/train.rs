@@ -11,7 +11,6 @@ use rand::SeedableRng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::color::to_u8;
 use crate::config::{Schedule, TrainConfig};
 use crate::filter::decode::decode;
 use crate::filter::input::UpsampledInput;
@@ -23,62 +22,8 @@ use crate::material::texel_position;
 use crate::op::{contiguous_f32, storage_f32, TexelLossOp, TexelObjective};
 use crate::progress::Progress;
 use crate::shading::{ShadingModel, Svbrdf, Texel};
+use crate::targets::Targets;
 use crate::{with_avx2, Error, Result};
-
-/// Display-space targets of every texel under every light, 8 bits per channel, texel-major
-/// (`[texel][light][rgb]`): 100 lights × 4K² × RGB is 5 GB instead of 20 GB in f32.
-#[derive(Clone, Debug, Default)]
-pub struct Targets {
-    pub lights: usize,
-    pub data: Vec<u8>,
-}
-
-impl Targets {
-    /// Room for `texels × lights` targets, all 0.
-    pub fn new(texels: usize, lights: usize) -> Targets {
-        Targets {
-            lights,
-            data: vec![0; texels * lights * 3],
-        }
-    }
-
-    /// Quantises display-space renders (one map per light) by rounding.
-    pub fn from_renders(renders: &[Map]) -> Targets {
-        let mut targets = Targets::new(renders[0].texels(), renders.len());
-        targets.fill(0, renders);
-        targets
-    }
-
-    /// Stores the renders of lights `first..first + renders.len()`, quantised by rounding.
-    pub fn fill(&mut self, first: usize, renders: &[Map]) {
-        let lights = self.lights;
-        assert!(first + renders.len() <= lights, "more renders than lights");
-        self.data
-            .par_chunks_mut(lights * 3)
-            .enumerate()
-            .for_each(|(t, row)| {
-                for (l, r) in renders.iter().enumerate() {
-                    for c in 0..3 {
-                        row[(first + l) * 3 + c] = to_u8(r.plane(c)[t]);
-                    }
-                }
-            });
-    }
-
-    /// The targets of one texel as f32, written into `out`.
-    #[inline]
-    pub fn texel(&self, index: usize, out: &mut Vec<[f32; 3]>) {
-        let row = &self.data[index * self.lights * 3..][..self.lights * 3];
-        out.clear();
-        out.extend(row.chunks_exact(3).map(|c| {
-            [
-                c[0] as f32 / 255.0,
-                c[1] as f32 / 255.0,
-                c[2] as f32 / 255.0,
-            ]
-        }));
-    }
-}
 
 /// Training examples at one scale: the filter's inputs and what its answers are judged by.
 pub struct Examples {
@@ -89,10 +34,9 @@ pub struct Examples {
     /// Output size.
     pub width: usize,
     pub height: usize,
-    /// The 7 features upsampled to the output size; residuals are added to these.
+    /// The 7 features at the output size that residuals are added to, and that the prior
+    /// pulls toward.
     pub residual_base: Map,
-    /// Metallic upsampled bilinearly to the output size (the regulariser's reference).
-    pub metallic_bilinear: Map,
     /// Output-size height, if the material has one (displaces the shading points).
     pub heights: Option<Map>,
     pub targets: Targets,
@@ -112,6 +56,34 @@ impl Examples {
         }
         windows
     }
+
+    /// The scale from the input features to the output.
+    fn scale(&self) -> usize {
+        self.width / self.features.width()
+    }
+
+    /// The `scale²` output texels covering each of the input texels `parents`, a group per
+    /// parent, row by row.
+    fn children(&self, parents: &[usize]) -> Vec<usize> {
+        let s = self.scale();
+        let lw = self.features.width();
+        let mut out = Vec::with_capacity(parents.len() * s * s);
+        for &p in parents {
+            let (py, px) = (p / lw, p % lw);
+            for dy in 0..s {
+                for dx in 0..s {
+                    out.push((py * s + dy) * self.width + px * s + dx);
+                }
+            }
+        }
+        out
+    }
+
+    /// The input texel an output texel lies in.
+    fn parent(&self, texel: usize) -> usize {
+        let s = self.scale();
+        (texel / self.width / s) * self.features.width() + (texel % self.width) / s
+    }
 }
 
 /// What the renders are compared with, and how.
@@ -127,13 +99,14 @@ thread_local! {
 }
 
 /// METHOD.md's objective for one batch: per texel, the render loss over the lights divided by
-/// their number, plus `α (m_bilinear − m)²`.
+/// their number, plus the prior `Σ_k w_k (f_k − base_k)²` (the paper's metallic regulariser
+/// when only metallic is weighted and the base is bilinear).
 struct FilterObjective {
     examples: Arc<Examples>,
     shading: Shading,
     batch: Vec<usize>,
     fixed: [Option<f32>; FEATURES],
-    metallic_weight: f32,
+    prior: [f32; FEATURES],
 }
 
 impl TexelObjective for FilterObjective {
@@ -168,22 +141,52 @@ impl TexelObjective for FilterObjective {
         });
         let mut g_scaled = Svbrdf::default();
         g_scaled.add_scaled(&g, scale);
-        let diff = ex.metallic_bilinear.data()[t] - decoded.params.metallic;
-        g_scaled.metallic += -2.0 * self.metallic_weight * diff;
+        let (prior, prior_grad) = prior_term(&decoded.features(), &base, &self.prior, &self.fixed);
+        g_scaled.add_scaled(&feature_gradient(&prior_grad), 1.0);
         grad.copy_from_slice(&decoded.backward(&g_scaled));
-        fit * scale + self.metallic_weight * diff * diff
+        fit * scale + prior
+    }
+}
+
+/// `Σ_k w_k (f_k − base_k)²` over the learned features, and its gradient in `f`.
+#[inline]
+fn prior_term(
+    features: &[f32; FEATURES],
+    base: &[f32; FEATURES],
+    weights: &[f32; FEATURES],
+    fixed: &[Option<f32>; FEATURES],
+) -> (f32, [f32; FEATURES]) {
+    let mut value = 0.0;
+    let mut grad = [0f32; FEATURES];
+    for k in (0..FEATURES).filter(|&k| weights[k] != 0.0 && fixed[k].is_none()) {
+        let d = features[k] - base[k];
+        value += weights[k] * d * d;
+        grad[k] = 2.0 * weights[k] * d;
+    }
+    (value, grad)
+}
+
+/// A gradient over the 7 features as one over the shading parameters they decode to.
+#[inline]
+fn feature_gradient(g: &[f32; FEATURES]) -> Svbrdf {
+    Svbrdf {
+        base_color: [g[0], g[1], g[2]],
+        metallic: g[3],
+        normal: [g[4], g[5], 0.0],
+        alpha: g[6],
+        ..Default::default()
     }
 }
 
 /// The LR-consistency term for groups of `scale²` output texels that make up whole LR
 /// texels: `mean_groups ‖box(decoded features) − LR features‖²` over the 7 features. Not a
-/// sum of per-texel terms (a group's mean couples its texels), so it has its own op.
+/// sum of per-texel terms (a group's mean couples its texels), so it has its own op. It reads
+/// the same filter outputs as the render loss: batches are drawn as whole groups, so the term
+/// costs no forward pass of its own.
 struct Consistency {
     examples: Arc<Examples>,
     /// Output texels, `group_size` consecutive ones per LR texel.
     batch: Vec<usize>,
-    /// The LR texel of each group.
-    parents: Vec<usize>,
     group_size: usize,
     /// Groups in the whole step (this op may see a part of them): the loss is their mean.
     step_groups: usize,
@@ -206,8 +209,7 @@ impl candle_core::CustomOp1 for Consistency {
         let n = self.group_size;
         let mut grads = vec![0f32; raw.len()];
         let mut total = 0.0f32;
-        for (g, &parent) in self.parents.iter().enumerate() {
-            let members = &self.batch[g * n..(g + 1) * n];
+        for (g, members) in self.batch.chunks_exact(n).enumerate() {
             let decoded: Vec<_> = members
                 .iter()
                 .enumerate()
@@ -220,7 +222,7 @@ impl candle_core::CustomOp1 for Consistency {
                     )
                 })
                 .collect();
-            let want: [f32; FEATURES] = ex.features.texel(parent);
+            let want: [f32; FEATURES] = ex.features.texel(ex.parent(members[0]));
             let mut diff = [0f32; FEATURES];
             for d in &decoded {
                 let f = d.features();
@@ -233,15 +235,8 @@ impl candle_core::CustomOp1 for Consistency {
                 total += diff[k] * diff[k];
             }
             // d/d(feature of member j) = 2·diff / n, then through the decode.
+            let up = feature_gradient(&diff.map(|d| 2.0 * d / n as f32));
             for (j, d) in decoded.iter().enumerate() {
-                let s = 2.0 / n as f32;
-                let up = Svbrdf {
-                    base_color: [s * diff[0], s * diff[1], s * diff[2]],
-                    metallic: s * diff[3],
-                    normal: [s * diff[4], s * diff[5], 0.0],
-                    alpha: s * diff[6],
-                    ..Default::default()
-                };
                 grads[(g * n + j) * FEATURES..][..FEATURES].copy_from_slice(&d.backward(&up));
             }
         }
@@ -269,47 +264,6 @@ impl candle_core::CustomOp1 for Consistency {
         let grads = Tensor::from_vec(grads, arg.shape(), arg.device())?;
         Ok(Some(grads.broadcast_mul(grad_res)?))
     }
-}
-
-/// `groups` random LR texels, for the LR-consistency term.
-fn draw_parents(examples: &Examples, groups: usize, rng: &mut StdRng) -> Vec<usize> {
-    use rand::Rng;
-    let lr_texels = examples.features.texels();
-    (0..groups)
-        .map(|_| rng.random_range(0..lr_texels))
-        .collect()
-}
-
-/// The LR-consistency loss of the LR texels `parents` (all their output texels), as their
-/// share of the mean over `step_groups` groups.
-fn consistency_loss(
-    filter: &Filter,
-    examples: &Arc<Examples>,
-    fixed: [Option<f32>; FEATURES],
-    parents: &[usize],
-    step_groups: usize,
-) -> Result<Tensor> {
-    let s = filter.geometry().scale;
-    let lw = examples.features.width();
-    let mut batch = Vec::with_capacity(parents.len() * s * s);
-    for &parent in parents {
-        let (py, px) = (parent / lw, parent % lw);
-        for dy in 0..s {
-            for dx in 0..s {
-                batch.push((py * s + dy) * examples.width + px * s + dx);
-            }
-        }
-    }
-    let raw = filter.forward(examples.windows(&batch))?;
-    Ok(raw.apply_op1(Consistency {
-        examples: examples.clone(),
-        batch,
-        parents: parents.to_vec(),
-        group_size: s * s,
-        step_groups,
-        fixed,
-        gradient: Mutex::new(None),
-    })?)
 }
 
 /// Adam (Kingma & Ba, default betas), fused into one pass per weight tensor. Hand-written
@@ -578,17 +532,31 @@ pub fn train(
         }
     }
 
+    // With the LR-consistency term, batches are made of whole LR texels (groups of scale²
+    // output texels), so the term reads the render loss's own forward pass.
+    let group = if config.lr_consistency > 0.0 {
+        main.scale().pow(2)
+    } else {
+        1
+    };
+    let units = main.texels() / group;
     let per_epoch = config
         .texels_per_epoch
-        .unwrap_or(main.texels())
-        .min(main.texels());
-    let batch = config.batch_size;
-    let steps_per_epoch = per_epoch.div_ceil(batch);
+        .map_or(units, |t| t.div_ceil(group))
+        .min(units);
+    let batch_units = config.batch_size.div_ceil(group);
+    let batch = batch_units * group;
+    let steps_per_epoch = per_epoch.div_ceil(batch_units);
     let total_steps = (steps_per_epoch * config.epochs) as u64;
     let base_lr = if config.scale_learning_rate {
         config.learning_rate * batch as f64 / 128.0
     } else {
         config.learning_rate
+    };
+    let terms = LossTerms {
+        shading,
+        fixed,
+        prior: config.prior.feature_weights(),
     };
     progress.stage("train", total_steps);
     progress.advance(adam.step, stats.epoch_losses.last().copied());
@@ -596,9 +564,12 @@ pub fn train(
     for epoch in start_epoch..config.epochs {
         let mut rng =
             StdRng::seed_from_u64(seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-        let mut order: Vec<usize> = (0..main.texels()).collect();
+        let mut order: Vec<usize> = (0..units).collect();
         order.shuffle(&mut rng);
         order.truncate(per_epoch);
+        if group > 1 {
+            order = main.children(&order);
+        }
         let mut cross_order: Vec<usize> = cross
             .map(|(c, _)| (0..c.texels()).collect())
             .unwrap_or_default();
@@ -621,49 +592,39 @@ pub fn train(
                     .collect();
                 (examples, weight, picked)
             });
-            let parents = if config.lr_consistency > 0.0 {
-                let s = filter.geometry().scale;
-                draw_parents(main, (indices.len() / (s * s)).max(1), &mut rng)
-            } else {
-                Vec::new()
-            };
             if progress.cancelled() {
                 return Err(Error::Cancelled { epochs_done: epoch });
             }
             // The batch in one part per thread, each run forward and backward on its own:
             // the loss is a sum over texels, so the parts' gradients add up to the batch's,
-            // and the threads meet once a step instead of in every op.
-            let parts = rayon::current_num_threads().min(indices.len()).max(1);
-            let share =
-                |items: usize, part: usize| items * part / parts..items * (part + 1) / parts;
+            // and the threads meet once a step instead of in every op. Parts hold whole groups.
+            let groups = indices.len() / group;
+            let parts = rayon::current_num_threads().min(groups).max(1);
+            let share = |items: usize, part: usize, unit: usize| {
+                unit * (items * part / parts)..unit * (items * (part + 1) / parts)
+            };
+            let consistency = (group > 1).then_some((config.lr_consistency, groups));
             let results = (0..parts)
                 .into_par_iter()
                 .map(|part| -> Result<(f64, candle_core::backprop::GradStore)> {
                     let mut loss = batch_loss(
                         filter,
                         main,
-                        shading,
-                        fixed,
-                        config.metallic_weight,
-                        &indices[share(indices.len(), part)],
+                        &terms,
+                        &indices[share(groups, part, group)],
                         indices.len(),
+                        consistency,
                     )?;
                     if let Some((examples, weight, picked)) = &cross_picked {
                         let extra = batch_loss(
                             filter,
                             examples,
-                            shading,
-                            fixed,
-                            config.metallic_weight,
-                            &picked[share(picked.len(), part)],
+                            &terms,
+                            &picked[share(picked.len(), part, 1)],
                             picked.len(),
+                            None,
                         )?;
                         loss = (loss + extra.affine(*weight as f64, 0.0)?)?;
-                    }
-                    let mine = &parents[share(parents.len(), part)];
-                    if !mine.is_empty() {
-                        let extra = consistency_loss(filter, main, fixed, mine, parents.len())?;
-                        loss = (loss + extra.affine(config.lr_consistency as f64, 0.0)?)?;
                     }
                     Ok((loss.to_scalar::<f32>()? as f64, loss.backward()?))
                 })
@@ -680,7 +641,7 @@ pub fn train(
             epoch_loss += value * indices.len() as f64;
             progress.advance(1, Some(value));
         }
-        stats.epoch_losses.push(epoch_loss / per_epoch as f64);
+        stats.epoch_losses.push(epoch_loss / order.len() as f64);
         if let Some(cp) = checkpoint {
             cp.save(
                 filter,
@@ -698,25 +659,77 @@ pub fn train(
     Ok(stats)
 }
 
+/// What a batch's loss is made of besides its examples and texels.
+struct LossTerms<'a> {
+    shading: &'a Shading,
+    fixed: [Option<f32>; FEATURES],
+    /// The prior's weight per feature.
+    prior: [f32; FEATURES],
+}
+
 /// The objective over texels `indices`, a part of a batch of `batch` texels, as their share
-/// of the batch's mean: a differentiable scalar.
+/// of the batch's mean: a differentiable scalar. With `consistency = (β, groups)`, `indices`
+/// are whole groups of the step's `groups` and the LR-consistency term is added, weighted β.
 fn batch_loss(
     filter: &Filter,
     examples: &Arc<Examples>,
-    shading: &Shading,
-    fixed: [Option<f32>; FEATURES],
-    metallic_weight: f32,
+    terms: &LossTerms,
     indices: &[usize],
     batch: usize,
+    consistency: Option<(f32, usize)>,
 ) -> Result<Tensor> {
     let raw = filter.forward(examples.windows(indices))?;
     let objective = FilterObjective {
         examples: examples.clone(),
-        shading: shading.clone(),
+        shading: terms.shading.clone(),
         batch: indices.to_vec(),
-        fixed,
-        metallic_weight,
+        fixed: terms.fixed,
+        prior: terms.prior,
     };
     let losses = raw.apply_op1(TexelLossOp::new(objective))?;
-    Ok(losses.sum_all()?.affine(1.0 / batch as f64, 0.0)?)
+    let loss = losses.sum_all()?.affine(1.0 / batch as f64, 0.0)?;
+    Ok(match consistency {
+        Some((weight, step_groups)) if !indices.is_empty() => {
+            let term = raw.apply_op1(Consistency {
+                examples: examples.clone(),
+                batch: indices.to_vec(),
+                group_size: examples.scale().pow(2),
+                step_groups,
+                fixed: terms.fixed,
+                gradient: Mutex::new(None),
+            })?;
+            (loss + term.affine(weight as f64, 0.0)?)?
+        }
+        _ => loss,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_prior_weighs_each_learned_feature_toward_the_base() {
+        let f = [0.5, 0.5, 0.5, 0.9, 0.2, -0.1, 0.3];
+        let base = [0.4, 0.5, 0.7, 0.5, 0.2, 0.1, 0.3];
+        let weights = crate::config::PriorConfig {
+            base_color: 1.0,
+            metallic: 0.1,
+            normal: 2.0,
+            roughness: 5.0,
+        }
+        .feature_weights();
+        let (value, grad) = prior_term(&f, &base, &weights, &[None; FEATURES]);
+        // 1·(0.1² + 0.2²) + 0.1·0.4² + 2·0.2² = 0.05 + 0.016 + 0.08.
+        assert!((value - 0.146).abs() < 1e-6, "{value}");
+        let want = [0.2, 0.0, -0.4, 0.08, 0.0, -0.8, 0.0];
+        for (g, w) in grad.iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "{grad:?}");
+        }
+        // A constant feature is held, not pulled.
+        let mut fixed = [None; FEATURES];
+        fixed[3] = Some(0.9);
+        let (held, grad) = prior_term(&f, &base, &weights, &fixed);
+        assert!((held - 0.13).abs() < 1e-6 && grad[3] == 0.0, "{held}");
+    }
 }

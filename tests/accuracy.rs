@@ -1,0 +1,272 @@
+//! What makes the defaults accurate, on real materials: detail targets, the per-map residual
+//! base and its back-projection, the LR-consistency term, self-validation one scale down and
+//! tileability detection on crops.
+
+mod common;
+
+use matup::config::{Config, ResidualBase, Selection, TargetKind};
+use matup::material::Material;
+use matup::pipeline::{detect_tileable, features};
+use matup::progress::Silent;
+use matup::resample::{box_downsample, upsample};
+use matup::targets::{base_renders, upsampled_targets, DetailBase, LrRenders, Targets};
+use matup::{
+    render, shading_model, upsampler, Border, Kernel, LightSetSpec, Map, PluginSpec, RenderOptions,
+    RgbUpsampler, RunOptions,
+};
+
+/// A whole shared material box-filtered down to `size`² (a tileable input stays tileable).
+fn lr_material(name: &str, size: usize) -> Material {
+    let m =
+        matup::load_material(Some(&common::shared_material(name)), &Default::default()).unwrap();
+    m.box_downsample(m.width() / size)
+}
+
+fn mean_abs_diff(a: &Map, b: &Map) -> f64 {
+    let n = a.data().len() as f64;
+    a.data()
+        .iter()
+        .zip(b.data())
+        .map(|(x, y)| (x - y).abs() as f64)
+        .sum::<f64>()
+        / n
+}
+
+/// Settings of the filter's training tests: few lights and epochs.
+fn trained(upsampler: &str, epochs: usize) -> Config {
+    let mut c = Config::paper();
+    c.upsampler = upsampler.into();
+    c.seed = 1;
+    c.lights.count = 24;
+    c.train.epochs = epochs;
+    c
+}
+
+/// The same targets, texel by texel and light by light: how many of the 8-bit values differ.
+fn differing_values(a: &Targets, b: &Targets) -> usize {
+    a.data.iter().zip(&b.data).filter(|(x, y)| x != y).count()
+}
+
+#[test]
+fn detail_targets_with_s_equal_to_k_are_the_base_renders() {
+    let lr = lr_material("polyhaven_wood_cabinet_worn_long", 32);
+    let model = shading_model(&PluginSpec::new("ggx")).unwrap();
+    let lights = LightSetSpec {
+        count: 12,
+        ..Default::default()
+    }
+    .build();
+    let border = Border::Wrap;
+    let renders = render(
+        &lr,
+        model.as_ref(),
+        &lights,
+        RenderOptions {
+            supersample: true,
+            border,
+        },
+    );
+    let lr_renders = LrRenders {
+        renders: &renders,
+        lights: &lights,
+        model: model.as_ref(),
+        scale: 4,
+        border,
+    };
+    let base_features = upsample(&features(&lr), 4, Kernel::Lanczos3, border);
+    let base = DetailBase {
+        features: &base_features,
+        fixed: &[None; 7],
+        heights: None,
+        kernel: Some(Kernel::Lanczos3),
+    };
+    let lanczos = upsampler(&PluginSpec::new("lanczos3")).unwrap();
+    let want = Targets::from_renders(&base_renders(&base, model.as_ref(), &lights));
+
+    let detail = upsampled_targets(
+        TargetKind::Detail,
+        &lr_renders,
+        lanczos.as_ref(),
+        &base,
+        &Silent,
+    )
+    .unwrap();
+    assert_eq!(
+        differing_values(&detail, &want),
+        0,
+        "S = K: the detail is 0, the targets are the base's renders"
+    );
+    // The paper's targets are not the renders of any upsampled material: interpolating a
+    // render is not rendering interpolated maps.
+    let direct = upsampled_targets(
+        TargetKind::Direct,
+        &lr_renders,
+        lanczos.as_ref(),
+        &base,
+        &Silent,
+    )
+    .unwrap();
+    let differing = differing_values(&direct, &want) as f64 / want.data.len() as f64;
+    println!(
+        "direct targets: {:.1}% of values differ from the base's renders",
+        100.0 * differing
+    );
+    assert!(differing > 0.3, "{differing}");
+
+    // A per-map base (no kernel) is its own detail target: S is not even called.
+    struct Refuses;
+    impl RgbUpsampler for Refuses {
+        fn upsample(&self, _: &[Map], _: usize, _: Border) -> matup::Result<Vec<Map>> {
+            Err(matup::Error::Invalid("not needed".into()))
+        }
+    }
+    let own = DetailBase {
+        kernel: None,
+        ..base
+    };
+    let per_map =
+        upsampled_targets(TargetKind::Detail, &lr_renders, &Refuses, &own, &Silent).unwrap();
+    assert_eq!(differing_values(&per_map, &want), 0);
+}
+
+#[test]
+fn with_s_equal_to_k_the_detail_fit_returns_its_base() {
+    let lr = lr_material("polyhaven_wood_cabinet_worn_long", 32);
+    let mut detail = trained("lanczos3", 2);
+    detail.filter.residual_base = ResidualBase::Kernel(Kernel::Lanczos3);
+    detail.train.targets = TargetKind::Detail;
+    let direct = Config {
+        train: matup::config::TrainConfig {
+            targets: TargetKind::Direct,
+            ..detail.train.clone()
+        },
+        ..detail.clone()
+    };
+    let base = upsample(&features(&lr), 4, Kernel::Lanczos3, Border::Wrap);
+    let run = |c: &Config| {
+        let (hr, _) = matup::upscale(&lr, c, &RunOptions::default(), &Silent).unwrap();
+        // Base colour, metallic, normal x, y: the features the base holds directly.
+        mean_abs_diff(
+            &features(&hr).select_channels(&[0, 1, 2, 4, 5]),
+            &base.select_channels(&[0, 1, 2, 4, 5]),
+        )
+    };
+    let (from_detail, from_direct) = (run(&detail), run(&direct));
+    println!("mean distance to the base: detail {from_detail:.5}, direct {from_direct:.5}");
+    assert!(from_detail < 0.001, "{from_detail}");
+    assert!(
+        from_detail < 0.1 * from_direct,
+        "{from_detail} vs {from_direct}"
+    );
+}
+
+/// Mean absolute difference between a material's box-downsampled features and `lr`'s.
+fn inconsistency(hr: &Material, lr: &Material) -> f64 {
+    let scale = hr.width() / lr.width();
+    mean_abs_diff(&box_downsample(&features(hr), scale), &features(lr))
+}
+
+#[test]
+fn back_projection_makes_the_per_map_base_consistent_with_its_input() {
+    let lr = lr_material("ambientcg_Metal053C", 32);
+    let mut config = Config {
+        upsampler: "bicubic".into(),
+        ..Default::default()
+    };
+    assert_eq!(config.train.epochs, 0, "the default trains nothing");
+    let (projected, report) =
+        matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
+    assert!(report.levels[0].training.epoch_losses.is_empty());
+    config.filter.back_project = false;
+    let (per_map, _) = matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
+    // Without back-projection the result is exactly per-map upsampling.
+    let bicubic = upsampler(&PluginSpec::new("bicubic")).unwrap();
+    let border = Border::for_tiling(report.tileable);
+    let baseline = matup::baseline::upscale_per_map(&lr, bicubic.as_ref(), 4, border).unwrap();
+    assert!(common::max_abs_diff(&per_map.base_color, &baseline.base_color) < 1e-5);
+    let (before, after) = (inconsistency(&per_map, &lr), inconsistency(&projected, &lr));
+    println!("LR inconsistency: per-map {before:.5}, back-projected {after:.5}");
+    assert!(after < 0.25 * before, "{after} vs {before}");
+}
+
+#[test]
+fn the_lr_consistency_term_pulls_the_result_toward_its_input() {
+    let lr = lr_material("polyhaven_wood_cabinet_worn_long", 32);
+    let without = trained("bicubic", 2);
+    let mut with = without.clone();
+    with.train.lr_consistency = 100.0;
+    let run = |c: &Config| matup::upscale(&lr, c, &RunOptions::default(), &Silent).unwrap();
+    let ((plain, _), (anchored, report)) = (run(&without), run(&with));
+    let losses = &report.levels[0].training.epoch_losses;
+    assert!(losses[1] < losses[0], "{losses:?}");
+    let (before, after) = (inconsistency(&plain, &lr), inconsistency(&anchored, &lr));
+    println!("LR inconsistency: β = 0 {before:.5}, β = 100 {after:.5}");
+    assert!(after < 0.8 * before, "{after} vs {before}");
+}
+
+#[test]
+fn self_validation_picks_per_map_upsampling_when_it_is_best() {
+    // Smooth maps: per-map interpolation made consistent with the input is nearly exact,
+    // while one epoch of the filter on interpolated renders is not.
+    let size = 64;
+    let wave = |y: usize, x: usize, phase: f32| {
+        let t = std::f32::consts::TAU / size as f32;
+        0.5 + 0.3 * ((x as f32 * t + phase).sin() * (y as f32 * t).cos())
+    };
+    let mut m = Material::uniform(size, [0.5; 3], 0.5, 0.0);
+    m.base_color = Map::from_fn(size, size, 3, |c, y, x| wave(y, x, c as f32));
+    m.roughness = Map::from_fn(size, size, 1, |_, y, x| wave(y, x, 2.0));
+    m.metallic = Map::from_fn(size, size, 1, |_, y, x| wave(x, y, 0.5));
+    m.normal = Map::from_fn(size, size, 3, |c, y, x| match c {
+        0 => 0.3 * (wave(y, x, 1.0) - 0.5),
+        1 => 0.3 * (wave(x, y, 3.0) - 0.5),
+        _ => 1.0,
+    });
+    m.restore_invariants();
+    let mut config = trained("bicubic", 1);
+    config.select = Selection::Auto;
+    let (result, report) = matup::upscale(&m, &config, &RunOptions::default(), &Silent).unwrap();
+    let selection = report.selection.expect("validated");
+    for c in &selection.candidates {
+        println!(
+            "{}: {:.2} dB, FLIP {:.4}",
+            c.name, c.render_psnr, c.render_flip
+        );
+    }
+    assert_eq!(selection.validation_size, [16, 16]);
+    assert_eq!(selection.candidates.len(), 4);
+    assert!(
+        selection.chosen.starts_with("per-map"),
+        "{}",
+        selection.chosen
+    );
+    let best = selection
+        .candidates
+        .iter()
+        .find(|c| c.name == selection.chosen)
+        .unwrap();
+    let given = &selection.candidates[0];
+    assert_eq!(given.name, "as configured");
+    assert!(
+        best.render_psnr > given.render_psnr + 1.0,
+        "{best:?} vs {given:?}"
+    );
+    // The run went on with the chosen settings: no training, a back-projected base.
+    assert_eq!(report.config.train.epochs, 0);
+    assert!(report.config.filter.back_project);
+    assert_eq!(report.config.select, Selection::Off);
+    assert_eq!((result.width(), result.height_px()), (256, 256));
+}
+
+#[test]
+fn a_crop_of_a_tileable_material_is_not_called_tileable() {
+    for name in ["polyhaven_denim_fabric", "polyhaven_wood_cabinet_worn_long"] {
+        let m = matup::load_material(Some(&common::shared_material(name)), &Default::default())
+            .unwrap();
+        let (whole, whole_ratio) = detect_tileable(&m.box_downsample(8));
+        let (crop, crop_ratio) = detect_tileable(&m.crop(0, 0, 512, 512).box_downsample(4));
+        println!("{name}: whole 128² {whole_ratio:.2}, 512² crop → 128² {crop_ratio:.2}");
+        assert!(whole, "{name}: the whole material tiles ({whole_ratio})");
+        assert!(!crop, "{name}: a crop does not tile ({crop_ratio})");
+    }
+}
