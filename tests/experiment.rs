@@ -143,6 +143,8 @@ mode = "zip"
         r#"
 materials = ["/a"]
 oracle = true
+[base.train]
+epochs = 1
 [axes]
 upsampler = ["bilinear", "bicubic"]
 "#,
@@ -155,6 +157,10 @@ upsampler = ["bilinear", "bicubic"]
             .count(),
         1
     );
+    // Without training (the defaults) there is no ceiling to measure.
+    let untrained = experiment("materials = [\"/a\"]\noracle = true\n");
+    let e = untrained.runs().unwrap_err().to_string();
+    assert!(e.contains("train.epochs = 0") && e.contains("paper"), "{e}");
 }
 
 #[test]

@@ -236,6 +236,14 @@ impl Experiment {
             check_scale(b, up.as_ref(), self.factor)?;
         }
         let points = self.points()?;
+        if self.oracle {
+            if let Some((settings, _)) = points.iter().find(|(_, c)| c.train.epochs == 0) {
+                return Err(Error::Invalid(format!(
+                    "the oracle measures a trained filter's ceiling, but the point {settings:?} \
+                     trains nothing (train.epochs = 0): give epochs, e.g. configs/paper.toml"
+                )));
+            }
+        }
         let mut runs = Vec::new();
         for material in &self.materials {
             let name = material_name(material);
