@@ -3,10 +3,12 @@
 //!
 //! `cargo bench -p matup-cli --bench upscale`
 //!
-//! Rows: METHOD.md's paper defaults on the shipped 128² sample with `lanczos3` (10 epochs:
-//! the ≤ 60 s target); cost per output megatexel at 256², 512² and 1K² outputs (1 epoch
-//! each); with `MATUP_BENCH_4K=1`, also 1K² → 4K² (1 epoch on 262 144 sampled texels) for
-//! the memory bound. `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the first row.
+//! Rows: the README's main job (matup's defaults on the shipped 128² sample: per-map SPAN,
+//! back-projected, no training); METHOD.md's paper settings (`configs/paper.toml`) on the
+//! sample with `lanczos3` (10 epochs: the ≤ 60 s target); the training's cost per output
+//! megatexel at 256², 512² and 1K² outputs (paper settings, 1 epoch each); with
+//! `MATUP_BENCH_4K=1`, also 1K² → 4K² (1 epoch on 262 144 sampled texels) for the memory
+//! bound. `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the paper row.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -31,8 +33,6 @@ fn run(name: &str, material: &Path, output: usize, extra: &[&str]) -> Row {
         "-o",
         out.path().to_str().unwrap(),
         "--json",
-        "--upsampler",
-        "lanczos3",
     ];
     args.extend_from_slice(extra);
     let o = Command::new(env!("CARGO_BIN_EXE_matup"))
@@ -82,34 +82,65 @@ fn main() {
     // `cargo bench` passes `--bench`; nothing else to parse.
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let epochs = std::env::var("MATUP_BENCH_EPOCHS").unwrap_or_else(|_| "10".into());
-    let mut rows = vec![run(
-        &format!("sample 128²→512², paper defaults, {epochs} epochs"),
-        &repo().join("samples/victorian_wood"),
-        512,
-        &["--epochs", &epochs],
-    )];
+    let paper = repo().join("configs/paper.toml");
+    let paper = paper.to_str().unwrap();
+    let trained = |epochs: &'static str| {
+        [
+            "--config",
+            paper,
+            "--upsampler",
+            "lanczos3",
+            "--epochs",
+            epochs,
+        ]
+    };
+    let sample = repo().join("samples/victorian_wood");
+    let mut rows = vec![
+        run(
+            "sample 128²→512², defaults (README main job)",
+            &sample,
+            512,
+            &[],
+        ),
+        run(
+            &format!("sample 128²→512², paper settings, lanczos3, {epochs} epochs"),
+            &sample,
+            512,
+            &[
+                "--config",
+                paper,
+                "--upsampler",
+                "lanczos3",
+                "--epochs",
+                &epochs,
+            ],
+        ),
+    ];
     for lr in [64, 128, 256] {
         let dir = downsampled("polyhaven_wood_cabinet_worn_long", lr);
         rows.push(run(
-            &format!("wood {lr}²→{}², 1 epoch", 4 * lr),
+            &format!("wood {lr}²→{}², paper settings, 1 epoch", 4 * lr),
             dir.path(),
             4 * lr,
-            &["--epochs", "1"],
+            &trained("1"),
         ));
     }
     if std::env::var("MATUP_BENCH_4K").is_ok_and(|v| v == "1") {
         let dir = downsampled("polyhaven_wood_cabinet_worn_long", 1024);
+        rows.push(run("wood 1K²→4K², defaults", dir.path(), 4096, &[]));
+        let mut args = trained("1").to_vec();
+        args.extend(["--texels-per-epoch", "262144"]);
         rows.push(run(
-            "wood 1K²→4K², 1 epoch of 262144 texels",
+            "wood 1K²→4K², paper settings, 1 epoch of 262144 texels",
             dir.path(),
             4096,
-            &["--epochs", "1", "--texels-per-epoch", "262144"],
+            &args,
         ));
     }
 
     println!("\nmatup upscale, {cores} cores (times in seconds; per-megatexel figures are per output megatexel)\n");
-    println!("| run | render LR | upsample | train | train/epoch/MTx | infer | height | total | total/MTx | peak MiB |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("| run | residual base | render LR | targets | train | train/epoch/MTx | infer | height | total | total/MTx | peak MiB |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for row in &rows {
         let r = &row.report;
         let megatexels = (row.output * row.output) as f64 / 1e6;
@@ -122,13 +153,19 @@ fn main() {
             .as_f64()
             .map_or(megatexels, |t| t / 1e6);
         let total = r["total_seconds"].as_f64().unwrap();
+        let per_epoch = if train > 0.0 {
+            format!("{:.2}", train / trained_epochs / texels_per_epoch)
+        } else {
+            "-".to_string()
+        };
         println!(
-            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
             row.name,
+            stage(r, "residual base"),
             stage(r, "render LR"),
-            stage(r, "upsample renders"),
+            stage(r, "targets"),
             train,
-            train / trained_epochs / texels_per_epoch,
+            per_epoch,
             stage(r, "infer"),
             stage(r, "height"),
             total,
