@@ -68,6 +68,7 @@ fn downsampled(name: &str, size: usize) -> tempfile::TempDir {
     dir
 }
 
+/// Seconds in the stages whose name ends with `suffix`, over every level (0 for none).
 fn stage(report: &serde_json::Value, suffix: &str) -> f64 {
     report["timings"]
         .as_array()
@@ -75,7 +76,7 @@ fn stage(report: &serde_json::Value, suffix: &str) -> f64 {
         .iter()
         .filter(|t| t[0].as_str().unwrap().ends_with(suffix))
         .map(|t| t[1].as_f64().unwrap())
-        .sum()
+        .fold(0.0, |a, b| a + b)
 }
 
 fn main() {

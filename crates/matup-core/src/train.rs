@@ -36,7 +36,7 @@ pub struct Examples {
     pub height: usize,
     /// The 7 features at the output size that residuals are added to, and that the prior
     /// pulls toward.
-    pub residual_base: Map,
+    pub residual_base: Arc<Map>,
     /// Output-size height, if the material has one (displaces the shading points).
     pub heights: Option<Map>,
     pub targets: Targets,
