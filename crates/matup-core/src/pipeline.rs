@@ -12,7 +12,6 @@ use serde::Serialize;
 
 use crate::config::{Chain, Config, ResidualBase, Selection, AUTO_UPSAMPLERS};
 use crate::filter::decode::decode;
-use crate::filter::input::UpsampledInput;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
 use crate::height::reconstruct_height;
 use crate::lights::Light;
@@ -547,47 +546,35 @@ fn fit_filter(
         input_channels,
         config.seed.wrapping_add(level as u64),
     )?;
-    let main = Arc::new(Examples {
-        input: UpsampledInput::new(
-            lr_features,
-            &filter.input_channels,
-            ctx.border,
-            filter.geometry(),
-        ),
-        residual_base: Arc::clone(base),
+    let main = Arc::new(Examples::new(
+        lr_features,
+        Arc::clone(base),
         heights,
-        features: lr_features.clone(),
-        width: w,
-        height: h,
         targets,
-    });
+        &filter,
+        ctx.border,
+    ));
 
     // Cross-scale self-supervision: the LR material one scale down is the input, the LR
     // material the answer, its exact renders the targets.
     let cross = if config.train.cross_scale > 0.0 {
         if lr.width() % scale == 0 && lr.height_px() % scale == 0 {
             let lower = lr.box_downsample(scale);
-            let lower_features = features(&lower);
-            Some(Arc::new(Examples {
-                input: UpsampledInput::new(
-                    &lower_features,
-                    &filter.input_channels,
-                    ctx.border,
-                    filter.geometry(),
-                ),
-                residual_base: Arc::new(residual_base(
-                    &lower,
-                    &config.filter,
-                    ctx.upsampler.as_ref(),
-                    scale,
-                    ctx.border,
-                )?),
-                heights: lr.height.clone(),
-                features: lower_features,
-                width: lr.width(),
-                height: lr.height_px(),
-                targets: Targets::from_renders(&renders),
-            }))
+            let lower_base = residual_base(
+                &lower,
+                &config.filter,
+                ctx.upsampler.as_ref(),
+                scale,
+                ctx.border,
+            )?;
+            Some(Arc::new(Examples::new(
+                &features(&lower),
+                Arc::new(lower_base),
+                lr.height.clone(),
+                Targets::from_renders(&renders),
+                &filter,
+                ctx.border,
+            )))
         } else {
             skipped.push(format!(
                 "level {}: cross-scale term: {}×{} is not divisible by {scale}",

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::config::{Config, ResidualBase, Selection};
+use crate::config::{Config, ResidualBase, Selection, TargetKind};
 use crate::lights::LightSetSpec;
 use crate::material::Material;
 use crate::metrics::evaluate;
@@ -75,8 +75,12 @@ pub fn candidates(config: &Config) -> Vec<Candidate> {
     };
     let trained = {
         let mut c = per_map(ResidualBase::Upsampler);
-        c.train.epochs = given.train.epochs.max(1);
-        c.train.targets = crate::config::TargetKind::Direct;
+        // The given epochs, or the paper's where the given settings train nothing.
+        c.train.epochs = match given.train.epochs {
+            0 => Config::paper().train.epochs,
+            epochs => epochs,
+        };
+        c.train.targets = TargetKind::Direct;
         c
     };
     let mut out: Vec<Candidate> = Vec::new();

@@ -21,6 +21,7 @@ use crate::map::Map;
 use crate::material::texel_position;
 use crate::op::{contiguous_f32, storage_f32, TexelLossOp, TexelObjective};
 use crate::progress::Progress;
+use crate::resample::Border;
 use crate::shading::{ShadingModel, Svbrdf, Texel};
 use crate::targets::Targets;
 use crate::{with_avx2, Error, Result};
@@ -43,6 +44,29 @@ pub struct Examples {
 }
 
 impl Examples {
+    /// The examples of `filter` on input `features`: its windows read from `features`
+    /// upsampled as the filter says, its answers added to `residual_base`, the shading points
+    /// displaced by `heights` (output size), judged against `targets`.
+    pub fn new(
+        features: &Map,
+        residual_base: Arc<Map>,
+        heights: Option<Map>,
+        targets: Targets,
+        filter: &Filter,
+        border: Border,
+    ) -> Examples {
+        let scale = filter.geometry().scale;
+        Examples {
+            input: UpsampledInput::new(features, &filter.input_channels, border, filter.geometry()),
+            width: features.width() * scale,
+            height: features.height() * scale,
+            features: features.clone(),
+            residual_base,
+            heights,
+            targets,
+        }
+    }
+
     pub fn texels(&self) -> usize {
         self.width * self.height
     }
