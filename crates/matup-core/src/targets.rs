@@ -109,18 +109,20 @@ pub fn upsampled_targets(
     progress: &dyn Progress,
 ) -> Result<Targets> {
     let mut targets = Targets::new(base.features.texels(), lr.renders.len());
+    let (w, h) = (base.features.width(), base.features.height());
+    let texels = (kind == TargetKind::Detail).then(|| base_texels(base));
     let chunks = lr
         .renders
         .chunks(LIGHT_CHUNK)
         .zip(lr.lights.chunks(LIGHT_CHUNK));
     for (k, (chunk, lights)) in chunks.enumerate() {
-        let up = match (kind, base.kernel) {
-            (TargetKind::Direct, _) => s.upsample(chunk, lr.scale, lr.border)?,
+        let up = match (&texels, base.kernel) {
+            (None, _) => s.upsample(chunk, lr.scale, lr.border)?,
             // S − B is 0: the base's own renders.
-            (TargetKind::Detail, None) => base_renders(base, lr.model, lights),
-            (TargetKind::Detail, Some(kernel)) => {
+            (Some(texels), None) => render_texels(texels, w, h, lr.model, lights),
+            (Some(texels), Some(kernel)) => {
                 let mut up = s.upsample(chunk, lr.scale, lr.border)?;
-                let renders = base_renders(base, lr.model, lights);
+                let renders = render_texels(texels, w, h, lr.model, lights);
                 for ((t, r), b) in up.iter_mut().zip(chunk).zip(&renders) {
                     let interpolated = upsample(r, lr.scale, kernel, lr.border);
                     // T = R(M_base) + (S(r) − K(r)), in display space: the detail first, so
@@ -175,11 +177,17 @@ pub fn oracle_targets(
     Ok(targets)
 }
 
-/// The display-space renders of the base under `lights` (its features decoded with no
-/// residual), one texel per output texel, as the training loss renders them.
+/// The display-space renders of the base under `lights`, one texel per output texel, as the
+/// training loss renders them.
 pub fn base_renders(base: &DetailBase, model: &dyn ShadingModel, lights: &[Light]) -> Vec<Map> {
     let (w, h) = (base.features.width(), base.features.height());
-    let texels: Vec<Texel> = (0..w * h)
+    render_texels(&base_texels(base), w, h, model, lights)
+}
+
+/// The base's texels: its features decoded with no residual, at the training loss's positions.
+fn base_texels(base: &DetailBase) -> Vec<Texel> {
+    let (w, h) = (base.features.width(), base.features.height());
+    (0..w * h)
         .into_par_iter()
         .map(|t| {
             let f: [f32; FEATURES] = base.features.texel(t);
@@ -188,6 +196,5 @@ pub fn base_renders(base: &DetailBase, model: &dyn ShadingModel, lights: &[Light
                 position: texel_position(t, w, h, base.heights),
             }
         })
-        .collect();
-    render_texels(&texels, w, h, model, lights)
+        .collect()
 }
