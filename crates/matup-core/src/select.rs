@@ -58,9 +58,10 @@ pub fn score(render_psnr: f64, render_flip: f64) -> f64 {
     render_psnr - 10.0 * render_flip.max(1e-6).log10()
 }
 
-/// The candidates for `config`: per-map super-resolution by the run's upsampler and by
-/// Lanczos-3 (each back-projected onto the LR maps, nothing learned), the filter trained on
-/// the upsampled renders on top of the per-map base, and the configuration as given.
+/// The candidates for `config`: per-map super-resolution by the run's upsampler and the LR
+/// maps interpolated by Lanczos-3 (each back-projected onto the LR maps, nothing learned),
+/// the filter trained on the upsampled renders on top of the per-map base, and the
+/// configuration as given.
 pub fn candidates(config: &Config) -> Vec<Candidate> {
     let given = Config {
         select: Selection::Off,
@@ -88,7 +89,7 @@ pub fn candidates(config: &Config) -> Vec<Candidate> {
         ("as configured", given.clone()),
         ("per-map upsampler", per_map(ResidualBase::Upsampler)),
         (
-            "per-map lanczos3",
+            "lanczos3-interpolated maps",
             per_map(ResidualBase::Kernel(Kernel::Lanczos3)),
         ),
         ("filter on upsampled renders", trained),
