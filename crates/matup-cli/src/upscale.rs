@@ -99,8 +99,8 @@ pub struct UpscaleArgs {
     /// l21, l11, l22 or lpq:P,Q.
     #[arg(long)]
     pub loss: Option<LossNorm>,
-    /// Training targets: direct (the upsampled renders), detail or detail:KERNEL (the
-    /// renders of the kernel-upsampled maps plus what the upsampler adds beyond the kernel).
+    /// Training targets: direct (the upsampled renders) or detail (the residual base's renders
+    /// plus what the upsampler adds to each render beyond the base's own upsampler).
     #[arg(long)]
     pub targets: Option<TargetKind>,
     /// Prior weights pulling features toward the residual base, e.g.

@@ -88,8 +88,14 @@ pub fn evaluate(
             a.par_iter()
                 .zip(&b)
                 .map(|(x, y)| {
-                    let s = [squared_error(x, y), ssim(x, y), flip(x, y)];
-                    [s[0], s[1], s[2], sharpness(y), sharpness(x)]
+                    // In the order of the means below.
+                    [
+                        squared_error(x, y),
+                        ssim(x, y),
+                        flip(x, y),
+                        sharpness(y),
+                        sharpness(x),
+                    ]
                 })
                 .collect::<Vec<_>>()
         })
