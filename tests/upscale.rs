@@ -12,6 +12,7 @@ use matup::material::Material;
 use matup::pipeline::wrap_seam_ratio;
 use matup::progress::{Progress, Silent};
 use matup::render::{render, RenderOptions};
+use matup::train::Stop;
 use matup::{
     shading_model, upsampler, Border, Kernel, LightSetSpec, LossNorm, PluginSpec, RunOptions,
     RunReport,
@@ -88,7 +89,15 @@ fn trained_maps_explain_the_targets_better_than_bilinear() {
     let (lr, hr, report) = wood();
     assert_eq!((hr.width(), hr.height_px()), (128, 128));
     assert!(report.tileable, "the whole wood material tiles");
-    let losses = &report.levels[0].training.epoch_losses;
+    let training = &report.levels[0].training;
+    assert_eq!(
+        training.stopped,
+        Stop::MaxEpochs,
+        "the paper's fixed schedule"
+    );
+    assert_eq!(training.epochs_trained, 3.0);
+    assert!(training.validation_losses.is_empty());
+    let losses = &training.epoch_losses;
     assert_eq!(losses.len(), 3);
     assert!(
         losses[2] < losses[0],
@@ -195,6 +204,75 @@ fn resuming_after_an_interruption_gives_the_uninterrupted_result() {
     let (resumed, report) = matup::upscale(lr, &quick_config(1), &options, &Silent).unwrap();
     assert_eq!(report.levels[0].training.resumed_epochs, 1);
     assert_eq!(&resumed, hr, "resumed = uninterrupted");
+}
+
+/// The quick settings stopping early: up to 40 epochs, two checks an epoch, stopping after 2
+/// checks without a 2% gain.
+fn early_stop_config() -> Config {
+    let mut c = quick_config(1);
+    c.train.epochs = 40;
+    let e = &mut c.train.early_stop;
+    e.enabled = true;
+    e.checks_per_epoch = 2;
+    e.patience = 2;
+    e.min_gain = 0.02;
+    c
+}
+
+#[test]
+fn training_stops_when_the_held_out_loss_stops_improving() {
+    let (lr, _, _) = wood();
+    let config = early_stop_config();
+    let (_, report) = run(lr, &config);
+    let t = &report.levels[0].training;
+    assert_eq!(t.stopped, Stop::Converged);
+    assert!(t.epochs_trained < 40.0, "{}", t.epochs_trained);
+    // Two checks an epoch, each after half of its steps.
+    let v = &t.validation_losses;
+    assert_eq!(v.len() as f64, t.epochs_trained * 2.0, "{v:?}");
+    assert_eq!(t.epoch_losses.len(), t.epochs_trained.ceil() as usize);
+    // It stopped exactly when the rule says: the last two checks did not beat the best
+    // before them by 2%, and no earlier pair of checks did the same.
+    let stale_at = |k: usize| {
+        let best = v[..k].iter().copied().fold(f64::INFINITY, f64::min);
+        v[k] > best * 0.98
+    };
+    let n = v.len();
+    assert!(stale_at(n - 2) && stale_at(n - 1), "{v:?}");
+    assert!(v[0] > v[n - 1], "the held-out loss went down: {v:?}");
+    // Held-out texels (a tenth of 128², 1638) are not trained on: 14 746 texels an epoch,
+    // 116 steps of 128.
+    let steps_per_epoch = 116.0;
+    assert_eq!(t.steps as f64, t.epochs_trained * steps_per_epoch);
+}
+
+#[test]
+fn an_early_stopped_run_resumes_to_the_same_stop() {
+    let (lr, _, _) = wood();
+    let config = early_stop_config();
+    let (whole, whole_report) = run(lr, &config);
+    let folder = tempfile::tempdir().unwrap();
+    let options = RunOptions {
+        checkpoint_folder: Some(folder.path().to_path_buf()),
+        resume: true,
+        ..Default::default()
+    };
+    // Stop during the second epoch (116 steps each), after its first check.
+    let stop = StopAfter {
+        steps: AtomicU64::new(0),
+        limit: 116 + 80,
+    };
+    let error = matup::upscale(lr, &config, &options, &stop).unwrap_err();
+    assert!(
+        matches!(error, matup::Error::Cancelled { epochs_done: 1 }),
+        "{error}"
+    );
+    let (resumed, report) = matup::upscale(lr, &config, &options, &Silent).unwrap();
+    let (a, b) = (&report.levels[0].training, &whole_report.levels[0].training);
+    assert_eq!(a.resumed_epochs, 1);
+    assert_eq!(a.validation_losses, b.validation_losses);
+    assert_eq!((a.epochs_trained, a.stopped), (b.epochs_trained, b.stopped));
+    assert_eq!(resumed, whole, "resumed = uninterrupted");
 }
 
 #[test]

@@ -3,12 +3,16 @@
 //!
 //! `cargo bench -p matup-cli --bench upscale`
 //!
-//! Rows: the README's main job (matup's defaults on the shipped 128² sample: per-map SPAN,
-//! back-projected, no training); METHOD.md's paper settings (`configs/paper.toml`) on the
-//! sample with `lanczos3` (10 epochs: the ≤ 60 s target); the training's cost per output
-//! megatexel at 256², 512² and 1K² outputs (paper settings, 1 epoch each); with
-//! `MATUP_BENCH_4K=1`, also 1K² → 4K² (1 epoch on 262 144 sampled texels) for the memory
-//! bound. `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the paper row.
+//! Timing rows: the README's main job (matup's defaults on the shipped 128² sample: per-map
+//! SPAN, back-projected, no training); METHOD.md's paper settings (`configs/paper.toml`) on
+//! the sample with `lanczos3`, the fixed 10 epochs and with early stopping; the defaults' cost
+//! per output megatexel at 256², 512² and 1K² outputs, and the training's (paper settings,
+//! 1 epoch each); with `MATUP_BENCH_4K=1`, also 1K² → 4K² with the defaults and 1 epoch on
+//! 262 144 sampled texels. `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the paper rows.
+//!
+//! Then the quality of the same settings (`matup sweep`): the four shared materials cropped
+//! to 512² → 128² → ×4, SPAN, render PSNR / FLIP under 16 held-out lights, means over the
+//! materials (`MATUP_BENCH_QUALITY=0` skips it; it takes about 6 minutes on 2 cores).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -96,6 +100,17 @@ fn main() {
         ]
     };
     let sample = repo().join("samples/victorian_wood");
+    let paper_sample = |early_stop: &'static str| {
+        [
+            "--config",
+            paper,
+            "--upsampler",
+            "lanczos3",
+            "--epochs",
+            &epochs,
+            early_stop,
+        ]
+    };
     let mut rows = vec![
         run(
             "sample 128²→512², defaults (README main job)",
@@ -107,18 +122,23 @@ fn main() {
             &format!("sample 128²→512², paper settings, lanczos3, {epochs} epochs"),
             &sample,
             512,
-            &[
-                "--config",
-                paper,
-                "--upsampler",
-                "lanczos3",
-                "--epochs",
-                &epochs,
-            ],
+            &paper_sample("--no-early-stop"),
+        ),
+        run(
+            &format!("sample 128²→512², paper settings, lanczos3, ≤ {epochs} epochs, early stop"),
+            &sample,
+            512,
+            &paper_sample("--early-stop"),
         ),
     ];
     for lr in [64, 128, 256] {
         let dir = downsampled("polyhaven_wood_cabinet_worn_long", lr);
+        rows.push(run(
+            &format!("wood {lr}²→{}², defaults", 4 * lr),
+            dir.path(),
+            4 * lr,
+            &[],
+        ));
         rows.push(run(
             &format!("wood {lr}²→{}², paper settings, 1 epoch", 4 * lr),
             dir.path(),
@@ -140,38 +160,85 @@ fn main() {
     }
 
     println!("\nmatup upscale, {cores} cores (times in seconds; per-megatexel figures are per output megatexel)\n");
-    println!("| run | residual base | render LR | targets | train | train/epoch/MTx | infer | height | total | total/MTx | peak MiB |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| run | residual base | render LR | targets | train | epochs | train/epoch/MTx | infer | height | total | total/MTx | peak MiB |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for row in &rows {
         let r = &row.report;
         let megatexels = (row.output * row.output) as f64 / 1e6;
         let train = stage(r, "train");
-        let trained_epochs = r["levels"][0]["training"]["epoch_losses"]
-            .as_array()
-            .map_or(1, |e| e.len())
-            .max(1) as f64;
+        let trained_epochs = r["levels"][0]["training"]["epochs_trained"]
+            .as_f64()
+            .unwrap_or(0.0);
         let texels_per_epoch = r["config"]["train"]["texels_per_epoch"]
             .as_f64()
             .map_or(megatexels, |t| t / 1e6);
         let total = r["total_seconds"].as_f64().unwrap();
-        let per_epoch = if train > 0.0 {
+        let per_epoch = if trained_epochs > 0.0 {
             format!("{:.2}", train / trained_epochs / texels_per_epoch)
         } else {
             "-".to_string()
         };
         println!(
-            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
             row.name,
             stage(r, "residual base"),
             stage(r, "render LR"),
             stage(r, "targets"),
             train,
+            trained_epochs,
             per_epoch,
             stage(r, "infer"),
             stage(r, "height"),
             total,
             total / megatexels,
             r["peak_memory_mib"].as_f64().unwrap_or(f64::NAN),
+        );
+    }
+
+    if std::env::var("MATUP_BENCH_QUALITY").map_or(true, |v| v != "0") {
+        quality();
+    }
+}
+
+/// `sweeps/early_stop.toml` run by `matup sweep`: each method's mean render PSNR, FLIP,
+/// seconds and epochs over the materials.
+fn quality() {
+    let out = tempfile::tempdir().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_matup"))
+        .args(["sweep", "--quiet", "-o"])
+        .arg(out.path())
+        .arg(repo().join("sweeps/early_stop.toml"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(out.path().join("results.json")).unwrap();
+    let rows: Vec<serde_json::Value> = serde_json::from_str(&text).unwrap();
+    // Methods in the order they first appear; a run's id is `material/method`.
+    let mut methods: Vec<(String, Vec<&serde_json::Value>)> = Vec::new();
+    for row in &rows {
+        let id = row["id"].as_str().unwrap();
+        let method = id.split_once('/').map_or(id, |(_, m)| m).to_string();
+        match methods.iter_mut().find(|(m, _)| *m == method) {
+            Some((_, runs)) => runs.push(row),
+            None => methods.push((method, vec![row])),
+        }
+    }
+    println!("\nquality: sweeps/early_stop.toml (512² crops of the four shared materials → 128² → ×4, SPAN, 16 held-out lights), means over the materials\n");
+    println!("| method | render PSNR dB | FLIP | seconds | epochs |");
+    println!("|---|---|---|---|---|");
+    for (method, runs) in &methods {
+        let mean = |f: &dyn Fn(&serde_json::Value) -> f64| {
+            runs.iter().map(|r| f(r)).sum::<f64>() / runs.len() as f64
+        };
+        let metric = |name: &'static str| {
+            mean(&|r: &serde_json::Value| r["evaluation"][name].as_f64().unwrap_or(f64::NAN))
+        };
+        println!(
+            "| {method} | {:.3} | {:.4} | {:.1} | {:.2} |",
+            metric("render_psnr"),
+            metric("render_flip"),
+            mean(&|r: &serde_json::Value| r["seconds"].as_f64().unwrap()),
+            mean(&|r: &serde_json::Value| r["epochs_trained"].as_f64().unwrap_or(0.0)),
         );
     }
 }

@@ -9,6 +9,7 @@ use matup_core::config::{
 };
 use matup_core::io::{check_output_folder, save_png, write_atomic};
 use matup_core::pipeline::preview;
+use matup_core::train::Stop;
 use matup_core::{save_material, upscale, Config, FileFormat, LossNorm, RunOptions, SaveOptions};
 
 use crate::material_args::MaterialArgs;
@@ -93,9 +94,16 @@ pub struct UpscaleArgs {
     /// constant or cosine.
     #[arg(long)]
     pub schedule: Option<Schedule>,
-    /// Training epochs (default 0: no filter is trained; the residual base is the result).
+    /// Training epochs at most (default 0: no filter is trained; the residual base is the
+    /// result). Training stops earlier when a held-out loss stops improving.
     #[arg(long)]
     pub epochs: Option<usize>,
+    /// Stop training when the held-out loss stops improving (the default).
+    #[arg(long, conflicts_with = "no_early_stop")]
+    pub early_stop: bool,
+    /// Train every one of --epochs (the paper's fixed schedule).
+    #[arg(long)]
+    pub no_early_stop: bool,
     /// l21, l11, l22 or lpq:P,Q.
     #[arg(long)]
     pub loss: Option<LossNorm>,
@@ -189,6 +197,12 @@ impl UpscaleArgs {
         if self.no_back_project {
             c.filter.back_project = false;
         }
+        if self.early_stop {
+            c.train.early_stop.enabled = true;
+        }
+        if self.no_early_stop {
+            c.train.early_stop.enabled = false;
+        }
         c.validate()?;
         Ok(c)
     }
@@ -256,6 +270,18 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
                 println!(
                     "    {:<30} render PSNR {:6.2} dB, FLIP {:.4}, {:.1} s",
                     c.name, c.render_psnr, c.render_flip, c.seconds
+                );
+            }
+        }
+        for (i, level) in report.levels.iter().enumerate() {
+            let t = &level.training;
+            if t.stopped != Stop::NotTrained {
+                println!(
+                    "  level {}: trained {:.2} of {} epochs, {}",
+                    i + 1,
+                    t.epochs_trained,
+                    config.train.epochs,
+                    t.stopped
                 );
             }
         }

@@ -111,6 +111,9 @@ pub struct Row {
     pub seconds: f64,
     /// matup's stages (empty for baselines).
     pub timings: Vec<(String, f64)>,
+    /// Training epochs run, over all levels (0 for baselines and untrained runs).
+    #[serde(default)]
+    pub epochs_trained: f64,
     pub evaluation: Option<EvaluationRow>,
     pub error: Option<String>,
 }
@@ -118,23 +121,32 @@ pub struct Row {
 /// [`Evaluation`] as stored (deserialisable).
 pub type EvaluationRow = BTreeMap<String, f64>;
 
-/// How a run ended: its wall time, stage timings and evaluation, or its error.
-type Outcome = std::result::Result<(f64, Vec<(String, f64)>, Evaluation), String>;
+/// What a finished upscale reports besides its material.
+#[derive(Default)]
+struct RunFacts {
+    seconds: f64,
+    timings: Vec<(String, f64)>,
+    epochs_trained: f64,
+}
+
+/// How a run ended: its facts and evaluation, or its error.
+type Outcome = std::result::Result<(RunFacts, Evaluation), String>;
 
 impl Row {
     /// The row of `run`: its time, stage timings and evaluation, or its error.
     fn new(run: &Run, outcome: Outcome) -> Row {
-        let (seconds, timings, evaluation, error) = match outcome {
-            Ok((seconds, timings, ev)) => (seconds, timings, Some(evaluation_row(&ev)), None),
-            Err(e) => (0.0, Vec::new(), None, Some(e)),
+        let (facts, evaluation, error) = match outcome {
+            Ok((facts, ev)) => (facts, Some(evaluation_row(&ev)), None),
+            Err(e) => (RunFacts::default(), None, Some(e)),
         };
         Row {
             id: run.id.clone(),
             material: material_name(&run.material),
             kind: run.kind.into(),
             settings: run.settings.clone(),
-            seconds,
-            timings,
+            seconds: facts.seconds,
+            timings: facts.timings,
+            epochs_trained: facts.epochs_trained,
             evaluation,
             error,
         }
@@ -407,10 +419,10 @@ pub fn run_experiment(
                         return Err(Error::Cancelled { epochs_done })
                     }
                     Err(e) => Err(e.to_string()),
-                    Ok((material, seconds, timings)) => {
+                    Ok((material, facts)) => {
                         let _ = std::fs::remove_dir_all(&checkpoints);
                         evaluate(&p.truth, &material, eval_model.as_ref(), &eval_lights)
-                            .map(|ev| (seconds, timings, ev))
+                            .map(|ev| (facts, ev))
                             .map_err(|e| e.to_string())
                     }
                 }
@@ -443,7 +455,7 @@ fn material_name(path: &Path) -> String {
     )
 }
 
-type Upscaled = (Material, f64, Vec<(String, f64)>);
+type Upscaled = (Material, RunFacts);
 
 fn run_one(
     run: &Run,
@@ -458,7 +470,11 @@ fn run_one(
             let up = upsampler(&spec.parse::<PluginSpec>()?)?;
             let border = Border::for_tiling(detect_tileable(&pair.lr).0);
             let m = upscale_per_map(&pair.lr, up.as_ref(), factor, border)?;
-            Ok((m, start.elapsed().as_secs_f64(), Vec::new()))
+            let facts = RunFacts {
+                seconds: start.elapsed().as_secs_f64(),
+                ..RunFacts::default()
+            };
+            Ok((m, facts))
         }
         Method::Matup(config) | Method::Oracle(config) => {
             let options = RunOptions {
@@ -467,7 +483,16 @@ fn run_one(
                 oracle: matches!(run.method, Method::Oracle(_)).then(|| pair.truth.clone()),
             };
             let (m, report) = upscale(&pair.lr, config, &options, progress)?;
-            Ok((m, start.elapsed().as_secs_f64(), report.timings))
+            let facts = RunFacts {
+                seconds: start.elapsed().as_secs_f64(),
+                epochs_trained: report
+                    .levels
+                    .iter()
+                    .map(|l| l.training.epochs_trained)
+                    .sum(),
+                timings: report.timings,
+            };
+            Ok((m, facts))
         }
     }
 }
@@ -532,6 +557,7 @@ pub fn write_tables(out: &Path, rows: &[Row]) -> Result<()> {
     let mut header: Vec<String> = vec!["id".into(), "material".into(), "kind".into()];
     header.extend(setting_keys.iter().map(|k| k.to_string()));
     header.push("seconds".into());
+    header.push("epochs_trained".into());
     header.extend(METRICS.iter().map(|m| m.to_string()));
     header.push("error".into());
     let csv_error = |e: csv::Error| Error::Invalid(format!("results.csv: {e}"));
@@ -544,6 +570,7 @@ pub fn write_tables(out: &Path, rows: &[Row]) -> Result<()> {
                 .map(|k| r.settings.get(*k).cloned().unwrap_or_default()),
         );
         record.push(format!("{:.3}", r.seconds));
+        record.push(format!("{:.2}", r.epochs_trained));
         record.extend(METRICS.iter().map(|m| {
             r.evaluation
                 .as_ref()

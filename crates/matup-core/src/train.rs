@@ -11,7 +11,7 @@ use rand::SeedableRng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{Schedule, TrainConfig};
+use crate::config::{EarlyStopConfig, Schedule, TrainConfig};
 use crate::filter::decode::decode;
 use crate::filter::input::UpsampledInput;
 use crate::filter::{Filter, FEATURES};
@@ -101,6 +101,16 @@ impl Examples {
             }
         }
         out
+    }
+
+    /// `units` as output texels: themselves for groups of 1, else the children of each
+    /// input texel.
+    fn children_of(&self, units: &[usize], group: usize) -> Vec<usize> {
+        if group > 1 {
+            self.children(units)
+        } else {
+            units.to_vec()
+        }
     }
 
     /// The input texel an output texel lies in.
@@ -472,6 +482,8 @@ struct CheckpointMeta {
     epochs_done: usize,
     adam_step: u64,
     epoch_losses: Vec<f64>,
+    #[serde(default)]
+    validation: Validation,
 }
 
 impl Checkpoint {
@@ -520,15 +532,72 @@ impl Checkpoint {
 /// The outcome of training.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct TrainStats {
-    /// Mean loss of each epoch.
+    /// Mean loss of each epoch (the last over the part trained, if it stopped early).
     pub epoch_losses: Vec<f64>,
     pub steps: u64,
+    /// Epochs trained, in fractions where training stopped within an epoch.
+    pub epochs_trained: f64,
+    /// Why training ended.
+    pub stopped: Stop,
+    /// The objective on the held-out texels at each check (empty without early stopping).
+    pub validation_losses: Vec<f64>,
     /// Epochs taken from a checkpoint instead of trained.
     pub resumed_epochs: usize,
 }
 
+/// Why training ended.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Stop {
+    /// Nothing was trained.
+    #[default]
+    NotTrained,
+    /// Every epoch of `train.epochs` ran.
+    MaxEpochs,
+    /// The validation loss stopped improving.
+    Converged,
+}
+
+impl std::fmt::Display for Stop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Stop::NotTrained => "not trained",
+            Stop::MaxEpochs => "ran every epoch",
+            Stop::Converged => "converged (the validation loss stopped improving)",
+        })
+    }
+}
+
+/// Early stopping's state: the checks so far, the best value and the checks since it.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+struct Validation {
+    losses: Vec<f64>,
+    best: Option<f64>,
+    stale: usize,
+}
+
+impl Validation {
+    /// Records a check; true when training should stop.
+    fn record(&mut self, loss: f64, config: &EarlyStopConfig) -> bool {
+        self.losses.push(loss);
+        match self.best {
+            Some(best) if loss > best * (1.0 - config.min_gain) => self.stale += 1,
+            _ => {
+                self.best = Some(loss);
+                self.stale = 0;
+            }
+        }
+        self.converged(config)
+    }
+
+    fn converged(&self, config: &EarlyStopConfig) -> bool {
+        self.stale >= config.patience
+    }
+}
+
 /// Trains `filter` on `main` (and, with weight `cross_weight`, on `cross`): METHOD.md's loop,
-/// every texel once per epoch in an order drawn from `seed`.
+/// every texel once per epoch in an order drawn from `seed`, for `config.epochs` or, with
+/// early stopping, until the objective on held-out texels (never trained on) stops improving.
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     filter: &Filter,
@@ -543,6 +612,7 @@ pub fn train(
 ) -> Result<TrainStats> {
     let mut adam = Adam::new(&filter.vars);
     let mut stats = TrainStats::default();
+    let mut validation = Validation::default();
     let mut start_epoch = 0;
     if let Some(cp) = checkpoint.filter(|c| c.resume) {
         if let Some(meta) = cp.load(filter, &mut adam)? {
@@ -553,6 +623,7 @@ pub fn train(
             start_epoch = meta.epochs_done;
             stats.epoch_losses = meta.epoch_losses;
             stats.resumed_epochs = start_epoch;
+            validation = meta.validation;
         }
     }
 
@@ -563,11 +634,19 @@ pub fn train(
     } else {
         1
     };
+    let consistency_weight = (group > 1).then_some(config.lr_consistency);
     let units = main.texels() / group;
+    // Early stopping's held-out units: drawn once from the seed, never trained on.
+    let early_stop = config.early_stop.enabled.then_some(&config.early_stop);
+    let (held_out, trained_units) = match early_stop {
+        Some(e) => split_validation(units, e.validation_texels.div_ceil(group), seed),
+        None => (Vec::new(), (0..units).collect()),
+    };
+    let held_out = main.children_of(&held_out, group);
     let per_epoch = config
         .texels_per_epoch
-        .map_or(units, |t| t.div_ceil(group))
-        .min(units);
+        .map_or(trained_units.len(), |t| t.div_ceil(group))
+        .min(trained_units.len());
     let batch_units = config.batch_size.div_ceil(group);
     let batch = batch_units * group;
     let steps_per_epoch = per_epoch.div_ceil(batch_units);
@@ -585,21 +664,25 @@ pub fn train(
     progress.stage("train", total_steps);
     progress.advance(adam.step, stats.epoch_losses.last().copied());
 
+    let mut stopped = early_stop.is_some_and(|e| validation.converged(e));
+    let mut epochs_trained = start_epoch as f64;
     for epoch in start_epoch..config.epochs {
+        if stopped {
+            break;
+        }
         let mut rng =
             StdRng::seed_from_u64(seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-        let mut order: Vec<usize> = (0..units).collect();
+        let mut order = trained_units.clone();
         order.shuffle(&mut rng);
         order.truncate(per_epoch);
-        if group > 1 {
-            order = main.children(&order);
-        }
+        let order = main.children_of(&order, group);
         let mut cross_order: Vec<usize> = cross
             .map(|(c, _)| (0..c.texels()).collect())
             .unwrap_or_default();
         cross_order.shuffle(&mut rng);
 
         let mut epoch_loss = 0.0f64;
+        let mut epoch_texels = 0;
         for (step_in_epoch, indices) in order.chunks(batch).enumerate() {
             let lr = match config.schedule {
                 Schedule::Constant => base_lr,
@@ -627,7 +710,7 @@ pub fn train(
             let share = |items: usize, part: usize, unit: usize| {
                 unit * (items * part / parts)..unit * (items * (part + 1) / parts)
             };
-            let consistency = (group > 1).then_some((config.lr_consistency, groups));
+            let consistency = consistency_weight.map(|w| (w, groups));
             let results = (0..parts)
                 .into_par_iter()
                 .map(|part| -> Result<(f64, candle_core::backprop::GradStore)> {
@@ -663,9 +746,37 @@ pub fn train(
             }
             adam.update(&filter.vars, &grads, lr)?;
             epoch_loss += value * indices.len() as f64;
+            epoch_texels += indices.len();
             progress.advance(1, Some(value));
+
+            // `checks_per_epoch` evenly spaced checks, the last at the epoch's end.
+            let step = step_in_epoch + 1;
+            if let Some(e) = early_stop {
+                let checks = |steps: usize| steps * e.checks_per_epoch / steps_per_epoch;
+                if checks(step) > checks(step - 1) {
+                    let loss = objective_on(
+                        filter,
+                        main,
+                        &terms,
+                        &held_out,
+                        batch,
+                        group,
+                        consistency_weight,
+                    )?;
+                    if validation.record(loss, e) {
+                        stopped = true;
+                        epochs_trained = epoch as f64 + step as f64 / steps_per_epoch as f64;
+                        break;
+                    }
+                }
+            }
         }
-        stats.epoch_losses.push(epoch_loss / order.len() as f64);
+        stats
+            .epoch_losses
+            .push(epoch_loss / epoch_texels.max(1) as f64);
+        if !stopped {
+            epochs_trained = (epoch + 1) as f64;
+        }
         if let Some(cp) = checkpoint {
             cp.save(
                 filter,
@@ -675,12 +786,65 @@ pub fn train(
                     epochs_done: epoch + 1,
                     adam_step: adam.step,
                     epoch_losses: stats.epoch_losses.clone(),
+                    validation: validation.clone(),
                 },
             )?;
         }
     }
+    if stopped {
+        progress.note(&format!(
+            "training stopped after {epochs_trained:.2} of {} epochs: the held-out loss gained less than {}% over {} checks",
+            config.epochs,
+            config.early_stop.min_gain * 100.0,
+            config.early_stop.patience
+        ));
+    }
     stats.steps = adam.step;
+    stats.epochs_trained = epochs_trained;
+    stats.stopped = if stopped {
+        Stop::Converged
+    } else {
+        Stop::MaxEpochs
+    };
+    stats.validation_losses = validation.losses;
     Ok(stats)
+}
+
+/// Splits `units` into `held` (up to `wanted`, at most a tenth of them, at least one) drawn
+/// from `seed`, and the rest, in order.
+fn split_validation(units: usize, wanted: usize, seed: u64) -> (Vec<usize>, Vec<usize>) {
+    let held = wanted.min(units / 10).max(1).min(units.saturating_sub(1));
+    let mut rng = StdRng::seed_from_u64(seed ^ 0x005E_ED0F_4E1D_0075);
+    let mut picked = rand::seq::index::sample(&mut rng, units, held).into_vec();
+    picked.sort_unstable();
+    let mut is_held = vec![false; units];
+    for &u in &picked {
+        is_held[u] = true;
+    }
+    let rest = (0..units).filter(|&u| !is_held[u]).collect();
+    (picked, rest)
+}
+
+/// The objective's mean over `texels` (whole groups of `group`), in batches of `batch`, no
+/// gradient kept: what early stopping watches.
+fn objective_on(
+    filter: &Filter,
+    examples: &Arc<Examples>,
+    terms: &LossTerms,
+    texels: &[usize],
+    batch: usize,
+    group: usize,
+    consistency_weight: Option<f32>,
+) -> Result<f64> {
+    let sums = texels
+        .par_chunks(batch)
+        .map(|chunk| -> Result<f64> {
+            let consistency = consistency_weight.map(|w| (w, chunk.len() / group));
+            let loss = batch_loss(filter, examples, terms, chunk, chunk.len(), consistency)?;
+            Ok(loss.to_scalar::<f32>()? as f64 * chunk.len() as f64)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(sums.iter().sum::<f64>() / texels.len().max(1) as f64)
 }
 
 /// What a batch's loss is made of besides its examples and texels.
@@ -731,6 +895,45 @@ fn batch_loss(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn early_stopping_waits_for_patience_checks_without_the_minimum_gain() {
+        let config = EarlyStopConfig {
+            patience: 2,
+            min_gain: 0.01,
+            ..Default::default()
+        };
+        let mut v = Validation::default();
+        // 0.995 and 0.992 gain under 1% on the best (1.0): stale twice, stop.
+        assert!(!v.record(1.0, &config));
+        assert!(!v.record(0.995, &config));
+        assert_eq!((v.best, v.stale), (Some(1.0), 1));
+        // 0.98 is a 2% gain: the count starts again.
+        assert!(!v.record(0.98, &config));
+        assert_eq!((v.best, v.stale), (Some(0.98), 0));
+        // 0.975 and 0.99 do not gain 1% on 0.98: stop after the second.
+        assert!(!v.record(0.975, &config));
+        assert!(v.record(0.99, &config));
+        assert!(v.converged(&config));
+        assert_eq!(v.losses, [1.0, 0.995, 0.98, 0.975, 0.99]);
+    }
+
+    #[test]
+    fn validation_texels_are_a_fixed_part_never_trained_on() {
+        let (held, rest) = split_validation(1000, 64, 7);
+        assert_eq!((held.len(), rest.len()), (64, 936));
+        let mut all: Vec<usize> = held.iter().chain(&rest).copied().collect();
+        all.sort_unstable();
+        assert_eq!(all, (0..1000).collect::<Vec<_>>(), "disjoint and complete");
+        assert_eq!(
+            split_validation(1000, 64, 7).0,
+            held,
+            "the same seed, the same part"
+        );
+        assert_ne!(split_validation(1000, 64, 8).0, held);
+        // At most a tenth of the texels.
+        assert_eq!(split_validation(1000, 5000, 7).0.len(), 100);
+    }
 
     #[test]
     fn the_prior_weighs_each_learned_feature_toward_the_base() {
