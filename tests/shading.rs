@@ -488,3 +488,108 @@ fn ggx_fused_override_equals_the_generic_loop() {
         }
     }
 }
+
+/// Relative distance of two vectors: `|a − b| / |b|` (0 when both are 0).
+fn relative_distance(a: &[f32], b: &[f32]) -> f64 {
+    let (mut diff, mut norm) = (0f64, 0f64);
+    for (x, y) in a.iter().zip(b) {
+        diff += ((x - y) as f64).powi(2);
+        norm += (*y as f64).powi(2);
+    }
+    if norm == 0.0 {
+        diff.sqrt()
+    } else {
+        (diff / norm).sqrt()
+    }
+}
+
+#[test]
+fn every_tensor_form_equals_the_fused_loss_and_gradient() {
+    use matup::tensor::{params_tensor, texel_losses, LightTensors, SvbrdfTensors};
+    let lights = matup::LightSetSpec::default().build();
+    let mut checked_models = 0;
+    for registration in shading_models().unwrap() {
+        let model = (registration.create)(None).unwrap();
+        let Some(tensor_form) = model.tensor_form() else {
+            continue;
+        };
+        checked_models += 1;
+        let mut rng = StdRng::seed_from_u64(11);
+        // 64 texels, anywhere on the square, under all 100 training lights (grazing ones
+        // included): the clamps bite where they bite in training.
+        let mut texels = Vec::new();
+        while texels.len() < 64 {
+            if let Some((params, _)) = smooth_case(&mut rng) {
+                let position = [
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-0.02..0.02),
+                ];
+                texels.push(Texel { params, position });
+            }
+        }
+        // Targets 0.1–0.3 away from the renders in every channel (the norms' kinks at zero
+        // error stay out of the comparison).
+        let targets: Vec<Vec<[f32; 3]>> = texels
+            .iter()
+            .map(|t| {
+                let mut out = vec![[0f32; 3]; lights.len()];
+                model.render_texel(t, &lights, &mut out);
+                for v in out.iter_mut().flatten() {
+                    *v +=
+                        if rng.random_bool(0.5) { 1.0 } else { -1.0 } * rng.random_range(0.1..0.3);
+                }
+                out
+            })
+            .collect();
+        let device = Device::Cpu;
+        let positions: Vec<[f32; 3]> = texels.iter().map(|t| t.position).collect();
+        let light_tensors = LightTensors::new(&lights, &positions, &device).unwrap();
+        let flat: Vec<f32> = targets.iter().flatten().flatten().copied().collect();
+        let target_tensor =
+            Tensor::from_vec(flat, (texels.len(), lights.len(), 3), &device).unwrap();
+        let params: Vec<Svbrdf> = texels.iter().map(|t| t.params).collect();
+        for norm in [
+            LossNorm::L21,
+            LossNorm::L11,
+            LossNorm::L22,
+            LossNorm::Lpq { p: 1.5, q: 1.2 },
+        ] {
+            let var = Var::from_tensor(&params_tensor(&params, &device).unwrap()).unwrap();
+            let svbrdf = SvbrdfTensors::from_params(var.as_tensor()).unwrap();
+            let losses =
+                texel_losses(tensor_form, &svbrdf, &light_tensors, &target_tensor, &norm).unwrap();
+            let grads = losses.sum_all().unwrap().backward().unwrap();
+            let losses = losses.to_vec1::<f32>().unwrap();
+            let grad = grads
+                .get(var.as_tensor())
+                .unwrap()
+                .to_vec2::<f32>()
+                .unwrap();
+            for (i, texel) in texels.iter().enumerate() {
+                let mut fused_grad = Svbrdf::default();
+                let fused =
+                    model.texel_loss(texel, &lights, &targets[i], &norm, Some(&mut fused_grad));
+                let loss_error = ((losses[i] - fused) / fused).abs();
+                assert!(
+                    loss_error <= 1e-4,
+                    "{} {norm} texel {i}: tensor loss {} against fused {fused}",
+                    registration.name,
+                    losses[i]
+                );
+                let grad_error = relative_distance(&grad[i], &fused_grad.to_array());
+                assert!(
+                    grad_error <= 1e-4,
+                    "{} {norm} texel {i}: gradient relative error {grad_error:.2e}\n{:?}\n{:?}",
+                    registration.name,
+                    grad[i],
+                    fused_grad.to_array()
+                );
+            }
+        }
+    }
+    assert_eq!(
+        checked_models, 3,
+        "ggx, ggx-aniso and lambert have tensor forms"
+    );
+}

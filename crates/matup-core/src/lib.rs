@@ -26,6 +26,7 @@ pub mod select;
 pub mod shading;
 pub mod simd;
 pub mod targets;
+pub mod tensor;
 pub mod train;
 pub mod upsample;
 
@@ -45,5 +46,7 @@ pub use shading::{
 };
 pub use upsample::{upsampler, upsamplers, RgbUpsampler, UpsamplerRegistration};
 
-// Re-exported so plugin crates register without naming the same `inventory` version.
+// Re-exported so plugin crates register without naming the same `inventory` version, and
+// write tensor forms against the same `candle_core`.
+pub use candle_core;
 pub use inventory;

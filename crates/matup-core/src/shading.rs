@@ -4,6 +4,7 @@ use crate::color::{display, display_with_derivative};
 use crate::lights::{Light, LightSample};
 use crate::loss::LossNorm;
 use crate::plugin::{find_registration, sorted_registry, PluginOption, PluginSpec, Registration};
+use crate::tensor::TensorShading;
 use crate::Result;
 
 /// The view direction: the camera is orthographic and looks down −z.
@@ -127,6 +128,13 @@ pub trait ShadingModel: Send + Sync {
         grad: Option<&mut Svbrdf>,
     ) -> f32 {
         texel_loss(self, texel, lights, targets, norm, grad)
+    }
+
+    /// The model's tensor form, if it has one: batches of texels × lights as candle
+    /// operations, which the tensor training backend (`--backend tensor`, and any GPU)
+    /// differentiates with candle's autograd.
+    fn tensor_form(&self) -> Option<&dyn TensorShading> {
+        None
     }
 }
 

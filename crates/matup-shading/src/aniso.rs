@@ -5,6 +5,7 @@ use std::f32::consts::PI;
 
 use matup_core::material::MIN_ALPHA;
 use matup_core::shading::{ShadingModel, ShadingModelRegistration, Svbrdf};
+use matup_core::tensor::TensorShading;
 use matup_core::{LightSample, Result};
 
 use crate::dual::{Dual, Real};
@@ -107,6 +108,10 @@ impl ShadingModel for GgxAniso {
             out.map(|d| d.value),
             out.map(|d| Svbrdf::from_array(d.grad)),
         )
+    }
+
+    fn tensor_form(&self) -> Option<&dyn TensorShading> {
+        Some(self)
     }
 }
 

@@ -8,6 +8,7 @@ use matup_core::material::MIN_ALPHA;
 use matup_core::shading::{
     texel_loss, ShadingModel, ShadingModelRegistration, Svbrdf, Texel, VIEW,
 };
+use matup_core::tensor::TensorShading;
 use matup_core::{with_avx2, Light, LightSample, LossNorm, Result};
 
 use crate::vec3::*;
@@ -194,6 +195,10 @@ impl ShadingModel for Ggx {
             }
             other => with_avx2!(fused_loss(texel, lights, targets, grad, move |e| other.eval(e))),
         }
+    }
+
+    fn tensor_form(&self) -> Option<&dyn TensorShading> {
+        Some(self)
     }
 }
 

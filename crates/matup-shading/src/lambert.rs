@@ -3,6 +3,7 @@
 use std::f32::consts::PI;
 
 use matup_core::shading::{ShadingModel, ShadingModelRegistration, Svbrdf};
+use matup_core::tensor::TensorShading;
 use matup_core::{LightSample, Result};
 
 use crate::vec3::*;
@@ -29,6 +30,10 @@ impl ShadingModel for Lambert {
             j.normal = normalize_backward(g_unit, n, len);
         }
         (p.base_color.map(|b| light.intensity * nol * b / PI), jac)
+    }
+
+    fn tensor_form(&self) -> Option<&dyn TensorShading> {
+        Some(self)
     }
 }
 

@@ -5,6 +5,7 @@ mod aniso;
 mod dual;
 mod ggx;
 mod lambert;
+mod tensors;
 mod vec3;
 
 pub use aniso::GgxAniso;
