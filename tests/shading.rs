@@ -82,6 +82,9 @@ fn every_model_gradient_matches_finite_differences() {
     assert!(registry.len() >= 3, "ggx, ggx-aniso and lambert are linked");
     for registration in registry {
         let model = (registration.create)(None).unwrap();
+        if !model.has_jacobian() {
+            continue; // a tensor form only: autograd differentiates it
+        }
         let mut rng = StdRng::seed_from_u64(2024);
         let (mut checked, mut worst) = (0, 0f64);
         while checked < 400 {
@@ -89,7 +92,7 @@ fn every_model_gradient_matches_finite_differences() {
                 continue;
             };
             let w: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.5..1.5));
-            let (_, jacobian) = model.shade_jacobian(&p, &light);
+            let (_, jacobian) = model.shade_jacobian(&p, &light).unwrap();
             let analytic: Vec<f64> = (0..Svbrdf::LEN)
                 .map(|k| {
                     (0..3)
@@ -212,8 +215,8 @@ fn anisotropic_ggx_equals_ggx_without_anisotropy() {
             continue;
         };
         p.anisotropy = 0.0;
-        let (a, ja) = ggx.shade_jacobian(&p, &light);
-        let (b, jb) = aniso.shade_jacobian(&p, &light);
+        let (a, ja) = ggx.shade_jacobian(&p, &light).unwrap();
+        let (b, jb) = aniso.shade_jacobian(&p, &light).unwrap();
         for c in 0..3 {
             assert!(
                 (a[c] - b[c]).abs() <= 1e-4 * a[c].abs().max(1e-2),
@@ -321,7 +324,9 @@ fn every_model_stays_finite_under_adversarial_inputs() {
             let p = adversarial_params(&mut rng);
             let light = adversarial_light(&mut rng);
             let forward = model.shade(&p, &light);
-            let (rgb, jacobian) = model.shade_jacobian(&p, &light);
+            let (rgb, jacobian) = model
+                .shade_jacobian(&p, &light)
+                .unwrap_or((forward, Default::default()));
             let finite = forward.iter().chain(&rgb).all(|v| v.is_finite())
                 && jacobian
                     .iter()
@@ -510,7 +515,8 @@ fn every_tensor_form_equals_the_fused_loss_and_gradient() {
     let mut checked_models = 0;
     for registration in shading_models().unwrap() {
         let model = (registration.create)(None).unwrap();
-        let Some(tensor_form) = model.tensor_form() else {
+        // Models with both forms (a tensor form alone has nothing to be compared with).
+        let Some(tensor_form) = model.tensor_form().filter(|_| model.has_jacobian()) else {
             continue;
         };
         checked_models += 1;

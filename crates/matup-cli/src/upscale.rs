@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Args;
 use matup_core::config::{
-    Activation, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
+    Activation, Backend, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
 };
 use matup_core::io::{check_output_folder, save_png, write_atomic};
 use matup_core::pipeline::preview;
@@ -98,6 +98,14 @@ pub struct UpscaleArgs {
     /// result). Training stops earlier when a held-out loss stops improving.
     #[arg(long)]
     pub epochs: Option<usize>,
+    /// How training steps run: fused (matup's CPU kernels), tensor (candle operations, any
+    /// device; the shading model needs a tensor form) or auto (fused on the CPU, tensor on a
+    /// GPU).
+    #[arg(long)]
+    pub backend: Option<Backend>,
+    /// Where training runs: cpu, cuda or cuda:N (CUDA needs a build with --features cuda).
+    #[arg(long)]
+    pub device: Option<String>,
     /// Stop training when the held-out loss stops improving (the default).
     #[arg(long, conflicts_with = "no_early_stop")]
     pub early_stop: bool,
@@ -170,6 +178,7 @@ impl UpscaleArgs {
             input_interpolation => filter.input, residual_base => filter.residual_base,
             lr => train.learning_rate, batch_size => train.batch_size, schedule => train.schedule,
             epochs => train.epochs, loss => train.loss, targets => train.targets,
+            backend => train.backend, device => train.device,
             select => select,
             lr_consistency => train.lr_consistency, cross_scale => train.cross_scale,
         );
@@ -277,10 +286,12 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
             let t = &level.training;
             if t.stopped != Stop::NotTrained {
                 println!(
-                    "  level {}: trained {:.2} of {} epochs, {}",
+                    "  level {}: trained {:.2} of {} epochs ({} backend, {}), {}",
                     i + 1,
                     t.epochs_trained,
                     config.train.epochs,
+                    t.backend,
+                    t.device,
                     t.stopped
                 );
             }

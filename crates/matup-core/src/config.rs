@@ -36,7 +36,8 @@ serde_as_string!(
     Interpolation,
     ResidualBase,
     TargetKind,
-    Selection
+    Selection,
+    Backend
 );
 
 /// The hidden layers' nonlinearity.
@@ -399,6 +400,56 @@ impl PriorConfig {
     }
 }
 
+/// Why a tensor-backend run refuses β and γ (their ops have CPU kernels only).
+pub(crate) const FUSED_ONLY_TERMS: &str = "train.lr_consistency (β) and train.cross_scale (γ) are trained by the fused backend only (train.backend = fused, on the CPU)";
+
+/// How training steps are computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backend {
+    /// `fused` on the CPU, `tensor` on any other device.
+    Auto,
+    /// matup's CPU kernels: the render loss with each model's hand-derived gradient.
+    Fused,
+    /// candle tensor operations on any device, differentiated by candle's autograd (the
+    /// shading model needs a tensor form).
+    Tensor,
+}
+
+impl Backend {
+    /// The backend `auto` stands for on `device`.
+    pub fn resolve(self, device: &candle_core::Device) -> Backend {
+        match self {
+            Backend::Auto if device.is_cpu() => Backend::Fused,
+            Backend::Auto => Backend::Tensor,
+            other => other,
+        }
+    }
+}
+
+impl FromStr for Backend {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "auto" => Ok(Backend::Auto),
+            "fused" => Ok(Backend::Fused),
+            "tensor" => Ok(Backend::Tensor),
+            _ => Err(Error::Invalid(format!(
+                "unknown backend '{s}'; use auto, fused or tensor"
+            ))),
+        }
+    }
+}
+
+impl fmt::Display for Backend {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Backend::Auto => "auto",
+            Backend::Fused => "fused",
+            Backend::Tensor => "tensor",
+        })
+    }
+}
+
 /// Training.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -427,6 +478,10 @@ pub struct TrainConfig {
     pub texels_per_epoch: Option<usize>,
     /// Stop before `epochs` when a held-out validation loss stops improving.
     pub early_stop: EarlyStopConfig,
+    /// How the steps are computed.
+    pub backend: Backend,
+    /// Where: `cpu`, `cuda` or `cuda:N`.
+    pub device: String,
 }
 
 /// Convergence-based stopping: `train.epochs` is a maximum. A fixed set of texels is held out
@@ -476,6 +531,8 @@ impl Default for TrainConfig {
             cross_scale: 0.0,
             texels_per_epoch: None,
             early_stop: EarlyStopConfig::default(),
+            backend: Backend::Auto,
+            device: "cpu".into(),
         }
     }
 }
@@ -613,6 +670,17 @@ impl Config {
         }
         if self.lights.count == 0 {
             return bad("lights.count must be at least 1".into());
+        }
+        let on_cpu = crate::tensor::cuda_ordinal(&t.device)?.is_none();
+        let tensor = t.backend == Backend::Tensor || (t.backend == Backend::Auto && !on_cpu);
+        if t.backend == Backend::Fused && !on_cpu {
+            return bad(format!(
+                "train.backend fused runs on the CPU only; use tensor (or auto) with train.device {}",
+                t.device
+            ));
+        }
+        if tensor && (t.lr_consistency > 0.0 || t.cross_scale > 0.0) {
+            return bad(FUSED_ONLY_TERMS.into());
         }
         let e = &t.early_stop;
         if e.enabled {

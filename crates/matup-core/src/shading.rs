@@ -103,9 +103,28 @@ pub trait ShadingModel: Send + Sync {
     /// Linear RGB radiance towards [`VIEW`].
     fn shade(&self, texel: &Svbrdf, light: &LightSample) -> [f32; 3];
 
-    /// The radiance and its Jacobian: `jacobian[c]` holds `d radiance[c] / d parameter` for
-    /// every parameter of [`Svbrdf`].
-    fn shade_jacobian(&self, texel: &Svbrdf, light: &LightSample) -> ([f32; 3], [Svbrdf; 3]);
+    /// The radiance and its hand-derived Jacobian: `jacobian[c]` holds
+    /// `d radiance[c] / d parameter` for every parameter of [`Svbrdf`]; the fused CPU backend
+    /// trains with it. `None` (the default): the model has no Jacobian of its own and trains
+    /// with the tensor backend, through its [`tensor_form`](Self::tensor_form).
+    fn shade_jacobian(
+        &self,
+        texel: &Svbrdf,
+        light: &LightSample,
+    ) -> Option<([f32; 3], [Svbrdf; 3])> {
+        let _ = (texel, light);
+        None
+    }
+
+    /// Whether [`shade_jacobian`](Self::shade_jacobian) answers, so the fused backend can
+    /// train the model.
+    fn has_jacobian(&self) -> bool {
+        let light = LightSample {
+            direction: VIEW,
+            intensity: 1.0,
+        };
+        self.shade_jacobian(&Svbrdf::default(), &light).is_some()
+    }
 
     /// Display-space colour of one texel under each light (`out[i]` for `lights[i]`).
     fn render_texel(&self, texel: &Texel, lights: &[Light], out: &mut [[f32; 3]]) {
@@ -138,7 +157,8 @@ pub trait ShadingModel: Send + Sync {
     }
 }
 
-/// The generic fused render + loss of [`ShadingModel::texel_loss`], light by light.
+/// The generic fused render + loss of [`ShadingModel::texel_loss`], light by light. With
+/// `grad` and a model without a Jacobian the loss is NaN (train it with the tensor backend).
 #[inline]
 pub fn texel_loss<M: ShadingModel + ?Sized>(
     model: &M,
@@ -160,8 +180,11 @@ pub fn texel_loss<M: ShadingModel + ?Sized>(
         }
         Some(grad) => {
             for (light, target) in lights.iter().zip(targets) {
-                let (rgb, jacobian) =
-                    model.shade_jacobian(&texel.params, &light.sample_at(texel.position));
+                let Some((rgb, jacobian)) =
+                    model.shade_jacobian(&texel.params, &light.sample_at(texel.position))
+                else {
+                    return f32::NAN;
+                };
                 let shown = rgb.map(display_with_derivative);
                 let e = std::array::from_fn(|c| shown[c].0 - target[c]);
                 let (loss, de) = norm.eval(e);

@@ -144,16 +144,26 @@ pub fn tensor_form<'a>(model: &'a dyn ShadingModel, name: &str) -> Result<&'a dy
     })
 }
 
-/// A candle device from `cpu`, `cuda` or `cuda:N`.
-pub fn parse_device(spec: &str) -> Result<Device> {
-    let bad = || Error::Invalid(format!("unknown device '{spec}'; use cpu, cuda or cuda:N"));
-    let ordinal = match spec {
-        "cpu" => return Ok(Device::Cpu),
-        "cuda" => 0,
+/// The CUDA device a device spec names: `None` for `cpu`, `Some(N)` for `cuda` (N = 0) or
+/// `cuda:N`.
+pub fn cuda_ordinal(spec: &str) -> Result<Option<usize>> {
+    match spec {
+        "cpu" => Ok(None),
+        "cuda" => Ok(Some(0)),
         _ => spec
             .strip_prefix("cuda:")
             .and_then(|n| n.parse::<usize>().ok())
-            .ok_or_else(bad)?,
+            .map(Some)
+            .ok_or_else(|| {
+                Error::Invalid(format!("unknown device '{spec}'; use cpu, cuda or cuda:N"))
+            }),
+    }
+}
+
+/// A candle device from `cpu`, `cuda` or `cuda:N`.
+pub fn parse_device(spec: &str) -> Result<Device> {
+    let Some(ordinal) = cuda_ordinal(spec)? else {
+        return Ok(Device::Cpu);
     };
     if !candle_core::utils::cuda_is_available() {
         return Err(Error::Invalid(format!(

@@ -100,14 +100,14 @@ impl ShadingModel for GgxAniso {
         radiance(p.to_array(), light)
     }
 
-    fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> ([f32; 3], [Svbrdf; 3]) {
+    fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> Option<([f32; 3], [Svbrdf; 3])> {
         let params = p.to_array();
         let duals: [Dual; Svbrdf::LEN] = std::array::from_fn(|i| Dual::variable(params[i], i));
         let out = radiance(duals, light);
-        (
+        Some((
             out.map(|d| d.value),
             out.map(|d| Svbrdf::from_array(d.grad)),
-        )
+        ))
     }
 
     fn tensor_form(&self) -> Option<&dyn TensorShading> {

@@ -108,7 +108,7 @@ impl ShadingModel for Ggx {
     }
 
     #[inline]
-    fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> ([f32; 3], [Svbrdf; 3]) {
+    fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> Option<([f32; 3], [Svbrdf; 3])> {
         let k = lobe(p, light);
         let (m, intensity, l) = (p.metallic, light.intensity, light.direction);
         let a2 = k.a * k.a;
@@ -166,7 +166,7 @@ impl ShadingModel for Ggx {
             j.normal = normalize_backward(g_unit, k.n, k.normal_len);
             j.alpha = through_spec * dspec_dalpha;
         }
-        (rgb, jac)
+        Some((rgb, jac))
     }
 
     /// The training hot path: the same computation as the generic fused loss, 16 lights at a

@@ -19,7 +19,7 @@ impl ShadingModel for Lambert {
         p.base_color.map(|b| light.intensity * nol * b / PI)
     }
 
-    fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> ([f32; 3], [Svbrdf; 3]) {
+    fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> Option<([f32; 3], [Svbrdf; 3])> {
         let (n, len) = normalize(p.normal);
         let (nol, free) = clamp_dot(dot(n, light.direction));
         let mut jac = [Svbrdf::default(); 3];
@@ -29,7 +29,7 @@ impl ShadingModel for Lambert {
             let g_unit = scale(light.direction, light.intensity * b / PI * free);
             j.normal = normalize_backward(g_unit, n, len);
         }
-        (p.base_color.map(|b| light.intensity * nol * b / PI), jac)
+        Some((p.base_color.map(|b| light.intensity * nol * b / PI), jac))
     }
 
     fn tensor_form(&self) -> Option<&dyn TensorShading> {

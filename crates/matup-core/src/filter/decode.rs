@@ -2,6 +2,8 @@
 //! rebuilt from (nx, ny) (METHOD.md), with the adjoint for training. Training and inference
 //! both decode through here.
 
+use candle_core::Tensor;
+
 use super::FEATURES;
 use crate::material::MIN_ALPHA;
 use crate::shading::Svbrdf;
@@ -88,6 +90,50 @@ pub fn decode(raw: &[f32], base: &[f32], fixed: &[Option<f32>; FEATURES]) -> Dec
         mask,
         normal_jacobian,
     }
+}
+
+/// [`decode`] for a batch as candle operations (the tensor training backend): raw
+/// residuals `[B, 7]` on base `[B, 7]` → the `[B, 10]` shading parameters and the decoded
+/// `[B, 7]` features, differentiable by candle's autograd. Where the scalar form masks a
+/// clamped value's gradient, the clamps here do the same.
+pub fn decode_tensors(
+    raw: &Tensor,
+    base: &Tensor,
+    fixed: &[Option<f32>; FEATURES],
+) -> candle_core::Result<(Tensor, Tensor)> {
+    let v = (raw + base)?;
+    let b = v.dim(0)?;
+    let feature = |k: usize| match fixed[k] {
+        Some(c) => Tensor::full(c, (b, 1), v.device()),
+        None => v.narrow(1, k, 1),
+    };
+    let base_color = Tensor::cat(&[feature(0)?, feature(1)?, feature(2)?], 1)?.clamp(0f32, 1f32)?;
+    let metallic = feature(3)?.clamp(0f32, 1f32)?;
+    let alpha = feature(6)?.clamp(MIN_ALPHA, 1f32)?;
+    // (x, y) scaled to length ≤ 0.999, then z = √max(1 − x² − y², 1e-3). The length is
+    // floored so that the unused branch of the minimum keeps a finite gradient at 0.
+    let (x, y) = (feature(4)?, feature(5)?);
+    let length = (x.sqr()? + y.sqr()?)?.maximum(1e-12f32)?.sqrt()?;
+    let shrink = (length.recip()? * MAX_TANGENT_LENGTH as f64)?.minimum(1f32)?;
+    let (tx, ty) = ((x * &shrink)?, (y * &shrink)?);
+    let z = (tx.sqr()? + ty.sqr()?)?
+        .affine(-1.0, 1.0)?
+        .maximum(MIN_NZ2)?
+        .sqrt()?;
+    let params = Tensor::cat(
+        &[
+            &base_color,
+            &metallic,
+            &tx,
+            &ty,
+            &z,
+            &alpha,
+            &Tensor::zeros((b, 2), v.dtype(), v.device())?,
+        ],
+        1,
+    )?;
+    let features = Tensor::cat(&[&base_color, &metallic, &tx, &ty, &alpha], 1)?;
+    Ok((params, features))
 }
 
 impl Decoded {

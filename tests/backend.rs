@@ -1,0 +1,141 @@
+//! The two training backends compute the same thing: the tensor backend (candle operations
+//! and autograd, any device; here the CPU) against the fused CPU kernels, on the shipped
+//! sample.
+
+mod common;
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use matup::config::{Backend, Config};
+use matup::material::Material;
+use matup::progress::{Progress, Silent};
+use matup::{RunOptions, RunReport};
+
+fn sample() -> Material {
+    matup::load_material(Some(&common::sample_material()), &Default::default()).unwrap()
+}
+
+/// The paper's settings with `lanczos3` targets, 3 epochs of 16 384 texels (128 steps each).
+fn config(backend: Backend) -> Config {
+    let mut c = Config {
+        upsampler: "lanczos3".into(),
+        seed: 3,
+        ..Config::paper()
+    };
+    c.train.epochs = 3;
+    c.train.texels_per_epoch = Some(16_384);
+    c.train.backend = backend;
+    c
+}
+
+fn run(config: &Config, options: &RunOptions, progress: &dyn Progress) -> (Material, RunReport) {
+    matup::upscale(&sample(), config, options, progress).unwrap()
+}
+
+#[test]
+fn the_tensor_backend_trains_to_the_fused_loss() {
+    let (fused, fused_report) = run(&config(Backend::Fused), &RunOptions::default(), &Silent);
+    let (tensor, tensor_report) = run(&config(Backend::Tensor), &RunOptions::default(), &Silent);
+    let (a, b) = (
+        &fused_report.levels[0].training,
+        &tensor_report.levels[0].training,
+    );
+    assert_eq!(
+        (a.backend.as_str(), b.backend.as_str()),
+        ("fused", "tensor")
+    );
+    assert_eq!(a.steps, b.steps);
+    // Same start, same batches: the losses agree to the last epoch.
+    let (x, y) = (a.epoch_losses[2], b.epoch_losses[2]);
+    assert!(((x - y) / x).abs() <= 1e-3, "fused {x}, tensor {y}");
+    assert!(
+        y < b.epoch_losses[0],
+        "the tensor backend trains: {:?}",
+        b.epoch_losses
+    );
+    // And so do the maps they give (base colour, 8-bit steps are 0.004).
+    let diff = fused
+        .base_color
+        .data()
+        .iter()
+        .zip(tensor.base_color.data())
+        .map(|(p, q)| (p - q).abs() as f64)
+        .sum::<f64>()
+        / fused.base_color.data().len() as f64;
+    assert!(diff < 1e-3, "mean base colour difference {diff}");
+}
+
+/// Asks training to stop once `limit` steps are done.
+struct StopAfter {
+    steps: AtomicU64,
+    limit: u64,
+}
+
+impl Progress for StopAfter {
+    fn advance(&self, done: u64, loss: Option<f64>) {
+        if loss.is_some() {
+            self.steps.fetch_add(done, Ordering::SeqCst);
+        }
+    }
+    fn cancelled(&self) -> bool {
+        self.steps.load(Ordering::SeqCst) >= self.limit
+    }
+}
+
+#[test]
+fn an_interrupted_tensor_run_resumes_from_its_checkpoint() {
+    let c = config(Backend::Tensor);
+    let folder = tempfile::tempdir().unwrap();
+    let options = RunOptions {
+        checkpoint_folder: Some(folder.path().to_path_buf()),
+        resume: true,
+        ..Default::default()
+    };
+    let stop = StopAfter {
+        steps: AtomicU64::new(0),
+        limit: 128 + 40,
+    };
+    let error = matup::upscale(&sample(), &c, &options, &stop).unwrap_err();
+    assert!(
+        matches!(error, matup::Error::Cancelled { epochs_done: 1 }),
+        "{error}"
+    );
+    let (_, resumed) = run(&c, &options, &Silent);
+    let (_, whole) = run(&c, &RunOptions::default(), &Silent);
+    let (r, w) = (&resumed.levels[0].training, &whole.levels[0].training);
+    assert_eq!(r.resumed_epochs, 1);
+    assert_eq!(
+        r.epoch_losses[0], w.epoch_losses[0],
+        "the first epoch comes from the checkpoint"
+    );
+    // The weights resume exactly; candle-nn's AdamW restarts its moments, so the rest is
+    // close, not equal.
+    let (x, y) = (w.epoch_losses[2], r.epoch_losses[2]);
+    assert!(((x - y) / x).abs() < 0.05, "uninterrupted {x}, resumed {y}");
+}
+
+#[test]
+fn backends_and_devices_are_checked_before_anything_runs() {
+    let mut c = config(Backend::Tensor);
+    c.train.lr_consistency = 10.0;
+    let e = c.validate().unwrap_err().to_string();
+    assert!(e.contains("fused backend only"), "{e}");
+
+    let mut c = config(Backend::Fused);
+    c.train.device = "cuda".into();
+    let e = c.validate().unwrap_err().to_string();
+    assert!(e.contains("CPU only"), "{e}");
+
+    let mut c = config(Backend::Auto);
+    c.train.device = "gpu".into();
+    let e = c.validate().unwrap_err().to_string();
+    assert!(e.contains("use cpu, cuda or cuda:N"), "{e}");
+
+    // This build has no CUDA: asking for it says so instead of failing later.
+    if !matup::candle_core::utils::cuda_is_available() {
+        let mut c = config(Backend::Auto);
+        c.train.device = "cuda:0".into();
+        let error = matup::upscale(&sample(), &c, &RunOptions::default(), &Silent).unwrap_err();
+        assert!(error.to_string().contains("--features cuda"), "{error}");
+    }
+}
