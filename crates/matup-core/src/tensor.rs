@@ -136,11 +136,11 @@ pub fn texel_losses(
 }
 
 /// The tensor form of `model`, or an error saying it has none.
-pub fn tensor_form<'a>(model: &'a dyn ShadingModel, name: &str) -> Result<&'a dyn TensorShading> {
+pub fn tensor_form(model: &dyn ShadingModel) -> Result<&dyn TensorShading> {
     model.tensor_form().ok_or_else(|| {
-        Error::Invalid(format!(
-            "shading model '{name}' has no tensor form; train it with --backend fused"
-        ))
+        Error::Invalid(
+            "the shading model has no tensor form, so the tensor backend cannot train it; use --backend fused (on the CPU)".into(),
+        )
     })
 }
 

@@ -55,7 +55,7 @@ impl<'a> TensorStepper<'a> {
         batch: usize,
         device: &Device,
     ) -> Result<TensorStepper<'a>> {
-        let model = tensor_form(terms.shading.model.as_ref(), "the run's")?;
+        let model = tensor_form(terms.shading.model.as_ref())?;
         let varmap = VarMap::new();
         let mut layers = Vec::new();
         {
