@@ -4,8 +4,6 @@
 
 mod common;
 
-use std::sync::atomic::{AtomicU64, Ordering};
-
 use matup::config::{Backend, Config};
 use matup::material::Material;
 use matup::progress::{Progress, Silent};
@@ -65,41 +63,12 @@ fn the_tensor_backend_trains_to_the_fused_loss() {
     assert!(diff < 1e-3, "mean base colour difference {diff}");
 }
 
-/// Asks training to stop once `limit` steps are done.
-struct StopAfter {
-    steps: AtomicU64,
-    limit: u64,
-}
-
-impl Progress for StopAfter {
-    fn advance(&self, done: u64, loss: Option<f64>) {
-        if loss.is_some() {
-            self.steps.fetch_add(done, Ordering::SeqCst);
-        }
-    }
-    fn cancelled(&self) -> bool {
-        self.steps.load(Ordering::SeqCst) >= self.limit
-    }
-}
-
 #[test]
 fn an_interrupted_tensor_run_resumes_from_its_checkpoint() {
     let c = config(Backend::Tensor);
     let folder = tempfile::tempdir().unwrap();
-    let options = RunOptions {
-        checkpoint_folder: Some(folder.path().to_path_buf()),
-        resume: true,
-        ..Default::default()
-    };
-    let stop = StopAfter {
-        steps: AtomicU64::new(0),
-        limit: 128 + 40,
-    };
-    let error = matup::upscale(&sample(), &c, &options, &stop).unwrap_err();
-    assert!(
-        matches!(error, matup::Error::Cancelled { epochs_done: 1 }),
-        "{error}"
-    );
+    // 128 steps an epoch: stop during the second.
+    let options = common::interrupt_in_second_epoch(&sample(), &c, folder.path(), 128 + 40);
     let (_, resumed) = run(&c, &options, &Silent);
     let (_, whole) = run(&c, &RunOptions::default(), &Silent);
     let (r, w) = (&resumed.levels[0].training, &whole.levels[0].training);

@@ -3,14 +3,13 @@
 
 mod common;
 
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::OnceLock;
 
 use matup::config::Config;
 use matup::lights::Light;
 use matup::material::Material;
 use matup::pipeline::wrap_seam_ratio;
-use matup::progress::{Progress, Silent};
+use matup::progress::Silent;
 use matup::render::{render, RenderOptions};
 use matup::train::Stop;
 use matup::{
@@ -165,42 +164,12 @@ fn a_seed_makes_runs_repeat() {
     assert_ne!(different.base_color, hr.base_color);
 }
 
-/// Asks training to stop once `limit` steps are done.
-struct StopAfter {
-    steps: AtomicU64,
-    limit: u64,
-}
-
-impl Progress for StopAfter {
-    fn advance(&self, done: u64, loss: Option<f64>) {
-        if loss.is_some() {
-            self.steps.fetch_add(done, Ordering::SeqCst);
-        }
-    }
-    fn cancelled(&self) -> bool {
-        self.steps.load(Ordering::SeqCst) >= self.limit
-    }
-}
-
 #[test]
 fn resuming_after_an_interruption_gives_the_uninterrupted_result() {
     let (lr, hr, _) = wood();
     let folder = tempfile::tempdir().unwrap();
-    let options = RunOptions {
-        checkpoint_folder: Some(folder.path().to_path_buf()),
-        resume: true,
-        ..Default::default()
-    };
     // 128² texels / 128 per batch = 128 steps an epoch: stop during the second epoch.
-    let stop = StopAfter {
-        steps: AtomicU64::new(0),
-        limit: 128 + 40,
-    };
-    let error = matup::upscale(lr, &quick_config(1), &options, &stop).unwrap_err();
-    assert!(
-        matches!(error, matup::Error::Cancelled { epochs_done: 1 }),
-        "{error}"
-    );
+    let options = common::interrupt_in_second_epoch(lr, &quick_config(1), folder.path(), 128 + 40);
     let (resumed, report) = matup::upscale(lr, &quick_config(1), &options, &Silent).unwrap();
     assert_eq!(report.levels[0].training.resumed_epochs, 1);
     assert_eq!(&resumed, hr, "resumed = uninterrupted");
@@ -252,21 +221,8 @@ fn an_early_stopped_run_resumes_to_the_same_stop() {
     let config = early_stop_config();
     let (whole, whole_report) = run(lr, &config);
     let folder = tempfile::tempdir().unwrap();
-    let options = RunOptions {
-        checkpoint_folder: Some(folder.path().to_path_buf()),
-        resume: true,
-        ..Default::default()
-    };
     // Stop during the second epoch (116 steps each), after its first check.
-    let stop = StopAfter {
-        steps: AtomicU64::new(0),
-        limit: 116 + 80,
-    };
-    let error = matup::upscale(lr, &config, &options, &stop).unwrap_err();
-    assert!(
-        matches!(error, matup::Error::Cancelled { epochs_done: 1 }),
-        "{error}"
-    );
+    let options = common::interrupt_in_second_epoch(lr, &config, folder.path(), 116 + 80);
     let (resumed, report) = matup::upscale(lr, &config, &options, &Silent).unwrap();
     let (a, b) = (&report.levels[0].training, &whole_report.levels[0].training);
     assert_eq!(a.resumed_epochs, 1);

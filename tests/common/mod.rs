@@ -1,9 +1,13 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
-use matup::Map;
+use matup::config::Config;
+use matup::material::Material;
+use matup::progress::Progress;
+use matup::{Map, RunOptions};
 
 /// `../shared/materials/<name>` (CI checks the repository out with `shared/` beside it).
 pub fn shared_material(name: &str) -> PathBuf {
@@ -34,4 +38,46 @@ pub fn max_abs_diff(a: &Map, b: &Map) -> f32 {
         .zip(b.data())
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f32::max)
+}
+
+/// Asks training to stop once `limit` steps are done.
+pub struct StopAfter {
+    steps: AtomicU64,
+    limit: u64,
+}
+
+impl Progress for StopAfter {
+    fn advance(&self, done: u64, loss: Option<f64>) {
+        if loss.is_some() {
+            self.steps.fetch_add(done, Ordering::SeqCst);
+        }
+    }
+    fn cancelled(&self) -> bool {
+        self.steps.load(Ordering::SeqCst) >= self.limit
+    }
+}
+
+/// Runs `config` on `lr` with checkpoints in `folder` and interrupts it after `steps`
+/// training steps, which must fall in its second epoch; returns the options that resume it.
+pub fn interrupt_in_second_epoch(
+    lr: &Material,
+    config: &Config,
+    folder: &Path,
+    steps: u64,
+) -> RunOptions {
+    let options = RunOptions {
+        checkpoint_folder: Some(folder.to_path_buf()),
+        resume: true,
+        ..Default::default()
+    };
+    let stop = StopAfter {
+        steps: AtomicU64::new(0),
+        limit: steps,
+    };
+    let error = matup::upscale(lr, config, &options, &stop).unwrap_err();
+    assert!(
+        matches!(error, matup::Error::Cancelled { epochs_done: 1 }),
+        "{error}"
+    );
+    options
 }
