@@ -494,20 +494,6 @@ fn ggx_fused_override_equals_the_generic_loop() {
     }
 }
 
-/// Relative distance of two vectors: `|a − b| / |b|` (0 when both are 0).
-fn relative_distance(a: &[f32], b: &[f32]) -> f64 {
-    let (mut diff, mut norm) = (0f64, 0f64);
-    for (x, y) in a.iter().zip(b) {
-        diff += ((x - y) as f64).powi(2);
-        norm += (*y as f64).powi(2);
-    }
-    if norm == 0.0 {
-        diff.sqrt()
-    } else {
-        (diff / norm).sqrt()
-    }
-}
-
 #[test]
 fn every_tensor_form_equals_the_fused_loss_and_gradient() {
     use matup::tensor::{params_tensor, texel_losses, LightTensors, SvbrdfTensors};
@@ -583,7 +569,8 @@ fn every_tensor_form_equals_the_fused_loss_and_gradient() {
                     registration.name,
                     losses[i]
                 );
-                let grad_error = relative_distance(&grad[i], &fused_grad.to_array());
+                let as_f64 = |v: &[f32]| v.iter().map(|&g| g as f64).collect::<Vec<_>>();
+                let grad_error = relative_error(&as_f64(&grad[i]), &as_f64(&fused_grad.to_array()));
                 assert!(
                     grad_error <= 1e-4,
                     "{} {norm} texel {i}: gradient relative error {grad_error:.2e}\n{:?}\n{:?}",

@@ -83,34 +83,28 @@ fn stage(report: &serde_json::Value, suffix: &str) -> f64 {
         .fold(0.0, |a, b| a + b)
 }
 
+/// The flags of METHOD.md's settings (`configs/paper.toml`, `paper`) with `lanczos3` targets,
+/// `epochs` epochs and `extra`.
+fn paper_args<'a>(paper: &'a str, epochs: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec![
+        "--config",
+        paper,
+        "--upsampler",
+        "lanczos3",
+        "--epochs",
+        epochs,
+    ];
+    args.extend_from_slice(extra);
+    args
+}
+
 fn main() {
     // `cargo bench` passes `--bench`; nothing else to parse.
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let epochs = std::env::var("MATUP_BENCH_EPOCHS").unwrap_or_else(|_| "10".into());
     let paper = repo().join("configs/paper.toml");
     let paper = paper.to_str().unwrap();
-    let trained = |epochs: &'static str| {
-        [
-            "--config",
-            paper,
-            "--upsampler",
-            "lanczos3",
-            "--epochs",
-            epochs,
-        ]
-    };
     let sample = repo().join("samples/victorian_wood");
-    let paper_sample = |early_stop: &'static str| {
-        [
-            "--config",
-            paper,
-            "--upsampler",
-            "lanczos3",
-            "--epochs",
-            &epochs,
-            early_stop,
-        ]
-    };
     let mut rows = vec![
         run(
             "sample 128²→512², defaults (README main job)",
@@ -122,13 +116,13 @@ fn main() {
             &format!("sample 128²→512², paper settings, lanczos3, {epochs} epochs"),
             &sample,
             512,
-            &paper_sample("--no-early-stop"),
+            &paper_args(paper, &epochs, &["--no-early-stop"]),
         ),
         run(
             &format!("sample 128²→512², paper settings, lanczos3, ≤ {epochs} epochs, early stop"),
             &sample,
             512,
-            &paper_sample("--early-stop"),
+            &paper_args(paper, &epochs, &["--early-stop"]),
         ),
     ];
     for lr in [64, 128, 256] {
@@ -143,19 +137,17 @@ fn main() {
             &format!("wood {lr}²→{}², paper settings, 1 epoch", 4 * lr),
             dir.path(),
             4 * lr,
-            &trained("1"),
+            &paper_args(paper, "1", &[]),
         ));
     }
     if std::env::var("MATUP_BENCH_4K").is_ok_and(|v| v == "1") {
         let dir = downsampled("polyhaven_wood_cabinet_worn_long", 1024);
         rows.push(run("wood 1K²→4K², defaults", dir.path(), 4096, &[]));
-        let mut args = trained("1").to_vec();
-        args.extend(["--texels-per-epoch", "262144"]);
         rows.push(run(
             "wood 1K²→4K², paper settings, 1 epoch of 262144 texels",
             dir.path(),
             4096,
-            &args,
+            &paper_args(paper, "1", &["--texels-per-epoch", "262144"]),
         ));
     }
 

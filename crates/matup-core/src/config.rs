@@ -416,10 +416,10 @@ pub enum Backend {
 }
 
 impl Backend {
-    /// The backend `auto` stands for on `device`.
-    pub fn resolve(self, device: &candle_core::Device) -> Backend {
+    /// The backend `auto` stands for, on the CPU or not.
+    pub fn resolve(self, on_cpu: bool) -> Backend {
         match self {
-            Backend::Auto if device.is_cpu() => Backend::Fused,
+            Backend::Auto if on_cpu => Backend::Fused,
             Backend::Auto => Backend::Tensor,
             other => other,
         }
@@ -672,7 +672,7 @@ impl Config {
             return bad("lights.count must be at least 1".into());
         }
         let on_cpu = crate::tensor::cuda_ordinal(&t.device)?.is_none();
-        let tensor = t.backend == Backend::Tensor || (t.backend == Backend::Auto && !on_cpu);
+        let tensor = t.backend.resolve(on_cpu) == Backend::Tensor;
         if t.backend == Backend::Fused && !on_cpu {
             return bad(format!(
                 "train.backend fused runs on the CPU only; use tensor (or auto) with train.device {}",

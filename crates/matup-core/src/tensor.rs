@@ -4,7 +4,7 @@
 //! numbers texel by texel; `tests/shading.rs` holds the two equal for every model that has
 //! both forms.
 
-use candle_core::{DType, Device, Tensor, D};
+use candle_core::{Device, Tensor, D};
 
 use crate::lights::Light;
 use crate::loss::LossNorm;
@@ -176,5 +176,5 @@ pub fn parse_device(spec: &str) -> Result<Device> {
 /// `[T, 10]` parameters of `texels` as one tensor (tests and tools).
 pub fn params_tensor(texels: &[Svbrdf], device: &Device) -> candle_core::Result<Tensor> {
     let flat: Vec<f32> = texels.iter().flat_map(|p| p.to_array()).collect();
-    Tensor::from_vec(flat, (texels.len(), Svbrdf::LEN), device)?.to_dtype(DType::F32)
+    Tensor::from_vec(flat, (texels.len(), Svbrdf::LEN), device)
 }

@@ -284,7 +284,7 @@ fn training_backend(
     model: &dyn ShadingModel,
     cross_scale: bool,
 ) -> Result<Backend> {
-    let backend = match config.backend.resolve(device) {
+    let backend = match config.backend.resolve(device.is_cpu()) {
         Backend::Fused if !model.has_jacobian() => {
             if config.backend != Backend::Auto {
                 return Err(Error::Invalid(
