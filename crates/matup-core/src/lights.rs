@@ -1,5 +1,7 @@
 //! Point-light sets: the Fibonacci training set of METHOD.md and a Hammersley held-out set.
 
+use glam::Vec3;
+
 /// A point light.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Light {
@@ -22,15 +24,10 @@ impl Light {
     /// The light as seen from a shading point.
     #[inline]
     pub fn sample_at(&self, point: [f32; 3]) -> LightSample {
-        let d = [
-            self.position[0] - point[0],
-            self.position[1] - point[1],
-            self.position[2] - point[2],
-        ];
-        let dist2 = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).max(1e-20);
-        let inv = 1.0 / dist2.sqrt();
+        let d = Vec3::from(self.position) - Vec3::from(point);
+        let dist2 = d.length_squared().max(1e-20);
         LightSample {
-            direction: [d[0] * inv, d[1] * inv, d[2] * inv],
+            direction: (d * dist2.sqrt().recip()).to_array(),
             intensity: if self.falloff {
                 self.intensity / dist2
             } else {
@@ -142,9 +139,9 @@ fn lift_low_elevation(d: [f32; 3]) -> [f32; 3] {
     if d[2] >= LOW_ELEVATION {
         return d;
     }
-    let lifted = [d[0], d[1], d[2].max(0.0).sqrt()];
-    let len = lifted.iter().map(|v| v * v).sum::<f32>().sqrt();
-    lifted.map(|v| v / len)
+    Vec3::new(d[0], d[1], d[2].max(0.0).sqrt())
+        .normalize()
+        .to_array()
 }
 
 #[cfg(test)]

@@ -332,17 +332,15 @@ pub fn normalize_normals(normal: &mut Map) {
     let n = normal.texels();
     let data = normal.data_mut();
     for i in 0..n {
-        let v = [data[i], data[n + i], data[2 * n + i]];
-        let len2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-        let u = if len2 > 1e-12 {
-            let inv = 1.0 / len2.sqrt();
-            v.map(|c| c * inv)
+        let v = glam::Vec3::new(data[i], data[n + i], data[2 * n + i]);
+        let u = if v.length_squared() > 1e-12 {
+            v.normalize()
         } else {
-            [0.0, 0.0, 1.0]
+            glam::Vec3::Z
         };
-        data[i] = u[0];
-        data[n + i] = u[1];
-        data[2 * n + i] = u[2];
+        data[i] = u.x;
+        data[n + i] = u.y;
+        data[2 * n + i] = u.z;
     }
 }
 

@@ -170,17 +170,11 @@ pub fn mean_angle_degrees(a: &Map, b: &Map) -> f64 {
     let n = a.texels();
     let total: f64 = (0..n)
         .map(|i| {
-            let u: [f64; 3] = std::array::from_fn(|c| a.plane(c)[i] as f64);
-            let v: [f64; 3] = std::array::from_fn(|c| b.plane(c)[i] as f64);
-            // atan2(|u × v|, u · v) stays exact near 0°, where acos loses precision.
-            let cross = [
-                u[1] * v[2] - u[2] * v[1],
-                u[2] * v[0] - u[0] * v[2],
-                u[0] * v[1] - u[1] * v[0],
-            ];
-            let sin = (cross[0].powi(2) + cross[1].powi(2) + cross[2].powi(2)).sqrt();
-            let cos = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-            sin.atan2(cos).to_degrees()
+            let u = glam::DVec3::from_array(std::array::from_fn(|c| a.plane(c)[i] as f64));
+            let v = glam::DVec3::from_array(std::array::from_fn(|c| b.plane(c)[i] as f64));
+            // atan2(|u × v|, u · v) stays exact near 0°, where acos (glam's angle_between)
+            // loses precision.
+            u.cross(v).length().atan2(u.dot(v)).to_degrees()
         })
         .sum();
     total / n.max(1) as f64

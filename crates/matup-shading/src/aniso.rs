@@ -9,7 +9,9 @@ use matup_core::tensor::TensorShading;
 use matup_core::{LightSample, Result};
 
 use crate::dual::{Dual, Real};
-use crate::vec3::{dot as dot_f32, half_vector, DENOMINATOR_MIN, DOT_MAX, DOT_MIN, TINY_LENGTH2};
+use glam::Vec3;
+
+use crate::conventions::{half_vector, DENOMINATOR_MIN, DOT_MAX, DOT_MIN, TINY_LENGTH2};
 
 /// Anisotropic GGX: roughness `alpha_t = alpha·(1 + k)` along the tangent and
 /// `alpha_b = alpha·(1 − k)` along the bitangent (each ≥ 2e-3), the tangent at
@@ -17,14 +19,16 @@ use crate::vec3::{dot as dot_f32, half_vector, DENOMINATOR_MIN, DOT_MAX, DOT_MIN
 /// height-correlated visibility, Schlick Fresnel, the same diffuse as `ggx`.
 pub struct GgxAniso;
 
+/// A 3-vector of plain or dual numbers. glam's vectors hold only f32 or f64, so the few
+/// operations this model needs over [`Real`] are written here.
 type V<S> = [S; 3];
 
 fn dot<S: Real>(a: V<S>, b: V<S>) -> S {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-fn dot_const<S: Real>(a: V<S>, b: [f32; 3]) -> S {
-    a[0] * S::constant(b[0]) + a[1] * S::constant(b[1]) + a[2] * S::constant(b[2])
+fn dot_const<S: Real>(a: V<S>, b: Vec3) -> S {
+    a[0] * S::constant(b.x) + a[1] * S::constant(b.y) + a[2] * S::constant(b.z)
 }
 
 fn normalize<S: Real>(v: V<S>) -> V<S> {
@@ -42,7 +46,7 @@ fn cross<S: Real>(a: V<S>, b: V<S>) -> V<S> {
 
 fn radiance<S: Real>(p: [S; Svbrdf::LEN], light: &LightSample) -> [S; 3] {
     let c = S::constant;
-    let l = light.direction;
+    let l = Vec3::from(light.direction);
     let h = half_vector(l);
     let base = [p[0], p[1], p[2]];
     let m = p[3];
@@ -50,8 +54,8 @@ fn radiance<S: Real>(p: [S; Svbrdf::LEN], light: &LightSample) -> [S; 3] {
     let (alpha, k, theta) = (p[7], p[8], p[9]);
 
     let noh_raw = dot_const(n, h);
-    let loh = dot_f32(l, h).clamp(DOT_MIN, DOT_MAX);
-    let chi = if noh_raw.value() > 0.0 && dot_f32(l, h) > 0.0 {
+    let loh = l.dot(h).clamp(DOT_MIN, DOT_MAX);
+    let chi = if noh_raw.value() > 0.0 && l.dot(h) > 0.0 {
         1.0
     } else {
         0.0

@@ -5,13 +5,13 @@ use std::f32::consts::PI;
 
 use matup_core::color::display_with_derivative;
 use matup_core::material::MIN_ALPHA;
-use matup_core::shading::{
-    texel_loss, ShadingModel, ShadingModelRegistration, Svbrdf, Texel, VIEW,
-};
+use matup_core::shading::{texel_loss, ShadingModel, ShadingModelRegistration, Svbrdf, Texel};
 use matup_core::tensor::TensorShading;
 use matup_core::{with_avx2, Light, LightSample, LossNorm, Result};
 
-use crate::vec3::*;
+use glam::Vec3;
+
+use crate::conventions::*;
 
 /// Cook–Torrance with GGX distribution, Smith height-correlated visibility and Schlick
 /// Fresnel; Lambertian diffuse `(1 − m)·base/π`, `F0 = 0.04(1 − m) + m·base`.
@@ -19,9 +19,9 @@ pub struct Ggx;
 
 /// Everything about one texel and light that does not depend on the colour channel.
 struct Lobe {
-    n: V3,
+    n: Vec3,
     normal_len: f32,
-    h: V3,
+    h: Vec3,
     nol: f32,
     nol_free: f32,
     nov: f32,
@@ -52,17 +52,17 @@ fn clamp_alpha(alpha: f32) -> (f32, f32) {
 
 #[inline]
 fn lobe(p: &Svbrdf, light: &LightSample) -> Lobe {
-    let l = light.direction;
-    let (n, normal_len) = normalize(p.normal);
+    let l = Vec3::from(light.direction);
+    let (n, normal_len) = normalize(p.normal.into());
     let h = half_vector(l);
-    let (noh_raw, loh_raw) = (dot(n, h), dot(l, h));
+    let (noh_raw, loh_raw) = (n.dot(h), l.dot(h));
     let chi = if noh_raw > 0.0 && loh_raw > 0.0 {
         1.0
     } else {
         0.0
     };
-    let (nol, nol_free) = clamp_dot(dot(n, l));
-    let (nov, nov_free) = clamp_dot(dot(n, VIEW));
+    let (nol, nol_free) = clamp_dot(n.dot(l));
+    let (nov, nov_free) = clamp_dot(n.dot(VIEW));
     let (noh, noh_free) = clamp_dot(noh_raw);
     let (loh, _) = clamp_dot(loh_raw);
     let (a, a_free) = clamp_alpha(p.alpha);
@@ -110,7 +110,7 @@ impl ShadingModel for Ggx {
     #[inline]
     fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> Option<([f32; 3], [Svbrdf; 3])> {
         let k = lobe(p, light);
-        let (m, intensity, l) = (p.metallic, light.intensity, light.direction);
+        let (m, intensity, l) = (p.metallic, light.intensity, Vec3::from(light.direction));
         let a2 = k.a * k.a;
         let spec = k.chi * k.d * k.vis;
 
@@ -135,16 +135,10 @@ impl ShadingModel for Ggx {
 
         // Gradient of D·V with respect to the unit normal (channel independent), and to alpha.
         let dv = k.d * dvis_dvden;
-        let l_free = scale(l, k.nol_free);
-        let g_spec = add_scaled(
-            add_scaled(
-                scale(l_free, dv * dvden_dnol),
-                VIEW,
-                dv * dvden_dnov * k.nov_free,
-            ),
-            k.h,
-            k.vis * dd_dnoh * k.noh_free,
-        );
+        let l_free = l * k.nol_free;
+        let g_spec = l_free * (dv * dvden_dnol)
+            + VIEW * (dv * dvden_dnov * k.nov_free)
+            + k.h * (k.vis * dd_dnoh * k.noh_free);
         let dspec_dalpha = (dd_da2 * k.vis + dv * dvden_da2) * 2.0 * k.a * k.a_free;
 
         let mut rgb = [0.0; 3];
@@ -162,8 +156,8 @@ impl ShadingModel for Ggx {
             // radiance = I·NoL·diffuse + I·NoL·F·χ·D·V
             let through_nol = intensity * (diffuse + spec * fresnel);
             let through_spec = intensity * k.nol * fresnel * k.chi;
-            let g_unit = add_scaled(scale(l_free, through_nol), g_spec, through_spec);
-            j.normal = normalize_backward(g_unit, k.n, k.normal_len);
+            let g_unit = l_free * through_nol + g_spec * through_spec;
+            j.normal = normalize_backward(g_unit, k.n, k.normal_len).into();
             j.alpha = through_spec * dspec_dalpha;
         }
         Some((rgb, jac))
@@ -234,8 +228,8 @@ fn fused_loss(
     norm: impl Fn([f32; 3]) -> (f32, [f32; 3]),
 ) -> f32 {
     let p = &texel.params;
-    let (n, normal_len) = normalize(p.normal);
-    let (nov, nov_free) = clamp_dot(n[2]);
+    let (n, normal_len) = normalize(p.normal.into());
+    let (nov, nov_free) = clamp_dot(n.z);
     let (a, a_free) = clamp_alpha(p.alpha);
     let a2 = a * a;
     let gv = (nov * nov * (1.0 - a2) + a2).sqrt();
@@ -266,14 +260,14 @@ fn fused_loss(
                 let inv = 1.0 / (lx * lx + ly * ly + z * z).max(TINY_LENGTH2).sqrt();
                 (lx * inv, ly * inv, z * inv)
             };
-            let noh_raw = n[0] * hx + n[1] * hy + n[2] * hz;
+            let noh_raw = n.x * hx + n.y * hy + n.z * hz;
             let loh_raw = lx * hx + ly * hy + lz * hz;
             let chi = if noh_raw > 0.0 && loh_raw > 0.0 {
                 1.0
             } else {
                 0.0
             };
-            let (nol, nol_free) = clamp_dot(n[0] * lx + n[1] * ly + n[2] * lz);
+            let (nol, nol_free) = clamp_dot(n.x * lx + n.y * ly + n.z * lz);
             let (noh, noh_free) = clamp_dot(noh_raw);
             let (loh, _) = clamp_dot(loh_raw);
 
@@ -333,9 +327,9 @@ fn fused_loss(
             sums.a2[i] += through_spec * (dd_da2 * vis + dv * dvden_da2);
         }
     }
-    let mut g_n = sums.normal.each_ref().map(lane_sum);
-    g_n[2] += lane_sum(&sums.view) * nov_free; // VIEW = (0, 0, 1)
-    let g_normal = normalize_backward(g_n, n, normal_len);
+    let g_n =
+        Vec3::from(sums.normal.each_ref().map(lane_sum)) + VIEW * (lane_sum(&sums.view) * nov_free);
+    let g_normal = normalize_backward(g_n, n, normal_len).to_array();
     for ((g, sum), (gn, n)) in
         (grad.base_color.iter_mut().zip(&sums.base)).zip(grad.normal.iter_mut().zip(g_normal))
     {

@@ -6,7 +6,9 @@ use matup_core::shading::{ShadingModel, ShadingModelRegistration, Svbrdf};
 use matup_core::tensor::TensorShading;
 use matup_core::{LightSample, Result};
 
-use crate::vec3::*;
+use glam::Vec3;
+
+use crate::conventions::{clamp_dot, normalize, normalize_backward};
 
 /// Lambertian reflection of the base colour: `I · N·L · base / π`. Metallic and roughness
 /// are ignored.
@@ -14,20 +16,21 @@ pub struct Lambert;
 
 impl ShadingModel for Lambert {
     fn shade(&self, p: &Svbrdf, light: &LightSample) -> [f32; 3] {
-        let (n, _) = normalize(p.normal);
-        let (nol, _) = clamp_dot(dot(n, light.direction));
+        let (n, _) = normalize(p.normal.into());
+        let (nol, _) = clamp_dot(n.dot(light.direction.into()));
         p.base_color.map(|b| light.intensity * nol * b / PI)
     }
 
     fn shade_jacobian(&self, p: &Svbrdf, light: &LightSample) -> Option<([f32; 3], [Svbrdf; 3])> {
-        let (n, len) = normalize(p.normal);
-        let (nol, free) = clamp_dot(dot(n, light.direction));
+        let l = Vec3::from(light.direction);
+        let (n, len) = normalize(p.normal.into());
+        let (nol, free) = clamp_dot(n.dot(l));
         let mut jac = [Svbrdf::default(); 3];
         for (c, j) in jac.iter_mut().enumerate() {
             let b = p.base_color[c];
             j.base_color[c] = light.intensity * nol / PI;
-            let g_unit = scale(light.direction, light.intensity * b / PI * free);
-            j.normal = normalize_backward(g_unit, n, len);
+            let g_unit = l * (light.intensity * b / PI * free);
+            j.normal = normalize_backward(g_unit, n, len).into();
         }
         Some((p.base_color.map(|b| light.intensity * nol * b / PI), jac))
     }

@@ -7,7 +7,7 @@ use matup_core::candle_core::{DType, Result, Tensor};
 use matup_core::material::MIN_ALPHA;
 use matup_core::tensor::{dot, normalize, view, LightTensors, SvbrdfTensors, TensorShading};
 
-use crate::vec3::{DENOMINATOR_MIN, DOT_MAX, DOT_MIN};
+use crate::conventions::{DENOMINATOR_MIN, DOT_MAX, DOT_MIN};
 use crate::{Ggx, GgxAniso, Lambert};
 
 /// A cosine clamped to [`DOT_MIN`, `DOT_MAX`] (no gradient where clamped).
