@@ -46,6 +46,15 @@ pub struct StopAfter {
     limit: u64,
 }
 
+impl StopAfter {
+    pub fn new(limit: u64) -> StopAfter {
+        StopAfter {
+            steps: AtomicU64::new(0),
+            limit,
+        }
+    }
+}
+
 impl Progress for StopAfter {
     fn advance(&self, done: u64, loss: Option<f64>) {
         if loss.is_some() {
@@ -70,10 +79,7 @@ pub fn interrupt_in_second_epoch(
         resume: true,
         ..Default::default()
     };
-    let stop = StopAfter {
-        steps: AtomicU64::new(0),
-        limit: steps,
-    };
+    let stop = StopAfter::new(steps);
     let error = matup::upscale(lr, config, &options, &stop).unwrap_err();
     assert!(
         matches!(error, matup::Error::Cancelled { epochs_done: 1 }),

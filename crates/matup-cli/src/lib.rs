@@ -4,6 +4,7 @@
 //! It is a library too, so that a binary linking more plugins (a researcher's upsampler or
 //! shading model) gets the whole command line with one call: see `examples/nearest-upsampler`.
 
+mod batch;
 mod downsample;
 mod eval;
 mod experiment;
@@ -48,6 +49,8 @@ enum Command {
     List,
     /// Upsample a material ×4 (or ×2, ×3, ×16) with a per-material filter.
     Upscale(Box<upscale::UpscaleArgs>),
+    /// Upsample every material of a library (folders of maps), resumable and shardable.
+    Batch(Box<batch::BatchArgs>),
     /// Render a material under one light or a contact sheet of the training lights.
     Render(Box<render::RenderArgs>),
     /// Compare a material with a reference: renders under held-out lights, maps, seams.
@@ -102,6 +105,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::List => list::run(),
         Command::Upscale(args) => upscale::run(&args),
+        Command::Batch(args) => batch::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Eval(args) => eval::run(&args),
         Command::Downsample(args) => downsample::run(&args),

@@ -12,12 +12,8 @@ pub struct MaterialArgs {
     /// Folder holding the material's maps (recognised by name: baseColor/albedo/…_Color,
     /// normal/…_NormalGL/…_nor_dx_…, roughness, metallic, height, packed …_arm_…).
     pub material: PathBuf,
-    /// Convention of normal maps whose name does not say GL or DX.
-    #[arg(long, value_name = "directx|opengl")]
-    pub normal_convention: Option<NormalConvention>,
-    /// Refuse images with more texels than this (checked before decoding).
-    #[arg(long, default_value_t = DEFAULT_MAX_TEXELS)]
-    pub max_texels: u64,
+    #[command(flatten)]
+    pub load: LoadArgs,
     /// Base colour file (overrides what is found in the folder).
     #[arg(long, value_name = "FILE")]
     pub base_color: Option<PathBuf>,
@@ -41,22 +37,39 @@ pub struct MaterialArgs {
     pub packed: Option<PathBuf>,
 }
 
-impl MaterialArgs {
-    pub fn load(&self) -> anyhow::Result<Material> {
-        let options = LoadOptions {
-            paths: MaterialPaths {
-                base_color: self.base_color.clone(),
-                normal: self.normal.clone(),
-                roughness: self.roughness.clone(),
-                gloss: self.gloss.clone(),
-                metallic: self.metallic.clone(),
-                height: self.height.clone(),
-                packed: self.packed.clone(),
-                ..Default::default()
-            },
+/// How maps are read, for one material or a library.
+#[derive(Args, Debug, Clone)]
+pub struct LoadArgs {
+    /// Convention of normal maps whose name does not say GL or DX.
+    #[arg(long, value_name = "directx|opengl")]
+    pub normal_convention: Option<NormalConvention>,
+    /// Refuse images with more texels than this (checked before decoding).
+    #[arg(long, default_value_t = DEFAULT_MAX_TEXELS)]
+    pub max_texels: u64,
+}
+
+impl LoadArgs {
+    pub fn options(&self, paths: MaterialPaths) -> LoadOptions {
+        LoadOptions {
+            paths,
             normal_convention: self.normal_convention,
             max_texels: self.max_texels,
-        };
+        }
+    }
+}
+
+impl MaterialArgs {
+    pub fn load(&self) -> anyhow::Result<Material> {
+        let options = self.load.options(MaterialPaths {
+            base_color: self.base_color.clone(),
+            normal: self.normal.clone(),
+            roughness: self.roughness.clone(),
+            gloss: self.gloss.clone(),
+            metallic: self.metallic.clone(),
+            height: self.height.clone(),
+            packed: self.packed.clone(),
+            ..Default::default()
+        });
         load_material(Some(&self.material), &options)
             .with_context(|| format!("cannot load the material in {}", self.material.display()))
     }

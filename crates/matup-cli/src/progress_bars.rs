@@ -1,9 +1,10 @@
-//! Progress bars (indicatif) drawn from the library's progress callback.
+//! Progress bars (indicatif) drawn from the library's progress callbacks.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
+use matup_core::batch::{BatchProgress, Handled};
 use matup_core::progress::Progress;
 
 /// One bar per stage, with its ETA and the running loss; notes printed above the bars.
@@ -11,6 +12,10 @@ pub struct Bars {
     current: Mutex<Option<ProgressBar>>,
     quiet: bool,
     interrupted: Arc<AtomicBool>,
+    /// Where the bars are drawn: stderr, below a batch's bar when there is one.
+    multi: MultiProgress,
+    /// Clear a stage's bar when the next begins (in a batch), rather than leave it as a log.
+    clear_finished: bool,
 }
 
 impl Bars {
@@ -25,16 +30,34 @@ impl Bars {
             }
             eprintln!("\ninterrupted: stopping at the next step (Ctrl-C again to quit now)");
         });
+        let target = if quiet {
+            ProgressDrawTarget::hidden()
+        } else {
+            ProgressDrawTarget::stderr()
+        };
         Bars {
             current: Mutex::new(None),
             quiet,
             interrupted,
+            multi: MultiProgress::with_draw_target(target),
+            clear_finished: false,
         }
     }
 
     pub fn finish(&self) {
         if let Some(bar) = self.current.lock().unwrap().take() {
-            bar.finish();
+            if self.clear_finished {
+                bar.finish_and_clear();
+            } else {
+                bar.finish();
+            }
+        }
+    }
+
+    /// Prints a line above the bars.
+    pub fn note_now(&self, message: &str) {
+        if !self.quiet {
+            let _ = self.multi.println(message);
         }
     }
 }
@@ -45,10 +68,12 @@ impl Progress for Bars {
             return;
         }
         let mut current = self.current.lock().unwrap();
-        if let Some(bar) = current.take() {
-            bar.finish();
+        match current.take() {
+            Some(bar) if self.clear_finished => bar.finish_and_clear(),
+            Some(bar) => bar.finish(),
+            None => {}
         }
-        let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
+        let bar = self.multi.add(ProgressBar::new(total));
         bar.set_style(
             ProgressStyle::with_template(
                 "{prefix:>24} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
@@ -74,12 +99,78 @@ impl Progress for Bars {
     }
 
     fn note(&self, message: &str) {
-        if self.quiet {
-            return;
-        }
-        match &*self.current.lock().unwrap() {
-            Some(bar) => bar.suspend(|| eprintln!("{message}")),
-            None => eprintln!("{message}"),
+        self.note_now(message)
+    }
+}
+
+/// A batch: one bar over the materials with its ETA and the current material's name, the
+/// current material's stage bar below it.
+pub struct BatchBars {
+    stages: Bars,
+    materials: ProgressBar,
+}
+
+impl BatchBars {
+    pub fn new(quiet: bool) -> Self {
+        let stages = Bars {
+            clear_finished: true,
+            ..Bars::new(quiet)
+        };
+        let materials = stages.multi.add(ProgressBar::new(0));
+        materials.set_style(
+            ProgressStyle::with_template(
+                "{prefix:>24} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+            )
+            .unwrap()
+            .progress_chars("=> "),
+        );
+        materials.set_prefix("materials");
+        BatchBars { stages, materials }
+    }
+
+    pub fn finish(&self) {
+        self.stages.finish();
+        self.materials.finish();
+    }
+
+    pub fn note_now(&self, message: &str) {
+        self.stages.note_now(message)
+    }
+}
+
+impl Progress for BatchBars {
+    fn stage(&self, name: &str, total: u64) {
+        self.stages.stage(name, total)
+    }
+    fn advance(&self, done: u64, loss: Option<f64>) {
+        self.stages.advance(done, loss)
+    }
+    fn cancelled(&self) -> bool {
+        self.stages.cancelled()
+    }
+    fn note(&self, _message: &str) {
+        // A material's notes (tileability, selection) are in its run.json; printed for every
+        // material of a library they would bury the failures.
+    }
+}
+
+impl BatchProgress for BatchBars {
+    fn materials(&self, count: usize) {
+        self.materials.set_length(count as u64);
+    }
+
+    fn material_started(&self, name: &str) {
+        self.materials.set_message(name.to_string());
+    }
+
+    fn material_done(&self, handled: &Handled) {
+        self.materials.inc(1);
+        if let Some(detail) = handled.outcome.detail() {
+            self.note_now(&format!(
+                "{}: {} ({detail})",
+                handled.material,
+                handled.outcome.label()
+            ));
         }
     }
 }

@@ -2,15 +2,14 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::Args;
 use matup_core::config::{
     Activation, Backend, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
 };
-use matup_core::io::{check_output_folder, save_png, write_atomic};
-use matup_core::pipeline::preview;
+use matup_core::folder::{upscale_to_folder, FolderRun};
 use matup_core::train::Stop;
-use matup_core::{save_material, upscale, Config, FileFormat, LossNorm, RunOptions, SaveOptions};
+use matup_core::{Config, FileFormat, LossNorm, SaveOptions};
 
 use crate::material_args::MaterialArgs;
 use crate::progress_bars::Bars;
@@ -22,6 +21,23 @@ pub struct UpscaleArgs {
     /// Output folder (created; never the input folder).
     #[arg(short, long)]
     pub output: PathBuf,
+    #[command(flatten)]
+    pub settings: SettingsArgs,
+    /// Continue from the last checkpoint in the output folder.
+    #[arg(long)]
+    pub resume: bool,
+    /// No progress bars or summary.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Print run.json to stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The settings of a run, shared by `upscale` and `batch`: a TOML file, flags over it, and
+/// the output format.
+#[derive(Args, Debug)]
+pub struct SettingsArgs {
     /// A TOML configuration; flags given here override it.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
@@ -138,18 +154,9 @@ pub struct UpscaleArgs {
     /// Output format of every map (png, png16, jpg, exr-half, exr-float); default: the input's.
     #[arg(long)]
     pub format: Option<FileFormat>,
-    /// Continue from the last checkpoint in the output folder.
-    #[arg(long)]
-    pub resume: bool,
-    /// No progress bars or summary.
-    #[arg(long)]
-    pub quiet: bool,
-    /// Print run.json to stdout.
-    #[arg(long)]
-    pub json: bool,
 }
 
-impl UpscaleArgs {
+impl SettingsArgs {
     /// Defaults, then the TOML file, then the flags.
     pub fn config(&self) -> anyhow::Result<Config> {
         let mut c = match &self.config {
@@ -218,39 +225,24 @@ impl UpscaleArgs {
 }
 
 pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
-    let config = args.config()?;
+    let config = args.settings.config()?;
     let material = args.material.load()?;
-    check_output_folder(&args.output, material.origin.as_ref())?;
-    if args.output.exists() && !args.output.is_dir() {
-        bail!(
-            "{}: output exists and is not a folder",
-            args.output.display()
-        );
-    }
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("cannot create the output folder {}", args.output.display()))?;
-
     let bars = Bars::new(args.quiet || args.json);
-    let options = RunOptions {
-        checkpoint_folder: Some(args.output.join(".matup-checkpoint")),
-        resume: args.resume,
-        oracle: None,
-    };
-    let (result, report) = upscale(&material, &config, &options, &bars)?;
-    bars.finish();
-
     let save = SaveOptions {
-        format: args.format,
+        format: args.settings.format,
         normal_convention: None,
     };
-    let written = save_material(&result, &args.output, &save)?;
-    let sheet = preview(&material, &result, &config, report.tileable)?;
-    save_png(&args.output.join("preview.png"), &sheet)?;
+    let FolderRun { report, written } = upscale_to_folder(
+        &material,
+        &config,
+        &args.output,
+        &save,
+        args.resume,
+        None,
+        &bars,
+    )?;
+    bars.finish();
     let json = serde_json::to_string_pretty(&report)?;
-    write_atomic(&args.output.join("run.json"), json.as_bytes())?;
-    if let Some(folder) = &options.checkpoint_folder {
-        let _ = std::fs::remove_dir_all(folder); // finished: nothing to resume
-    }
 
     if args.json {
         println!("{json}");
@@ -302,8 +294,6 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         for path in &written {
             println!("wrote {}", path.display());
         }
-        println!("wrote {}", args.output.join("preview.png").display());
-        println!("wrote {}", args.output.join("run.json").display());
     }
     Ok(())
 }

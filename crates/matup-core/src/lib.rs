@@ -2,11 +2,13 @@
 //! `ShadingModel`) with their registries, lights, resampling and rendering.
 
 pub mod baseline;
+pub mod batch;
 pub mod color;
 pub mod config;
 mod error;
 pub mod experiment;
 pub mod filter;
+pub mod folder;
 pub mod gemm;
 pub mod height;
 pub mod io;

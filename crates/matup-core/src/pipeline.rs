@@ -62,6 +62,10 @@ pub struct RunReport {
     /// Peak resident memory of the process (Linux), in MiB.
     pub peak_memory_mib: Option<f64>,
     pub threads: usize,
+    /// A digest of the settings and input files, written by `matup batch` to tell a finished
+    /// material from one to redo.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settings_fingerprint: Option<String>,
 }
 
 /// One level (one ×s step) of a run.
@@ -278,6 +282,7 @@ pub fn upscale(
         skipped,
         peak_memory_mib: peak_memory_mib(),
         threads: rayon::current_num_threads(),
+        settings_fingerprint: None,
     };
     Ok((current, report))
 }

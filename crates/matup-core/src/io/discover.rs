@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use super::image_file::IMAGE_EXTENSIONS;
+use super::image_file::{is_image_file, IMAGE_EXTENSIONS};
 use crate::material::NormalConvention;
 use crate::{Error, Result};
 
@@ -180,12 +180,7 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
     let mut images: Vec<PathBuf> = std::fs::read_dir(folder)
         .map_err(|e| Error::io(folder, e))?
         .filter_map(|entry| entry.ok().map(|e| e.path()))
-        .filter(|p| {
-            p.is_file()
-                && p.extension()
-                    .and_then(|e| e.to_str())
-                    .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
-        })
+        .filter(|p| p.is_file() && is_image_file(p))
         .collect();
     images.sort();
     if images.is_empty() {

@@ -22,6 +22,13 @@ pub(crate) struct ImageFile {
 /// The file extensions matup reads.
 pub const IMAGE_EXTENSIONS: [&str; 4] = ["png", "jpg", "jpeg", "exr"];
 
+/// Whether `path` names a file of a format matup reads (by its extension, any case).
+pub fn is_image_file(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
 fn is_exr(path: &Path) -> bool {
     path.extension()
         .and_then(|e| e.to_str())

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 pub use discover::{discover, Discovered, Role};
-pub use image_file::{write_atomic, IMAGE_EXTENSIONS};
+pub use image_file::{is_image_file, write_atomic, IMAGE_EXTENSIONS};
 
 use crate::color::{linear_to_srgb, srgb_to_linear};
 use crate::map::Map;
