@@ -5,6 +5,7 @@ mod common;
 
 use std::sync::OnceLock;
 
+use matup::batch::{run_batch, BatchOptions, BatchProgress, Outcome};
 use matup::config::Config;
 use matup::lights::Light;
 use matup::material::Material;
@@ -13,8 +14,8 @@ use matup::progress::Silent;
 use matup::render::{render, RenderOptions};
 use matup::train::Stop;
 use matup::{
-    shading_model, upsampler, Border, Kernel, LightSetSpec, LossNorm, PluginSpec, RunOptions,
-    RunReport,
+    load_material, save_material, shading_model, upsampler, Border, Kernel, LightSetSpec, LossNorm,
+    PluginSpec, RunOptions, RunReport,
 };
 
 /// A whole shared material box-filtered down to `size`² (a tileable input stays tileable).
@@ -297,4 +298,65 @@ fn sixteen_times_in_two_levels_or_by_reusing_the_filter() {
         "the ×4 filter is reused"
     );
     assert_ne!(single.base_color, two_level.base_color);
+}
+
+impl BatchProgress for common::StopAfter {}
+
+/// `matup batch` as a library (the command, with worker processes, shards and claims, is
+/// tested in crates/matup-cli/tests/batch.rs).
+#[test]
+fn an_interrupted_batch_resumes_its_material_from_the_checkpoint() {
+    let library = tempfile::tempdir().unwrap();
+    // The sample box-filtered to 32², so the output is 128².
+    let sample = load_material(Some(&common::sample_material()), &Default::default()).unwrap();
+    save_material(
+        &sample.box_downsample(4),
+        &library.path().join("wood"),
+        &Default::default(),
+    )
+    .unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let mut config = quick_config(1);
+    config.train.epochs = 2;
+    let options = BatchOptions {
+        config,
+        ..Default::default()
+    };
+
+    // 128² texels / 128 a batch: stop in the second epoch, after the first's checkpoint.
+    let stop = common::StopAfter::new(128 + 40);
+    let report = run_batch(library.path(), out.path(), &options, &stop).unwrap();
+    assert!(report.interrupted);
+    assert_eq!(report.handled[0].outcome, Outcome::Interrupted);
+    let folder = out.path().join("wood");
+    assert!(folder.join(".matup-checkpoint").is_dir());
+    assert!(!folder.join("run.json").exists());
+    assert_eq!(report.summary[0].status, matup::batch::Status::Pending);
+
+    let report = run_batch(library.path(), out.path(), &options, &Silent).unwrap();
+    assert!(!report.interrupted);
+    assert_eq!(report.handled[0].outcome, Outcome::Upscaled);
+    let run: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(folder.join("run.json")).unwrap()).unwrap();
+    assert_eq!(run["levels"][0]["training"]["resumed_epochs"], 1);
+    assert!(
+        !folder.join(".matup-checkpoint").exists(),
+        "removed once done"
+    );
+
+    // The result equals an uninterrupted batch's.
+    let whole = tempfile::tempdir().unwrap();
+    run_batch(library.path(), whole.path(), &options, &Silent).unwrap();
+    for map in [
+        "baseColor.png",
+        "normal.png",
+        "roughness.png",
+        "preview.png",
+    ] {
+        assert!(
+            std::fs::read(folder.join(map)).unwrap()
+                == std::fs::read(whole.path().join("wood").join(map)).unwrap(),
+            "{map} differs from the uninterrupted run's"
+        );
+    }
 }
