@@ -14,6 +14,7 @@ mod plot;
 mod progress_bars;
 mod render;
 mod upscale;
+mod view;
 
 use std::process::ExitCode;
 
@@ -51,6 +52,8 @@ enum Command {
     Upscale(Box<upscale::UpscaleArgs>),
     /// Upsample every material of a library (folders of maps), resumable and shardable.
     Batch(Box<batch::BatchArgs>),
+    /// Write a relightable before/after page (view.html) for an upscaled material.
+    View(view::ViewArgs),
     /// Render a material under one light or a contact sheet of the training lights.
     Render(Box<render::RenderArgs>),
     /// Compare a material with a reference: renders under held-out lights, maps, seams.
@@ -106,6 +109,7 @@ pub fn main() -> ExitCode {
         Command::List => list::run(),
         Command::Upscale(args) => upscale::run(&args),
         Command::Batch(args) => batch::run(&args),
+        Command::View(args) => view::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Eval(args) => eval::run(&args),
         Command::Downsample(args) => downsample::run(&args),

@@ -8,11 +8,13 @@ use matup_core::config::{
     Activation, Backend, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
 };
 use matup_core::folder::{upscale_to_folder, FolderRun};
+use matup_core::pipeline::bilinear_baseline;
 use matup_core::train::Stop;
 use matup_core::{Config, FileFormat, LossNorm, SaveOptions};
 
 use crate::material_args::MaterialArgs;
 use crate::progress_bars::Bars;
+use crate::view::write_page;
 
 #[derive(Args, Debug)]
 pub struct UpscaleArgs {
@@ -32,6 +34,9 @@ pub struct UpscaleArgs {
     /// Print run.json to stdout.
     #[arg(long)]
     pub json: bool,
+    /// Also write view.html: the result relightable in a browser, against bilinear ×N.
+    #[arg(long)]
+    pub view: bool,
 }
 
 /// The settings of a run, shared by `upscale` and `batch`: a TOML file, flags over it, and
@@ -243,6 +248,20 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
     )?;
     bars.finish();
     let json = serde_json::to_string_pretty(&report)?;
+    let mut written = written;
+    if args.view {
+        let result = matup_core::load_material(Some(&args.output), &Default::default())?;
+        let baseline = bilinear_baseline(&material, &result, report.tileable);
+        let scale = result.width() / material.width().max(1);
+        written.push(write_page(
+            &args.output,
+            &result,
+            &[(format!("bilinear ×{scale}"), baseline)],
+            &report.config,
+            Some(serde_json::from_str(&json)?),
+            &format!("matup: {}", args.material.material.display()),
+        )?);
+    }
 
     if args.json {
         println!("{json}");

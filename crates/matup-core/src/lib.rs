@@ -11,6 +11,7 @@ pub mod filter;
 pub mod folder;
 pub mod gemm;
 pub mod height;
+pub mod html;
 pub mod io;
 pub mod lights;
 pub mod loss;
@@ -31,6 +32,7 @@ pub mod targets;
 pub mod tensor;
 pub mod train;
 pub mod upsample;
+pub mod view;
 
 pub use config::Config;
 pub use error::{Error, Result};

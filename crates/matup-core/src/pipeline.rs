@@ -41,6 +41,8 @@ pub const TILEABLE_SEAM_RATIO: f32 = 2.2;
 #[derive(Clone, Debug, Serialize)]
 pub struct RunReport {
     pub matup_version: &'static str,
+    /// The folder the input was loaded from, when it came from one.
+    pub input_folder: Option<PathBuf>,
     pub input_size: [usize; 2],
     pub output_size: [usize; 2],
     pub config: Config,
@@ -268,6 +270,7 @@ pub fn upscale(
         .find_map(|l| l.training.epoch_losses.last().copied());
     let report = RunReport {
         matup_version: env!("CARGO_PKG_VERSION"),
+        input_folder: material.origin.as_ref().map(|o| o.folder.clone()),
         input_size: [material.width(), material.height_px()],
         output_size: [current.width(), current.height_px()],
         config: config.clone(),
@@ -683,6 +686,13 @@ fn infer_material(
     Ok(hr)
 }
 
+/// `input` upsampled bilinearly to `output`'s size: what the preview and the viewer compare
+/// matup's result with.
+pub fn bilinear_baseline(input: &Material, output: &Material, tileable: bool) -> Material {
+    let scale = (output.width() / input.width().max(1)).max(1);
+    input.upsample(scale, Kernel::Bilinear, Border::for_tiling(tileable))
+}
+
 /// `preview.png`: the bilinearly upsampled input (left) and the result (right), rendered
 /// under two training lights (rows). Large outputs show their central 512² texels.
 pub fn preview(
@@ -691,9 +701,8 @@ pub fn preview(
     config: &Config,
     tileable: bool,
 ) -> Result<Map> {
-    let scale = output.width() / input.width().max(1);
     let border = Border::for_tiling(tileable);
-    let baseline = input.upsample(scale.max(1), Kernel::Bilinear, border);
+    let baseline = bilinear_baseline(input, output, tileable);
     let crop = |m: &Material| {
         let side = 512.min(m.width()).min(m.height_px());
         let (x0, y0) = ((m.width() - side) / 2, (m.height_px() - side) / 2);

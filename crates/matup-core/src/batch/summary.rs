@@ -10,6 +10,7 @@ use serde::Serialize;
 use super::claim::{live_claim, ClaimTiming};
 use super::library::{material_name, Library};
 use super::{read_failure, read_result};
+use crate::html::escape;
 use crate::io::write_atomic;
 use crate::{Error, Result};
 
@@ -159,15 +160,6 @@ fn csv(rows: &[Row]) -> Result<Vec<u8>> {
     }
     csv.into_inner()
         .map_err(|e| Error::Invalid(format!("batch.csv: {e}")))
-}
-
-/// Text for HTML content or a quoted attribute.
-fn escape(text: &str) -> String {
-    text.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-        .replace('\'', "&#39;")
 }
 
 /// What a URL path segment may hold unencoded (RFC 3986's unreserved characters).

@@ -221,6 +221,11 @@ pub(crate) fn write_image(path: &Path, map: &Map, format: FileFormat) -> Result<
     write_atomic(path, &bytes)
 }
 
+/// `map` (values in [0, 1], grey or RGB) as the bytes of an 8-bit PNG file.
+pub(crate) fn encode_png8(map: &Map) -> std::result::Result<Vec<u8>, String> {
+    encode(map, FileFormat::Png8)
+}
+
 fn encode(map: &Map, format: FileFormat) -> std::result::Result<Vec<u8>, String> {
     let (w, h, ch) = (map.width(), map.height(), map.channels());
     assert!(ch == 1 || ch == 3, "only grey and RGB maps are written");

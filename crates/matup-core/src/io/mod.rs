@@ -17,6 +17,7 @@ use crate::material::{
     MIN_ROUGHNESS,
 };
 use crate::{Error, Result};
+pub(crate) use image_file::encode_png8;
 use image_file::{read_image, write_image, ImageFile};
 
 /// Explicit files for some maps; they win over what folder discovery finds.
