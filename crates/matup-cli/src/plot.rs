@@ -6,11 +6,9 @@ use std::path::Path;
 
 use anyhow::anyhow;
 use matup_core::experiment::Row;
+use matup_core::text::FONT; // shipped, so that a machine without fonts can plot
 use plotters::prelude::*;
 use plotters::style::FontStyle;
-
-/// The font the labels are drawn in, shipped so a machine without fonts can plot.
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
 /// (label, mean seconds, mean FLIP) per method and setting over the finished rows.
 pub fn method_means(rows: &[Row]) -> Vec<(String, f64, f64)> {

@@ -206,6 +206,29 @@ fn upscale_writes_maps_preview_and_run_json() {
     }
     let base = image::open(out.join("baseColor.png")).unwrap();
     assert_eq!((base.width(), base.height()), (512, 512));
+    // The preview: 2 × 2 renders of 512² with 4-texel gaps, under a header strip naming the
+    // columns and a caption strip over each row (20 texels each).
+    let preview = image::open(out.join("preview.png")).unwrap().to_luma8();
+    assert_eq!(
+        (preview.width(), preview.height()),
+        (2 * 516 + 4, 2 * 516 + 4 + 3 * 20)
+    );
+    let ink = |x0: u32, x1: u32, y0: u32, y1: u32| {
+        (y0..y1)
+            .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+            .filter(|&(x, y)| preview.get_pixel(x, y)[0] > 150)
+            .count()
+    };
+    assert!(
+        ink(150, 370, 0, 20) > 40,
+        "'bilinear ×4' over the left column"
+    );
+    assert!(ink(670, 890, 0, 20) > 20, "'matup' over the right column");
+    assert!(ink(0, 300, 24, 44) > 100, "the first row's light caption");
+    assert!(
+        ink(0, 300, 560, 580) > 100,
+        "the second row's light caption"
+    );
     assert!(
         !out.join(".matup-checkpoint").exists(),
         "a finished run leaves no checkpoint"

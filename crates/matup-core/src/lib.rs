@@ -30,6 +30,7 @@ pub mod shading;
 pub mod simd;
 pub mod targets;
 pub mod tensor;
+pub mod text;
 pub mod train;
 pub mod upsample;
 pub mod view;

@@ -18,7 +18,7 @@ use crate::lights::Light;
 use crate::map::Map;
 use crate::material::{alpha_from_roughness, Material};
 use crate::progress::Progress;
-use crate::render::{contact_sheet, render, RenderOptions};
+use crate::render::{labelled_sheet, render, RenderOptions};
 use crate::resample::{seam_ratio, upsample, Border, Kernel};
 use crate::residual::residual_base;
 use crate::select::{self, SelectionReport};
@@ -694,7 +694,7 @@ pub fn bilinear_baseline(input: &Material, output: &Material, tileable: bool) ->
 }
 
 /// `preview.png`: the bilinearly upsampled input (left) and the result (right), rendered
-/// under two training lights (rows). Large outputs show their central 512² texels.
+/// under two training lights (rows), labelled. Large outputs show their central 512² texels.
 pub fn preview(
     input: &Material,
     output: &Material,
@@ -727,10 +727,19 @@ pub fn preview(
         border,
     };
     let mut tiles = Vec::new();
+    let mut captions = Vec::new();
     for light in [high, low] {
         for m in [&baseline, output] {
             tiles.extend(render(&crop(m), model.as_ref(), &[light], options));
         }
+        let [x, y, z] = light.position;
+        captions.push(format!(
+            "light at {:.0}° elevation, {:.0}° azimuth",
+            z.atan2(x.hypot(y)).to_degrees(),
+            y.atan2(x).to_degrees().rem_euclid(360.0)
+        ));
     }
-    Ok(contact_sheet(&tiles, 2, 4))
+    let scale = output.width() / input.width().max(1);
+    let columns = [format!("bilinear ×{scale}"), "matup".to_string()];
+    Ok(labelled_sheet(&tiles, 2, 4, &columns, &captions))
 }
