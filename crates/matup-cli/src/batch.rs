@@ -36,6 +36,10 @@ pub struct BatchArgs {
     /// over (a claim of a finished process on this machine at once).
     #[arg(long, default_value_t = 600, value_name = "SECONDS")]
     pub claim_timeout: u64,
+    /// Also write each material's view.html (a relightable before/after page), linked from
+    /// index.html.
+    #[arg(long)]
+    pub view: bool,
     /// No progress bars or summary.
     #[arg(long)]
     pub quiet: bool,
@@ -65,6 +69,7 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
         load: args.load.options(Default::default()),
         shard,
         claims: ClaimTiming::with_timeout(Duration::from_secs(args.claim_timeout)),
+        view: args.view,
     };
     let bars = BatchBars::new(args.quiet || args.json);
     if let Some(s) = shard {

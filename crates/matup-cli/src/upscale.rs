@@ -8,13 +8,12 @@ use matup_core::config::{
     Activation, Backend, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
 };
 use matup_core::folder::{upscale_to_folder, FolderRun};
-use matup_core::pipeline::bilinear_baseline;
 use matup_core::train::Stop;
+use matup_core::view::write_run_view;
 use matup_core::{Config, FileFormat, LossNorm, SaveOptions};
 
 use crate::material_args::MaterialArgs;
 use crate::progress_bars::Bars;
-use crate::view::write_page;
 
 #[derive(Args, Debug)]
 pub struct UpscaleArgs {
@@ -237,7 +236,10 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         format: args.settings.format,
         normal_convention: None,
     };
-    let FolderRun { report, written } = upscale_to_folder(
+    let FolderRun {
+        report,
+        mut written,
+    } = upscale_to_folder(
         &material,
         &config,
         &args.output,
@@ -248,19 +250,8 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
     )?;
     bars.finish();
     let json = serde_json::to_string_pretty(&report)?;
-    let mut written = written;
     if args.view {
-        let result = matup_core::load_material(Some(&args.output), &Default::default())?;
-        let baseline = bilinear_baseline(&material, &result, report.tileable);
-        let scale = result.width() / material.width().max(1);
-        written.push(write_page(
-            &args.output,
-            &result,
-            &[(format!("bilinear ×{scale}"), baseline)],
-            &report.config,
-            Some(serde_json::from_str(&json)?),
-            &format!("matup: {}", args.material.material.display()),
-        )?);
+        written.push(write_run_view(&material, &args.output)?);
     }
 
     if args.json {

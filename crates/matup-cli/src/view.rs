@@ -4,10 +4,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::Args;
-use matup_core::io::write_atomic;
 use matup_core::pipeline::bilinear_baseline;
-use matup_core::view::{starting_light, view_html, Shown, ViewPage};
-use matup_core::{load_material, Config, LoadOptions, Material};
+use matup_core::view::write_view;
+use matup_core::{load_material, Config, LoadOptions, Material, NormalConvention};
 
 #[derive(Args, Debug)]
 pub struct ViewArgs {
@@ -17,13 +16,16 @@ pub struct ViewArgs {
     /// repeat to choose among several on the page.
     #[arg(long, value_name = "FOLDER")]
     pub compare: Vec<PathBuf>,
+    /// Convention of the normal maps (default: that of the run's input, which matup's
+    /// outputs keep; else DirectX).
+    #[arg(long, value_name = "directx|opengl")]
+    pub normal_convention: Option<NormalConvention>,
     /// Open the page in the default browser.
     #[arg(long)]
     pub open: bool,
 }
 
 pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
-    let main = load(&args.folder)?;
     let run_json = args.folder.join("run.json");
     let run: Option<serde_json::Value> = match std::fs::read_to_string(&run_json) {
         Ok(text) => Some(
@@ -32,9 +34,26 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
         ),
         Err(_) => None,
     };
+    // The run's input: the default comparison, and the normal convention the outputs keep.
+    // Needed only without --compare; with it, an input that moved away is no error.
+    let input = match run.as_ref().and_then(|r| r["input_folder"].as_str()) {
+        Some(folder) => match load(Path::new(folder), None) {
+            Ok(m) => Some(m),
+            Err(e) if args.compare.is_empty() => {
+                return Err(e.context("the run's input (named in run.json)"))
+            }
+            Err(_) => None,
+        },
+        None => None,
+    };
+    let convention = args.normal_convention.or(input
+        .as_ref()
+        .and_then(|m| m.origin.as_ref())
+        .map(|o| o.normal_convention));
+    let main = load(&args.folder, convention)?;
     let mut comparisons = Vec::new();
     for folder in &args.compare {
-        let m = load(folder)?;
+        let m = load(folder, args.normal_convention)?;
         if (m.width(), m.height_px()) != (main.width(), main.height_px()) {
             bail!(
                 "{}: {}×{} differs from {}'s {}×{}; compare materials of one size",
@@ -49,16 +68,27 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
         comparisons.push((label_of(folder), m));
     }
     if comparisons.is_empty() {
-        let (input, tileable) = run_input(run.as_ref(), &args.folder)?;
+        let Some(input) = &input else {
+            bail!(
+                "{}: no run.json naming the run's input folder; pass --compare FOLDER to choose what to compare with",
+                args.folder.display()
+            );
+        };
+        let tileable = run
+            .as_ref()
+            .and_then(|r| r["tileable"].as_bool())
+            .unwrap_or(true);
         let scale = main.width() / input.width().max(1);
-        let baseline = bilinear_baseline(&input, &main, tileable);
-        comparisons.push((format!("bilinear ×{scale}"), baseline));
+        comparisons.push((
+            format!("bilinear ×{scale}"),
+            bilinear_baseline(input, &main, tileable),
+        ));
     }
     let config = run
         .as_ref()
         .and_then(|r| serde_json::from_value::<Config>(r["config"].clone()).ok())
         .unwrap_or_default();
-    let page = write_page(
+    let page = write_view(
         &args.folder,
         &main,
         &comparisons,
@@ -73,41 +103,12 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes `folder/view.html` showing `main` against `comparisons`; returns its path.
-pub fn write_page(
-    folder: &Path,
-    main: &Material,
-    comparisons: &[(String, Material)],
-    config: &Config,
-    run: Option<serde_json::Value>,
-    title: &str,
-) -> anyhow::Result<PathBuf> {
-    let light = starting_light(&config.lights.build())
-        .context("the run's light set is empty; the viewer needs one light")?;
-    let page = ViewPage {
-        title: title.to_string(),
-        main: Shown {
-            label: "matup".into(),
-            material: main,
-        },
-        comparisons: comparisons
-            .iter()
-            .map(|(label, material)| Shown {
-                label: label.clone(),
-                material,
-            })
-            .collect(),
-        light,
-        run,
+fn load(folder: &Path, normal_convention: Option<NormalConvention>) -> anyhow::Result<Material> {
+    let options = LoadOptions {
+        normal_convention,
+        ..Default::default()
     };
-    let html = view_html(&page)?;
-    let path = folder.join("view.html");
-    write_atomic(&path, html.as_bytes())?;
-    Ok(path)
-}
-
-fn load(folder: &Path) -> anyhow::Result<Material> {
-    load_material(Some(folder), &LoadOptions::default())
+    load_material(Some(folder), &options)
         .with_context(|| format!("cannot load the material in {}", folder.display()))
 }
 
@@ -117,25 +118,6 @@ fn label_of(folder: &Path) -> String {
         .ok()
         .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
         .unwrap_or_else(|| folder.display().to_string())
-}
-
-/// The run's input (from `run.json`'s `input_folder`) and whether it was treated as tileable.
-fn run_input(run: Option<&serde_json::Value>, folder: &Path) -> anyhow::Result<(Material, bool)> {
-    let hint = "pass --compare FOLDER to choose what to compare with";
-    let Some(run) = run else {
-        bail!(
-            "{} has no run.json to find the input in; {hint}",
-            folder.display()
-        );
-    };
-    let Some(input) = run["input_folder"].as_str() else {
-        bail!(
-            "{}: run.json names no input folder; {hint}",
-            folder.display()
-        );
-    };
-    let input = load(Path::new(input)).with_context(|| format!("the run's input; {hint}"))?;
-    Ok((input, run["tileable"].as_bool().unwrap_or(true)))
 }
 
 /// Hands the page to the desktop's opener (a crate would add nothing over these three).

@@ -155,7 +155,7 @@ fn single_run() -> &'static (PathBuf, Output) {
             .arg(library())
             .arg("-o")
             .arg(&out)
-            .arg("--json")
+            .args(["--json", "--view"])
             .output()
             .unwrap();
         (out, o)
@@ -205,6 +205,7 @@ fn a_single_run_upscales_the_library_records_the_failure_and_reruns_only_what_is
                 "roughness.png",
                 "preview.png",
                 "run.json",
+                "view.html",
             ] {
                 assert!(folder.join(file).is_file(), "{name}/{file}");
             }
@@ -222,6 +223,10 @@ fn a_single_run_upscales_the_library_records_the_failure_and_reruns_only_what_is
     assert!(
         html.contains("5 done, 1 failed"),
         "the page counts the statuses"
+    );
+    assert!(
+        html.contains(r#"<a href="./fabric/denim/view.html">relight</a>"#),
+        "the index links each material's viewer"
     );
     assert!(!html.contains("http"), "the page needs no network");
 
@@ -391,6 +396,22 @@ fn a_live_claim_is_respected_and_a_stale_one_taken_over() {
     );
     assert_eq!(statuses(out.path())["Leather025"], "done");
     assert!(!claim.exists(), "the stale claim is gone");
+
+    // Asking for the viewer later adds it without upscaling again.
+    let page = out.path().join("Leather025/view.html");
+    assert!(!page.exists());
+    let o = matup()
+        .arg(library.path())
+        .arg("-o")
+        .arg(out.path())
+        .args(["--json", "--view"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        handled(&json(&o)),
+        vec![("Leather025".to_string(), "already-done".to_string())]
+    );
+    assert!(page.is_file());
 }
 
 #[test]

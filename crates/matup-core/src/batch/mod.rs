@@ -26,6 +26,7 @@ pub use summary::{Row, Status};
 use crate::folder::upscale_to_folder;
 use crate::io::{is_image_file, load_material, write_atomic, LoadOptions, SaveOptions};
 use crate::progress::{Progress, Silent};
+use crate::view::write_run_view;
 use crate::{Config, Error, Result};
 
 /// How a batch runs.
@@ -38,6 +39,8 @@ pub struct BatchOptions {
     /// Take only this shard's materials (all when `None`).
     pub shard: Option<Shard>,
     pub claims: ClaimTiming,
+    /// Also write each material's `view.html` (linked from `index.html`).
+    pub view: bool,
 }
 
 /// What this worker did with one material.
@@ -149,10 +152,11 @@ pub fn run_batch(
     let library = find_materials(root, Some(out))?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let began = SystemTime::now();
-    let fingerprints: Vec<Option<String>> = library
+    // A material whose files cannot be listed has no fingerprint: it fails with the reason.
+    let fingerprints: Vec<std::result::Result<String, String>> = library
         .materials
         .iter()
-        .map(|m| settings_fingerprint(&root.join(m), options).ok())
+        .map(|m| settings_fingerprint(&root.join(m), options).map_err(|e| e.to_string()))
         .collect();
     let mine: Vec<usize> = (0..library.materials.len())
         .filter(|&i| {
@@ -174,7 +178,7 @@ pub fn run_batch(
         progress.material_started(&name);
         let start = Instant::now();
         let outcome = match &fingerprints[i] {
-            Some(fingerprint) => handle_material(
+            Ok(fingerprint) => handle_material(
                 &root.join(relative),
                 &out.join(relative),
                 fingerprint,
@@ -182,12 +186,7 @@ pub fn run_batch(
                 options,
                 progress,
             ),
-            None => {
-                let error = settings_fingerprint(&root.join(relative), options)
-                    .err()
-                    .map_or("cannot read the material's files".into(), |e| e.to_string());
-                Outcome::Failed(error)
-            }
+            Err(error) => Outcome::Failed(error.clone()),
         };
         let h = Handled {
             material: name,
@@ -222,7 +221,10 @@ fn handle_material(
     progress: &dyn Progress,
 ) -> Outcome {
     if read_result(output, fingerprint).is_some() {
-        return Outcome::AlreadyDone;
+        return match add_missing_view(input, output, options) {
+            Ok(()) => Outcome::AlreadyDone,
+            Err(e) => Outcome::Failed(e.to_string()),
+        };
     }
     let claim = match claim::claim(output, options.claims) {
         Ok(claim::Claimed::Yes(c)) => c,
@@ -234,7 +236,7 @@ fn handle_material(
         claim.release();
         return Outcome::AlreadyDone;
     }
-    if let Some(f) = read_failure(output, Some(fingerprint)) {
+    if let Some(f) = read_failure(output, fingerprint) {
         if f.failed_at >= unix_seconds(batch_began) {
             claim.release();
             return Outcome::FailedElsewhere(f.error);
@@ -246,7 +248,7 @@ fn handle_material(
         lost: &claim.lost_flag(),
     };
     let outcome = load_material(Some(input), &options.load).and_then(|material| {
-        upscale_to_folder(
+        let run = upscale_to_folder(
             &material,
             &options.config,
             output,
@@ -254,7 +256,11 @@ fn handle_material(
             true,
             Some(fingerprint.to_string()),
             &watch,
-        )
+        )?;
+        if options.view {
+            write_run_view(&material, output)?;
+        }
+        Ok(run)
     });
     let outcome = match outcome {
         Ok(_) => {
@@ -279,6 +285,16 @@ fn handle_material(
     };
     claim.release();
     outcome
+}
+
+/// With `view`, writes the page of a material done earlier without one (it needs no claim:
+/// any worker writes the same page, atomically).
+fn add_missing_view(input: &Path, output: &Path, options: &BatchOptions) -> Result<()> {
+    if options.view && !output.join("view.html").is_file() {
+        let material = load_material(Some(input), &options.load)?;
+        write_run_view(&material, output)?;
+    }
+    Ok(())
 }
 
 /// Removes the temporary files of atomic writes that a killed worker left in `folder`
@@ -332,12 +348,11 @@ fn unix_seconds(t: SystemTime) -> u64 {
     t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs())
 }
 
-/// The failure recorded in `folder` for these settings (for any, when `None`).
-fn read_failure(folder: &Path, fingerprint: Option<&str>) -> Option<Failure> {
+/// The failure recorded in `folder` for these settings.
+fn read_failure(folder: &Path, fingerprint: &str) -> Option<Failure> {
     let text = std::fs::read_to_string(folder.join(FAILURE_FILE)).ok()?;
     let failure: Failure = serde_json::from_str(&text).ok()?;
-    let same = fingerprint.is_none_or(|f| failure.settings_fingerprint.as_deref() == Some(f));
-    same.then_some(failure)
+    (failure.settings_fingerprint.as_deref() == Some(fingerprint)).then_some(failure)
 }
 
 /// What the summary reads from a finished run's `run.json`.

@@ -52,6 +52,8 @@ pub struct Row {
     pub input_size: Option<[usize; 2]>,
     pub output_size: Option<[usize; 2]>,
     pub error: Option<String>,
+    /// Whether the material's folder holds a `view.html` (`matup batch --view`).
+    pub view: bool,
 }
 
 /// `batch.json`.
@@ -69,11 +71,11 @@ struct SkippedFolder {
 }
 
 /// Reads every material's state under `out` for the settings `fingerprints` (one per
-/// material of `library`, in order).
+/// material of `library`, in order; an error where its files could not be listed).
 pub fn summarize(
     library: &Library,
     out: &Path,
-    fingerprints: &[Option<String>],
+    fingerprints: &[std::result::Result<String, String>],
     claims: ClaimTiming,
 ) -> Vec<Row> {
     library
@@ -92,9 +94,17 @@ pub fn summarize(
                 input_size: None,
                 output_size: None,
                 error: None,
+                view: false,
             };
-            let fingerprint = fingerprint.as_deref();
-            if let Some(result) = fingerprint.and_then(|f| read_result(&folder, f)) {
+            let fingerprint = match fingerprint {
+                Ok(f) => f,
+                Err(error) => {
+                    row.status = Status::Failed;
+                    row.error = Some(error.clone());
+                    return row;
+                }
+            };
+            if let Some(result) = read_result(&folder, fingerprint) {
                 row.status = Status::Done;
                 row.seconds = result.total_seconds;
                 row.final_loss = result.final_loss;
@@ -102,6 +112,7 @@ pub fn summarize(
                 row.tileable = result.tileable;
                 row.input_size = result.input_size;
                 row.output_size = result.output_size;
+                row.view = folder.join("view.html").is_file();
             } else if live_claim(&folder, claims).is_some() {
                 row.status = Status::Running;
             } else if let Some(failure) = read_failure(&folder, fingerprint) {
@@ -209,7 +220,7 @@ fn html(summary: &Summary) -> String {
         rows.push_str(&format!(
             concat!(
                 "<tr class=\"{status}\"><td>{preview}</td>",
-                "<td><a href=\"{folder}\">{name}</a></td><td>{status}</td><td>{size}</td>",
+                "<td><a href=\"{folder}\">{name}</a>{view}</td><td>{status}</td><td>{size}</td>",
                 "<td data-sort=\"{seconds_key}\">{seconds}</td>",
                 "<td data-sort=\"{loss_key}\">{loss}</td><td>{tileable}</td>",
                 "<td>{skips}</td><td>{error}</td></tr>\n"
@@ -218,6 +229,14 @@ fn html(summary: &Summary) -> String {
             preview = preview,
             folder = escape(&href(&r.material, "")),
             name = escape(&r.material),
+            view = if r.view {
+                format!(
+                    r#" (<a href="{}">relight</a>)"#,
+                    escape(&href(&r.material, "view.html"))
+                )
+            } else {
+                String::new()
+            },
             size = size,
             seconds_key = seconds_key,
             seconds = seconds,

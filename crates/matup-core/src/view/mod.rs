@@ -9,16 +9,19 @@
 //! image. Browsers refuse WebGL textures from `file://` files beside a page, hence the
 //! embedding.
 
+use std::path::{Path, PathBuf};
+
 use base64::Engine;
 use serde::Serialize;
 
 use crate::color::linear_to_srgb;
 use crate::html::escape;
-use crate::io::{encode_normals, encode_png8};
+use crate::io::{encode_normals, encode_png8, load_material, write_atomic, LoadOptions};
 use crate::lights::Light;
 use crate::map::Map;
 use crate::material::{Material, NormalConvention, DISPLACEMENT, MIN_ALPHA};
-use crate::{Error, Result};
+use crate::pipeline::bilinear_baseline;
+use crate::{Config, Error, Result};
 
 /// One material the page shows.
 pub struct Shown<'a> {
@@ -137,6 +140,72 @@ pub fn view_html(page: &ViewPage) -> Result<String> {
     Ok(TEMPLATE
         .replace("{{TITLE}}", &escape(&page.title))
         .replace("{{DATA}}", &json))
+}
+
+/// Writes `folder/view.html` showing `main` against `comparisons` (label, material), lit
+/// from the light set of `config` to start with; returns its path.
+pub fn write_view(
+    folder: &Path,
+    main: &Material,
+    comparisons: &[(String, Material)],
+    config: &Config,
+    run: Option<serde_json::Value>,
+    title: &str,
+) -> Result<PathBuf> {
+    let light = starting_light(&config.lights.build()).ok_or_else(|| {
+        Error::Invalid("viewer: the run's light set is empty; the page needs a light".into())
+    })?;
+    let page = ViewPage {
+        title: title.to_string(),
+        main: Shown {
+            label: "matup".into(),
+            material: main,
+        },
+        comparisons: comparisons
+            .iter()
+            .map(|(label, material)| Shown {
+                label: label.clone(),
+                material,
+            })
+            .collect(),
+        light,
+        run,
+    };
+    let path = folder.join("view.html");
+    write_atomic(&path, view_html(&page)?.as_bytes())?;
+    Ok(path)
+}
+
+/// The page of a finished run in `out` (as [`crate::folder::upscale_to_folder`] wrote it,
+/// `run.json` included): its maps as written, in the convention the outputs keep (the
+/// input's), against bilinear ×N of `input`.
+pub fn write_run_view(input: &Material, out: &Path) -> Result<PathBuf> {
+    let run_json = out.join("run.json");
+    let text = std::fs::read_to_string(&run_json).map_err(|e| Error::io(&run_json, e))?;
+    let run: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Error::file(&run_json, format!("not a run.json: {e}")))?;
+    let config: Config = serde_json::from_value(run["config"].clone())
+        .map_err(|e| Error::file(&run_json, format!("its config does not parse: {e}")))?;
+    let options = LoadOptions {
+        normal_convention: input.origin.as_ref().map(|o| o.normal_convention),
+        ..Default::default()
+    };
+    let result = load_material(Some(out), &options)?;
+    let scale = result.width() / input.width().max(1);
+    let tileable = run["tileable"].as_bool().unwrap_or(true);
+    let baseline = bilinear_baseline(input, &result, tileable);
+    let title = match run["input_folder"].as_str() {
+        Some(folder) => format!("matup: {folder}"),
+        None => "matup".to_string(),
+    };
+    write_view(
+        out,
+        &result,
+        &[(format!("bilinear ×{scale}"), baseline)],
+        &config,
+        Some(run),
+        &title,
+    )
 }
 
 const TEMPLATE: &str = include_str!("view.html");
