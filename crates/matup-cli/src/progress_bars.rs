@@ -56,7 +56,14 @@ impl Bars {
 
     /// Prints a line above the bars.
     pub fn note_now(&self, message: &str) {
-        if !self.quiet {
+        if self.quiet {
+            return;
+        }
+        // Bars are hidden where stderr is no terminal (a log file, a cluster job), and a
+        // hidden MultiProgress prints nothing: notes go straight to stderr there.
+        if self.multi.is_hidden() {
+            eprintln!("{message}");
+        } else {
             let _ = self.multi.println(message);
         }
     }
