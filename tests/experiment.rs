@@ -213,6 +213,7 @@ fn experiments_record_failures_and_resume_without_rerunning() {
             vec![toml::Value::from("l21"), toml::Value::from("l11")],
         )]),
         mode: Default::default(),
+        view: false,
     };
     let runs = exp.runs().unwrap();
     assert_eq!(runs.len(), 2 * 4);

@@ -45,6 +45,10 @@ pub struct BenchArgs {
     /// Held-out lights of the evaluation.
     #[arg(long, default_value_t = 16)]
     pub eval_lights: usize,
+    /// Keep every method's maps (outputs/MATERIAL/METHOD/, the truth beside them) and write
+    /// outputs/MATERIAL/view.html, a relightable page where a menu picks the method.
+    #[arg(long)]
+    pub view: bool,
     #[arg(long)]
     pub quiet: bool,
 }
@@ -113,6 +117,7 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
             upsamplers.into_iter().map(toml::Value::String).collect(),
         )]),
         mode: Default::default(),
+        view: args.view,
     };
     execute(&experiment, &args.output, args.quiet)
 }
@@ -164,6 +169,12 @@ fn execute(experiment: &Experiment, output: &Path, quiet: bool) -> anyhow::Resul
         output.join("results.json").display(),
         output.join("time_vs_error.png").display()
     );
+    if experiment.view {
+        eprintln!(
+            "wrote every method's maps and a view.html per material in {}",
+            output.join("outputs").display()
+        );
+    }
     Ok(())
 }
 

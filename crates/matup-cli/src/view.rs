@@ -90,7 +90,7 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
         .unwrap_or_default();
     let page = write_view(
         &args.folder,
-        &main,
+        ("matup", &main),
         &comparisons,
         &config,
         run,

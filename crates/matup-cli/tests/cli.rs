@@ -385,3 +385,56 @@ fn the_shipped_sweeps_parse_and_expand() {
         );
     }
 }
+
+#[test]
+fn bench_view_keeps_every_method_and_writes_a_page_per_material() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let o = matup(&[
+        "bench",
+        &shared("matup_victorian_wood"),
+        "-o",
+        out.to_str().unwrap(),
+        "--crop",
+        "64",
+        "--baselines",
+        "bilinear,bicubic",
+        "--upsamplers",
+        "bilinear",
+        "--view",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let index = std::fs::read_to_string(out.join("outputs/index.html")).unwrap();
+    assert!(
+        index.contains(r#"<a href="./matup_victorian_wood/view.html">"#),
+        "{index}"
+    );
+    let folder = out.join("outputs/matup_victorian_wood");
+    let page = std::fs::read_to_string(folder.join("view.html")).unwrap();
+    let data = page
+        .split(r#"<script id="data" type="application/json">"#)
+        .nth(1)
+        .and_then(|rest| rest.split("</script>").next())
+        .unwrap();
+    let data: serde_json::Value = serde_json::from_str(data).unwrap();
+    let label = |v: &serde_json::Value| v["label"].as_str().unwrap().to_string();
+    assert!(
+        label(&data["main"]).starts_with("matup"),
+        "{}",
+        label(&data["main"])
+    );
+    let menu: Vec<String> = data["comparisons"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(label)
+        .collect();
+    assert_eq!(menu.len(), 3, "{menu:?}");
+    assert_eq!(menu[0], "truth", "the truth first");
+    assert!(menu[1..].iter().any(|m| m.contains("bicubic")), "{menu:?}");
+    for m in menu {
+        let base = image::open(folder.join(&m).join("baseColor.png")).unwrap();
+        assert_eq!((base.width(), base.height()), (64, 64), "{m}");
+    }
+}

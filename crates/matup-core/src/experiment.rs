@@ -12,15 +12,17 @@ use serde::{Deserialize, Serialize};
 
 use crate::baseline::upscale_per_map;
 use crate::config::{check_supported_scale, Config};
-use crate::io::{load_material, write_atomic, LoadOptions};
+use crate::html::{escape, href};
+use crate::io::{load_material, save_material, write_atomic, LoadOptions, SaveOptions};
 use crate::lights::LightSetSpec;
-use crate::material::Material;
+use crate::material::{FileFormat, Material, NormalConvention};
 use crate::metrics::{evaluate, Evaluation};
 use crate::pipeline::{choose_upsampler, detect_tileable, upscale, RunOptions};
 use crate::progress::Progress;
 use crate::resample::Border;
 use crate::shading::shading_model;
 use crate::upsample::{check_scale, upsampler};
+use crate::view::write_view;
 use crate::{Error, PluginSpec, Result};
 
 /// An experiment file (`matup sweep FILE.toml`); `matup bench` builds one from its arguments.
@@ -56,6 +58,10 @@ pub struct Experiment {
     /// `grid`: every combination of the axes; `zip`: the i-th values of every axis together.
     #[serde(default)]
     pub mode: AxesMode,
+    /// Keep every run's maps in `outputs/MATERIAL/RUN/` (the truth in `outputs/MATERIAL/truth/`)
+    /// and write `outputs/MATERIAL/view.html`, where a menu picks the method to compare.
+    #[serde(default)]
+    pub view: bool,
 }
 
 fn default_factor() -> usize {
@@ -421,6 +427,10 @@ pub fn run_experiment(
                     Err(e) => Err(e.to_string()),
                     Ok((material, facts)) => {
                         let _ = std::fs::remove_dir_all(&checkpoints);
+                        if experiment.view {
+                            keep_output(out, run, "", &material)?;
+                            keep_output(out, run, "truth", &p.truth)?;
+                        }
                         evaluate(&p.truth, &material, eval_model.as_ref(), &eval_lights)
                             .map(|ev| (facts, ev))
                             .map_err(|e| e.to_string())
@@ -444,7 +454,117 @@ pub fn run_experiment(
         write_tables(out, &rows)?;
     }
     write_tables(out, &rows)?;
+    if experiment.view {
+        write_views(out)?;
+    }
     Ok(rows)
+}
+
+/// Where [`Experiment::view`] keeps a material's outputs.
+fn outputs_folder(out: &Path, run: &Run) -> PathBuf {
+    out.join("outputs").join(material_name(&run.material))
+}
+
+/// Saves `material` as `name` (the run's method and settings when empty) under the run's
+/// material, in matup's DirectX normal convention, which [`write_views`] reads back.
+fn keep_output(out: &Path, run: &Run, name: &str, material: &Material) -> Result<()> {
+    let name = if name.is_empty() {
+        let label = run.id.split_once('/').map_or(run.id.as_str(), |(_, m)| m);
+        // A folder name: the label's letters, digits and `.-_`, everything else `_`.
+        label
+            .chars()
+            .map(|c| {
+                if c.is_alphanumeric() || "-_.".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect()
+    } else {
+        name.to_string()
+    };
+    let folder = outputs_folder(out, run).join(&name);
+    if name == "truth" && folder.is_dir() {
+        return Ok(()); // kept with the material's first run
+    }
+    let save = SaveOptions {
+        format: Some(FileFormat::Png8),
+        normal_convention: Some(NormalConvention::DirectX),
+    };
+    let mut material = material.clone();
+    material.origin = None; // its own files, not the input's formats
+    save_material(&material, &folder, &save).map(|_| ())
+}
+
+/// `outputs/MATERIAL/view.html` for every material kept: the first matup run against every
+/// other run and the truth.
+fn write_views(out: &Path) -> Result<()> {
+    let outputs = out.join("outputs");
+    let Ok(entries) = std::fs::read_dir(&outputs) else {
+        return Ok(());
+    };
+    let mut materials: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    materials.sort();
+    let load = LoadOptions {
+        normal_convention: Some(NormalConvention::DirectX),
+        ..Default::default()
+    };
+    let mut links = String::new();
+    for folder in materials {
+        let material = folder
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        let mut runs: Vec<(String, Material)> = Vec::new();
+        let mut names: Vec<PathBuf> = std::fs::read_dir(&folder)
+            .map_err(|e| Error::io(&folder, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir())
+            .collect();
+        names.sort();
+        for path in names {
+            let name = path
+                .file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned();
+            runs.push((name, load_material(Some(&path), &load)?));
+        }
+        // Shown on the right: the first matup run; the truth first in the menu.
+        let Some(main) = runs
+            .iter()
+            .position(|(n, _)| n.starts_with("matup"))
+            .or((runs.len() > 1).then_some(0))
+        else {
+            continue;
+        };
+        let (main_name, main) = runs.remove(main);
+        runs.sort_by_key(|(n, _)| n != "truth");
+        let title = format!("matup bench: {material}");
+        links.push_str(&format!(
+            "<li><a href=\"{}\">{}</a></li>\n",
+            escape(&href(&material, "view.html")),
+            escape(&material)
+        ));
+        write_view(
+            &folder,
+            (&main_name, &main),
+            &runs,
+            &Config::default(),
+            None,
+            &title,
+        )?;
+    }
+    // The materials' pages, one link each.
+    let index = format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>matup bench</title></head>\n<body><h1>matup bench: relight each material</h1>\n<ul>\n{links}</ul>\n</body></html>\n"
+    );
+    write_atomic(&outputs.join("index.html"), index.as_bytes())
 }
 
 /// A material's name in run ids and tables: its folder's name.

@@ -4,13 +4,12 @@
 
 use std::path::Path;
 
-use percent_encoding::{utf8_percent_encode, AsciiSet, NON_ALPHANUMERIC};
 use serde::Serialize;
 
 use super::claim::{live_claim, ClaimTiming};
 use super::library::{material_name, Library};
 use super::{read_failure, read_result};
-use crate::html::escape;
+use crate::html::{escape, href};
 use crate::io::write_atomic;
 use crate::{Error, Result};
 
@@ -171,26 +170,6 @@ fn csv(rows: &[Row]) -> Result<Vec<u8>> {
     }
     csv.into_inner()
         .map_err(|e| Error::Invalid(format!("batch.csv: {e}")))
-}
-
-/// What a URL path segment may hold unencoded (RFC 3986's unreserved characters).
-const SEGMENT: &AsciiSet = &NON_ALPHANUMERIC
-    .remove(b'-')
-    .remove(b'.')
-    .remove(b'_')
-    .remove(b'~');
-
-/// A relative URL to `file` in a material's output folder (to the folder when `file` is
-/// empty), each path segment percent-encoded.
-fn href(material: &str, file: &str) -> String {
-    let mut url = String::from(".");
-    for segment in material.split('/').filter(|s| *s != ".") {
-        url.push('/');
-        url.extend(utf8_percent_encode(segment, SEGMENT));
-    }
-    url.push('/');
-    url.extend(utf8_percent_encode(file, SEGMENT));
-    url
 }
 
 /// The page: a table of every material with its preview and numbers, sortable by clicking a

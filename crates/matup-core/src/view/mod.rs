@@ -142,11 +142,11 @@ pub fn view_html(page: &ViewPage) -> Result<String> {
         .replace("{{DATA}}", &json))
 }
 
-/// Writes `folder/view.html` showing `main` against `comparisons` (label, material), lit
+/// Writes `folder/view.html` showing `main` (label, material) against `comparisons`, lit
 /// from the light set of `config` to start with; returns its path.
 pub fn write_view(
     folder: &Path,
-    main: &Material,
+    main: (&str, &Material),
     comparisons: &[(String, Material)],
     config: &Config,
     run: Option<serde_json::Value>,
@@ -158,8 +158,8 @@ pub fn write_view(
     let page = ViewPage {
         title: title.to_string(),
         main: Shown {
-            label: "matup".into(),
-            material: main,
+            label: main.0.to_string(),
+            material: main.1,
         },
         comparisons: comparisons
             .iter()
@@ -200,7 +200,7 @@ pub fn write_run_view(input: &Material, out: &Path) -> Result<PathBuf> {
     };
     write_view(
         out,
-        &result,
+        ("matup", &result),
         &[(format!("bilinear ×{scale}"), baseline)],
         &config,
         Some(run),
