@@ -113,7 +113,7 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
             report.library.materials.len(),
             count("upscaled"),
             count("already-done"),
-            count("failed") + count("failed-elsewhere"),
+            report.failures(),
             count("held-elsewhere") + count("lost-claim"),
         );
         for (folder, why) in &report.library.skipped {
@@ -131,12 +131,8 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
     if report.interrupted {
         bail!("interrupted; run the same command again to finish the library");
     }
-    if report.any_failed() {
-        let failed = report
-            .handled
-            .iter()
-            .filter(|h| h.outcome.is_failure())
-            .count();
+    let failed = report.failures();
+    if failed > 0 {
         bail!(
             "{failed} material(s) failed; their errors are in {}",
             args.output.join("batch.csv").display()

@@ -7,6 +7,15 @@ use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 use matup_core::batch::{BatchProgress, Handled};
 use matup_core::progress::Progress;
 
+/// Every bar's look: its name, the bar, the count, the time, the ETA and a message.
+fn bar_style() -> ProgressStyle {
+    ProgressStyle::with_template(
+        "{prefix:>24} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+    )
+    .unwrap()
+    .progress_chars("=> ")
+}
+
 /// One bar per stage, with its ETA and the running loss; notes printed above the bars.
 pub struct Bars {
     current: Mutex<Option<ProgressBar>>,
@@ -81,13 +90,7 @@ impl Progress for Bars {
             None => {}
         }
         let bar = self.multi.add(ProgressBar::new(total));
-        bar.set_style(
-            ProgressStyle::with_template(
-                "{prefix:>24} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
-            )
-            .unwrap()
-            .progress_chars("=> "),
-        );
+        bar.set_style(bar_style());
         bar.set_prefix(name.to_string());
         *current = Some(bar);
     }
@@ -124,13 +127,7 @@ impl BatchBars {
             ..Bars::new(quiet)
         };
         let materials = stages.multi.add(ProgressBar::new(0));
-        materials.set_style(
-            ProgressStyle::with_template(
-                "{prefix:>24} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
-            )
-            .unwrap()
-            .progress_chars("=> "),
-        );
+        materials.set_style(bar_style());
         materials.set_prefix("materials");
         BatchBars { stages, materials }
     }

@@ -4,8 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::Args;
-use matup_core::pipeline::bilinear_baseline;
-use matup_core::view::write_view;
+use matup_core::view::{bilinear_comparison, write_view};
 use matup_core::{load_material, Config, LoadOptions, Material, NormalConvention};
 
 #[derive(Args, Debug)]
@@ -74,15 +73,7 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
                 args.folder.display()
             );
         };
-        let tileable = run
-            .as_ref()
-            .and_then(|r| r["tileable"].as_bool())
-            .unwrap_or(true);
-        let scale = main.width() / input.width().max(1);
-        comparisons.push((
-            format!("bilinear ×{scale}"),
-            bilinear_baseline(input, &main, tileable),
-        ));
+        comparisons.push(bilinear_comparison(input, &main, run.as_ref()));
     }
     let config = run
         .as_ref()

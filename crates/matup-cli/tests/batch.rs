@@ -107,19 +107,24 @@ fn json(o: &Output) -> Value {
     })
 }
 
-/// (material, outcome) of a worker's `--json` report.
-fn handled(report: &Value) -> Vec<(String, String)> {
-    report["handled"]
+/// (material, `field`) of each entry of a JSON array.
+fn material_pairs<C: FromIterator<(String, String)>>(entries: &Value, field: &str) -> C {
+    entries
         .as_array()
         .unwrap()
         .iter()
-        .map(|h| {
+        .map(|e| {
             (
-                h["material"].as_str().unwrap().to_string(),
-                h["outcome"].as_str().unwrap().to_string(),
+                e["material"].as_str().unwrap().to_string(),
+                e[field].as_str().unwrap().to_string(),
             )
         })
         .collect()
+}
+
+/// (material, outcome) of a worker's `--json` report.
+fn handled(report: &Value) -> Vec<(String, String)> {
+    material_pairs(&report["handled"], "outcome")
 }
 
 fn summary(out: &Path) -> Value {
@@ -127,17 +132,7 @@ fn summary(out: &Path) -> Value {
 }
 
 fn statuses(out: &Path) -> BTreeMap<String, String> {
-    summary(out)["materials"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|m| {
-            (
-                m["material"].as_str().unwrap().to_string(),
-                m["status"].as_str().unwrap().to_string(),
-            )
-        })
-        .collect()
+    material_pairs(&summary(out)["materials"], "status")
 }
 
 fn all_good_done(out: &Path) -> bool {

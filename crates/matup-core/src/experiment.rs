@@ -501,39 +501,19 @@ fn keep_output(out: &Path, run: &Run, name: &str, material: &Material) -> Result
 /// other run and the truth.
 fn write_views(out: &Path) -> Result<()> {
     let outputs = out.join("outputs");
-    let Ok(entries) = std::fs::read_dir(&outputs) else {
+    if !outputs.is_dir() {
         return Ok(());
-    };
-    let mut materials: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_dir())
-        .collect();
-    materials.sort();
+    }
     let load = LoadOptions {
         normal_convention: Some(NormalConvention::DirectX),
         ..Default::default()
     };
     let mut links = String::new();
-    for folder in materials {
-        let material = folder
-            .file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned();
+    for folder in subfolders(&outputs)? {
+        let material = material_name(&folder);
         let mut runs: Vec<(String, Material)> = Vec::new();
-        let mut names: Vec<PathBuf> = std::fs::read_dir(&folder)
-            .map_err(|e| Error::io(&folder, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.is_dir())
-            .collect();
-        names.sort();
-        for path in names {
-            let name = path
-                .file_name()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned();
-            runs.push((name, load_material(Some(&path), &load)?));
+        for path in subfolders(&folder)? {
+            runs.push((material_name(&path), load_material(Some(&path), &load)?));
         }
         // Shown on the right: the first matup run; the truth first in the menu.
         let Some(main) = runs
@@ -565,6 +545,17 @@ fn write_views(out: &Path) -> Result<()> {
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>matup bench</title></head>\n<body><h1>matup bench: relight each material</h1>\n<ul>\n{links}</ul>\n</body></html>\n"
     );
     write_atomic(&outputs.join("index.html"), index.as_bytes())
+}
+
+/// The folders in `folder`, in name order.
+fn subfolders(folder: &Path) -> Result<Vec<PathBuf>> {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(folder)
+        .map_err(|e| Error::io(folder, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    found.sort();
+    Ok(found)
 }
 
 /// A material's name in run ids and tables: its folder's name.

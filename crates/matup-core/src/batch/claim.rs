@@ -103,7 +103,8 @@ pub enum Claimed {
 /// A held claim, touched by a heartbeat thread.
 pub struct Claim {
     path: PathBuf,
-    generation: u64,
+    /// The next generation's file: it exists once another worker took the claim over.
+    takeover: PathBuf,
     lost: Arc<AtomicBool>,
     stop: Option<Sender<()>>,
     heartbeat: Option<JoinHandle<()>>,
@@ -120,10 +121,7 @@ pub fn claim(folder: &Path, timing: ClaimTiming) -> Result<Claimed> {
             None => 0,
             Some((g, path)) => match read_claim(&path) {
                 Some((holder, touched)) => {
-                    let age = SystemTime::now()
-                        .duration_since(touched)
-                        .unwrap_or_default();
-                    if age < timing.timeout && !holder.is_gone() {
+                    if is_live(&holder, touched, timing) {
                         return Ok(Claimed::HeldBy(holder));
                     }
                     g + 1
@@ -132,14 +130,14 @@ pub fn claim(folder: &Path, timing: ClaimTiming) -> Result<Claimed> {
                 None => continue,
             },
         };
-        let path = folder.join(format!("{PREFIX}{generation}"));
+        let path = claim_path(folder, generation);
         if create_claim(&path, &me)? {
             for old in claim_files(folder)? {
                 if old.0 < generation {
                     let _ = std::fs::remove_file(&old.1);
                 }
             }
-            return Ok(Claimed::Yes(Claim::hold(path, generation, timing)));
+            return Ok(Claimed::Yes(Claim::hold(folder, generation, timing)));
         }
     }
     Err(Error::file(
@@ -169,10 +167,21 @@ fn newest_claim(folder: &Path) -> Result<Option<(u64, PathBuf)>> {
 pub fn live_claim(folder: &Path, timing: ClaimTiming) -> Option<Holder> {
     let (_, path) = newest_claim(folder).ok()??;
     let (holder, touched) = read_claim(&path)?;
+    is_live(&holder, touched, timing).then_some(holder)
+}
+
+/// Whether a claim last touched at `touched` by `holder` still holds: touched within the
+/// timeout, by a process not known to have ended.
+fn is_live(holder: &Holder, touched: SystemTime, timing: ClaimTiming) -> bool {
     let age = SystemTime::now()
         .duration_since(touched)
         .unwrap_or_default();
-    (age < timing.timeout && !holder.is_gone()).then_some(holder)
+    age < timing.timeout && !holder.is_gone()
+}
+
+/// The file of generation `generation` of the claim on `folder`.
+fn claim_path(folder: &Path, generation: u64) -> PathBuf {
+    folder.join(format!("{PREFIX}{generation}"))
 }
 
 /// The holder and last heartbeat of a claim file; `None` when it is gone. A claim whose
@@ -210,18 +219,19 @@ fn create_claim(path: &Path, holder: &Holder) -> Result<bool> {
 }
 
 impl Claim {
-    fn hold(path: PathBuf, generation: u64, timing: ClaimTiming) -> Claim {
+    fn hold(folder: &Path, generation: u64, timing: ClaimTiming) -> Claim {
+        let path = claim_path(folder, generation);
+        let takeover = claim_path(folder, generation + 1);
         let lost = Arc::new(AtomicBool::new(false));
         let (stop, stopped) = channel();
         let heartbeat = {
-            let (path, lost) = (path.clone(), lost.clone());
-            let next = path.with_file_name(format!("{PREFIX}{}", generation + 1));
+            let (path, takeover, lost) = (path.clone(), takeover.clone(), lost.clone());
             std::thread::spawn(move || loop {
                 match stopped.recv_timeout(timing.heartbeat) {
                     Err(RecvTimeoutError::Timeout) => {}
                     _ => return,
                 }
-                if next.exists() || touch(&path).is_err() {
+                if takeover.exists() || touch(&path).is_err() {
                     lost.store(true, Ordering::SeqCst);
                     return;
                 }
@@ -229,7 +239,7 @@ impl Claim {
         };
         Claim {
             path,
-            generation,
+            takeover,
             lost,
             stop: Some(stop),
             heartbeat: Some(heartbeat),
@@ -249,10 +259,7 @@ impl Claim {
     /// Stops the heartbeat and removes the claim (unless another worker holds it now).
     pub fn release(mut self) {
         self.stop_heartbeat();
-        let newer = self
-            .path
-            .with_file_name(format!("{PREFIX}{}", self.generation + 1));
-        if !newer.exists() {
+        if !self.takeover.exists() {
             let _ = std::fs::remove_file(&self.path);
         }
     }

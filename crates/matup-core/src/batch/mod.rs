@@ -111,9 +111,12 @@ pub struct BatchReport {
 }
 
 impl BatchReport {
-    /// Whether a material this worker tried failed.
-    pub fn any_failed(&self) -> bool {
-        self.handled.iter().any(|h| h.outcome.is_failure())
+    /// How many materials this worker tried failed.
+    pub fn failures(&self) -> usize {
+        self.handled
+            .iter()
+            .filter(|h| h.outcome.is_failure())
+            .count()
     }
 }
 

@@ -176,6 +176,22 @@ pub fn write_view(
     Ok(path)
 }
 
+/// A run's default comparison: its `input` upsampled bilinearly to the `result`'s size (with
+/// the wrap-around or mirrored border `run.json` says it was upscaled with), labelled
+/// "bilinear ×N".
+pub fn bilinear_comparison(
+    input: &Material,
+    result: &Material,
+    run: Option<&serde_json::Value>,
+) -> (String, Material) {
+    let scale = result.width() / input.width().max(1);
+    let tileable = run.and_then(|r| r["tileable"].as_bool()).unwrap_or(true);
+    (
+        format!("bilinear ×{scale}"),
+        bilinear_baseline(input, result, tileable),
+    )
+}
+
 /// The page of a finished run in `out` (as [`crate::folder::upscale_to_folder`] wrote it,
 /// `run.json` included): its maps as written, in the convention the outputs keep (the
 /// input's), against bilinear ×N of `input`.
@@ -191,9 +207,7 @@ pub fn write_run_view(input: &Material, out: &Path) -> Result<PathBuf> {
         ..Default::default()
     };
     let result = load_material(Some(out), &options)?;
-    let scale = result.width() / input.width().max(1);
-    let tileable = run["tileable"].as_bool().unwrap_or(true);
-    let baseline = bilinear_baseline(input, &result, tileable);
+    let comparison = bilinear_comparison(input, &result, Some(&run));
     let title = match run["input_folder"].as_str() {
         Some(folder) => format!("matup: {folder}"),
         None => "matup".to_string(),
@@ -201,7 +215,7 @@ pub fn write_run_view(input: &Material, out: &Path) -> Result<PathBuf> {
     write_view(
         out,
         ("matup", &result),
-        &[(format!("bilinear ×{scale}"), baseline)],
+        &[comparison],
         &config,
         Some(run),
         &title,
