@@ -8,6 +8,8 @@ mod batch;
 mod downsample;
 mod eval;
 mod experiment;
+#[cfg(feature = "onnx")]
+mod learn;
 mod list;
 mod material_args;
 mod plot;
@@ -64,6 +66,9 @@ enum Command {
     Bench(Box<experiment::BenchArgs>),
     /// Run an experiment file: matup over a grid of settings, resumable.
     Sweep(experiment::SweepArgs),
+    /// Train a super-resolution network for material maps in render space, resumable.
+    #[cfg(feature = "onnx")]
+    Learn(Box<learn::LearnArgs>),
 }
 
 /// matup's own loops run on the global rayon pool, one thread per core. candle splits every
@@ -115,6 +120,8 @@ pub fn main() -> ExitCode {
         Command::Downsample(args) => downsample::run(&args),
         Command::Bench(args) => experiment::bench(&args),
         Command::Sweep(args) => experiment::sweep(&args),
+        #[cfg(feature = "onnx")]
+        Command::Learn(args) => learn::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -438,3 +438,62 @@ fn bench_view_keeps_every_method_and_writes_a_page_per_material() {
         assert_eq!((base.width(), base.height()), (64, 64), "{m}");
     }
 }
+
+#[cfg(feature = "onnx")]
+#[test]
+fn learn_trains_on_pairs_equal_to_what_matup_downsample_writes() {
+    use matup_core::{load_material, LoadOptions};
+    let truth_folder = format!(
+        "{}/../../../shared/corpus/ambientcg_Rock029",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let lr_folder = dir.path().join("lr");
+    let o = matup(&[
+        "downsample",
+        &truth_folder,
+        "-o",
+        lr_folder.to_str().unwrap(),
+        "--factor",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let load =
+        |folder: &std::path::Path| load_material(Some(folder), &LoadOptions::default()).unwrap();
+    let pair = matup_learn::data::Pair::new(load(std::path::Path::new(&truth_folder)), 4);
+    let written = load(&lr_folder);
+    // The files hold 8-bit values: within half a step (base colour in sRGB, so compare there).
+    let srgb = |m: &matup_core::Map| m.clone().map_values(matup_core::color::linear_to_srgb);
+    for (ours, file, what) in [
+        (
+            srgb(&pair.lr.base_color),
+            srgb(&written.base_color),
+            "base colour",
+        ),
+        (
+            pair.lr.roughness.clone(),
+            written.roughness.clone(),
+            "roughness",
+        ),
+        (
+            pair.lr.metallic.clone(),
+            written.metallic.clone(),
+            "metallic",
+        ),
+        (
+            pair.lr.height.clone().unwrap(),
+            written.height.clone().unwrap(),
+            "height",
+        ),
+    ] {
+        let worst = ours
+            .data()
+            .iter()
+            .zip(file.data())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f32::max);
+        assert!(worst <= 0.5 / 255.0 + 1e-5, "{what}: {worst}");
+    }
+    let angle = matup_core::metrics::mean_angle_degrees(&pair.lr.normal, &written.normal);
+    assert!(angle < 0.3, "normals {angle}°");
+}

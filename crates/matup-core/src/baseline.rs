@@ -24,14 +24,7 @@ pub fn upscale_per_map(
         .collect();
     let images: Vec<Map> = kinds
         .iter()
-        .map(|&k| {
-            let m = material.map(k).expect("filtered to present maps");
-            match k {
-                MapKind::BaseColor => m.clone().map_values(linear_to_srgb),
-                MapKind::Normal => encode_normals(m, NormalConvention::DirectX),
-                _ => Map::stack(&[m, m, m]),
-            }
-        })
+        .map(|&k| encode_for_upsampler(k, material.map(k).expect("filtered to present maps")))
         .collect();
     let upsampled = upsampler.upsample(&images, scale, border)?;
     let mut out = material.clone();
@@ -54,6 +47,16 @@ pub fn upscale_per_map(
     }
     out.restore_invariants();
     Ok(out)
+}
+
+/// A map of `kind` as the RGB image an upsampler sees: base colour sRGB-encoded, normals as
+/// DirectX `(n + 1) / 2` colours, grey maps as grey RGB.
+pub fn encode_for_upsampler(kind: MapKind, map: &Map) -> Map {
+    match kind {
+        MapKind::BaseColor => map.clone().map_values(linear_to_srgb),
+        MapKind::Normal => encode_normals(map, NormalConvention::DirectX),
+        _ => Map::stack(&[map, map, map]),
+    }
 }
 
 #[cfg(test)]

@@ -40,7 +40,7 @@ pub use error::{Error, Result};
 pub use io::{load_material, save_material, LoadOptions, MaterialPaths, SaveOptions};
 pub use lights::{Light, LightSample, LightSetSpec};
 pub use loss::LossNorm;
-pub use map::Map;
+pub use map::{Dihedral, Map};
 pub use material::{FileFormat, MapKind, Material, NormalConvention};
 pub use pipeline::{upscale, RunOptions, RunReport};
 pub use plugin::{PluginOption, PluginSpec};

@@ -90,15 +90,20 @@ impl LightSetSpec {
         };
         directions
             .into_iter()
-            .map(|d| {
-                let d = lift_low_elevation(d);
-                Light {
-                    position: d.map(|v| v * self.distance),
-                    intensity: self.intensity,
-                    falloff: self.falloff,
-                }
-            })
+            .map(|d| self.light_towards(d))
             .collect()
+    }
+
+    /// A light of this set's distance and intensity in the unit direction `d` of the upper
+    /// hemisphere (lifted if it grazes the surface, as in the set): for light sets of one's own,
+    /// random ones in training say.
+    pub fn light_towards(&self, d: [f32; 3]) -> Light {
+        let d = lift_low_elevation(d);
+        Light {
+            position: d.map(|v| v * self.distance),
+            intensity: self.intensity,
+            falloff: self.falloff,
+        }
     }
 }
 

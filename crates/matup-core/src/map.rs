@@ -146,11 +146,67 @@ impl Map {
         (plane.iter().map(|&v| v as f64).sum::<f64>() / plane.len() as f64) as f32
     }
 
+    /// The map under a symmetry of the square: mirrored, rotated or transposed.
+    pub fn transformed(&self, t: Dihedral) -> Map {
+        let (w, h) = (self.width, self.height);
+        let (ow, oh) = if t.transpose { (h, w) } else { (w, h) };
+        Map::from_fn(ow, oh, self.channels, |c, y, x| {
+            // Output texel (y, x) reads the input after undoing the transpose, then the flips.
+            let (y, x) = if t.transpose { (x, y) } else { (y, x) };
+            let y = if t.flip_y { h - 1 - y } else { y };
+            let x = if t.flip_x { w - 1 - x } else { x };
+            self.get(c, y, x)
+        })
+    }
+
     /// A copy of the rectangle starting at (`x0`, `y0`).
     pub fn crop(&self, x0: usize, y0: usize, width: usize, height: usize) -> Map {
         assert!(x0 + width <= self.width && y0 + height <= self.height);
         Map::from_fn(width, height, self.channels, |c, y, x| {
             self.get(c, y0 + y, x0 + x)
         })
+    }
+}
+
+/// One of the eight symmetries of the square: mirror the columns (`flip_x`) and/or the rows
+/// (`flip_y`), then swap rows and columns (`transpose`). The data augmentation of
+/// super-resolution training; [`crate::Material::transformed`] applies it to a material,
+/// turning its normals with it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Dihedral {
+    pub flip_x: bool,
+    pub flip_y: bool,
+    pub transpose: bool,
+}
+
+impl Dihedral {
+    /// All eight, the identity first.
+    pub const ALL: [Dihedral; 8] = {
+        let mut all = [Dihedral {
+            flip_x: false,
+            flip_y: false,
+            transpose: false,
+        }; 8];
+        let mut i = 0;
+        while i < 8 {
+            all[i] = Dihedral {
+                flip_x: i & 1 != 0,
+                flip_y: i & 2 != 0,
+                transpose: i & 4 != 0,
+            };
+            i += 1;
+        }
+        all
+    };
+
+    /// Where a tangent-plane vector (x right, y down the rows) points after the symmetry.
+    pub fn vector(self, [x, y]: [f32; 2]) -> [f32; 2] {
+        let x = if self.flip_x { -x } else { x };
+        let y = if self.flip_y { -y } else { y };
+        if self.transpose {
+            [y, x]
+        } else {
+            [x, y]
+        }
     }
 }

@@ -5,7 +5,7 @@ use std::fmt;
 use std::path::PathBuf;
 use std::str::FromStr;
 
-use crate::map::Map;
+use crate::map::{Dihedral, Map};
 use crate::resample::{box_downsample, upsample, Border, Kernel};
 use crate::shading::{Svbrdf, Texel};
 use crate::{Error, Result};
@@ -281,6 +281,25 @@ impl Material {
     /// renormalised normals, averaged roughness, metallic and height.
     pub fn box_downsample(&self, factor: usize) -> Material {
         self.map_every(|m| box_downsample(m, factor))
+    }
+
+    /// The material under a symmetry of the square, as if the surface itself were mirrored
+    /// or turned: every map moves, normals and anisotropy directions turn with it (mirroring
+    /// the columns negates normal x, mirroring the rows negates y, a transpose swaps them).
+    pub fn transformed(&self, t: Dihedral) -> Material {
+        let mut out = self.map_every(|m| m.transformed(t));
+        let n = out.normal.texels();
+        let data = out.normal.data_mut();
+        for i in 0..n {
+            [data[i], data[n + i]] = t.vector([data[i], data[n + i]]);
+        }
+        if let Some(angle) = out.anisotropy_angle.as_mut() {
+            for v in angle.data_mut() {
+                let [x, y] = t.vector([v.cos(), v.sin()]);
+                *v = y.atan2(x);
+            }
+        }
+        out
     }
 
     /// The rectangle of every map starting at (`x0`, `y0`).

@@ -361,9 +361,9 @@ struct TrainedFilter {
     fixed: [Option<f32>; FEATURES],
 }
 
-/// The features of `lr_features` that are constant (kept, not learned, and no input), when
-/// skipping is on.
-fn constant_features(lr_features: &Map, skip: bool) -> [Option<f32>; FEATURES] {
+/// The features of `lr_features` that are constant, with their value (kept, not learned, and
+/// no input), when skipping is on.
+pub fn constant_features(lr_features: &Map, skip: bool) -> [Option<f32>; FEATURES] {
     std::array::from_fn(|k| {
         (skip && lr_features.is_constant(k, 0.0)).then(|| lr_features.plane(k)[0])
     })

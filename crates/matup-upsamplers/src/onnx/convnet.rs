@@ -28,15 +28,19 @@ impl std::fmt::Display for Unsupported {
     }
 }
 
-#[derive(Debug)]
-enum Op {
+/// One operation of a network. `C` is how a convolution is held: [`RawConv`] as the file
+/// gives it ([`Graph`]), or prepared for this executor's kernels ([`ConvNet`]).
+#[derive(Clone, Debug)]
+pub enum Op<C> {
     /// A convolution, then per-texel operations on its output.
-    Conv(Conv, Vec<PerTexel>),
+    Conv(C, Vec<PerTexel>),
     /// Per-texel operations in order.
     PerTexel(Vec<PerTexel>),
     /// Arithmetic between two maps of one shape.
     Arith(Arith),
+    /// Maps joined along the channels.
     Concat,
+    /// Channels moved into `block × block` texels (`crd`: PyTorch's pixel shuffle).
     DepthToSpace {
         block: usize,
         crd: bool,
@@ -44,17 +48,43 @@ enum Op {
     ResizeNearest(usize),
 }
 
-#[derive(Debug)]
-struct Step {
-    op: Op,
-    inputs: Vec<usize>,
-    output: usize,
+/// An operation reading value slots `inputs` (slot 0 is the network's input) and writing
+/// slot `output`.
+#[derive(Clone, Debug)]
+pub struct Step<C> {
+    pub op: Op<C>,
+    pub inputs: Vec<usize>,
+    pub output: usize,
+}
+
+/// A stride-1 convolution that keeps the size, as the file holds it: ONNX's
+/// `[cout, cin, kh, kw]` weights, and the names of the initialisers they came from (none when
+/// computed in the graph, a `Cast` say), so that a trainer can write them back.
+#[derive(Clone, Debug)]
+pub struct RawConv {
+    pub shape: [usize; 4],
+    pub weights: Vec<f32>,
+    pub bias: Option<Vec<f32>>,
+    pub weights_name: Option<String>,
+    pub bias_name: Option<String>,
+}
+
+/// A network of the operators this executor runs, per-texel work fused into the steps that
+/// feed it, convolutions as the file gives them: what [`ConvNet`] prepares for its kernels,
+/// and what a trainer rebuilds in another framework (matup-learn).
+#[derive(Clone, Debug)]
+pub struct Graph {
+    pub steps: Vec<Step<RawConv>>,
+    /// The number of value slots.
+    pub values: usize,
+    /// The slot holding the RGB output.
+    pub output: usize,
 }
 
 /// A graph this executor runs: one RGB input, one RGB output.
 #[derive(Debug)]
 pub struct ConvNet {
-    steps: Vec<Step>,
+    steps: Vec<Step<Conv>>,
     /// Per value: the last step that reads it (then its memory is freed).
     last_use: Vec<usize>,
     output: usize,
@@ -118,8 +148,10 @@ fn string_attribute(node: &NodeProto, name: &str, default: &str) -> String {
 /// Reads the graph's nodes in order (ONNX stores them topologically sorted).
 struct Builder {
     known: HashMap<String, Known>,
-    steps: Vec<Step>,
+    steps: Vec<Step<RawConv>>,
     values: usize,
+    /// Names that are initialisers of the file (not computed by a node).
+    initializers: std::collections::HashSet<String>,
 }
 
 impl Builder {
@@ -181,7 +213,7 @@ impl Builder {
     fn push(
         &mut self,
         node: &NodeProto,
-        op: Op,
+        op: Op<RawConv>,
         inputs: Vec<usize>,
         channels: usize,
         scale: usize,
@@ -274,7 +306,19 @@ impl Builder {
                         described()
                     ));
                 }
-                let conv = Conv::new(&weights, bias.as_deref(), [cout, cin, kh, kw]);
+                let initializer = |index: usize| {
+                    node.input
+                        .get(index)
+                        .filter(|n| self.initializers.contains(*n))
+                        .cloned()
+                };
+                let conv = RawConv {
+                    shape: [cout, cin, kh, kw],
+                    weights,
+                    bias,
+                    weights_name: initializer(1),
+                    bias_name: initializer(2),
+                };
                 self.push(node, Op::Conv(conv, Vec::new()), vec![slot], cout, scale);
             }
             "Sigmoid" | "Relu" | "LeakyRelu" | "Clip" | "PRelu" => {
@@ -467,9 +511,9 @@ fn per_channel(shape: &[usize], data: Vec<f32>, channels: usize) -> Option<Vec<f
         .then_some(data)
 }
 
-impl ConvNet {
+impl Graph {
     /// The graph of `model` if every operator in it runs here.
-    pub fn from_model(model: &ModelProto) -> Result<ConvNet, Unsupported> {
+    pub fn from_model(model: &ModelProto) -> Result<Graph, Unsupported> {
         let Some(graph) = &model.graph else {
             return unsupported("no graph");
         };
@@ -477,6 +521,7 @@ impl ConvNet {
             known: HashMap::new(),
             steps: Vec::new(),
             values: 1,
+            initializers: graph.initializer.iter().map(|t| t.name.clone()).collect(),
         };
         for t in &graph.initializer {
             if let Some(constant) = float_constant(t)? {
@@ -504,18 +549,47 @@ impl ConvNet {
             }) => *slot,
             _ => return unsupported("the output is not a 3-channel map of the input"),
         };
-        let steps = fuse(builder.steps, output);
-        let mut last_use = vec![0; builder.values];
+        Ok(Graph {
+            steps: fuse(builder.steps, output),
+            values: builder.values,
+            output,
+        })
+    }
+}
+
+impl ConvNet {
+    /// The graph of `model` if every operator in it runs here.
+    pub fn from_model(model: &ModelProto) -> Result<ConvNet, Unsupported> {
+        let graph = Graph::from_model(model)?;
+        let steps: Vec<Step<Conv>> = graph
+            .steps
+            .into_iter()
+            .map(|step| Step {
+                op: match step.op {
+                    Op::Conv(c, then) => {
+                        Op::Conv(Conv::new(&c.weights, c.bias.as_deref(), c.shape), then)
+                    }
+                    Op::PerTexel(chain) => Op::PerTexel(chain),
+                    Op::Arith(a) => Op::Arith(a),
+                    Op::Concat => Op::Concat,
+                    Op::DepthToSpace { block, crd } => Op::DepthToSpace { block, crd },
+                    Op::ResizeNearest(f) => Op::ResizeNearest(f),
+                },
+                inputs: step.inputs,
+                output: step.output,
+            })
+            .collect();
+        let mut last_use = vec![0; graph.values];
         for (i, step) in steps.iter().enumerate() {
             for &v in &step.inputs {
                 last_use[v] = i;
             }
         }
-        last_use[output] = usize::MAX;
+        last_use[graph.output] = usize::MAX;
         Ok(ConvNet {
             steps,
             last_use,
-            output,
+            output: graph.output,
         })
     }
 
@@ -579,11 +653,11 @@ fn written(values: &[Option<Features>], v: usize) -> &Features {
 /// - `x · sigmoid(x)` (a `Mul` of a map and its own sigmoid) becomes one SiLU;
 /// - per-texel steps whose input nothing else reads join the step that made it: a
 ///   convolution applies them to its output rows while they are in cache, and chains merge.
-fn fuse(mut steps: Vec<Step>, output: usize) -> Vec<Step> {
-    let readers = |steps: &[Step], v: usize| {
+fn fuse<C>(mut steps: Vec<Step<C>>, output: usize) -> Vec<Step<C>> {
+    let readers = |steps: &[Step<C>], v: usize| {
         steps.iter().filter(|s| s.inputs.contains(&v)).count() + usize::from(v == output)
     };
-    let producer = |steps: &[Step], v: usize| steps.iter().position(|s| s.output == v);
+    let producer = |steps: &[Step<C>], v: usize| steps.iter().position(|s| s.output == v);
     // SiLU.
     for i in 0..steps.len() {
         let Op::Arith(Arith::Mul) = steps[i].op else {

@@ -30,8 +30,10 @@ use tract_linalg::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::prelude::*;
 
 use convnet::ConvNet;
+pub use convnet::{Graph, Op, RawConv, Step, Unsupported};
+pub use kernels::{Arith, PerTexel};
 use kernels::{Features, Padding};
-use tract_onnx::pb::ModelProto;
+pub use tract_onnx::pb::ModelProto;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
 #[derive(Clone, Debug, Deserialize)]
@@ -144,7 +146,8 @@ fn sidecar_path(model: &Path) -> PathBuf {
     model.with_extension("toml")
 }
 
-fn read_sidecar(model: &Path) -> Result<ModelInfo> {
+/// The sidecar `NAME.toml` of `NAME.onnx`.
+pub fn read_sidecar(model: &Path) -> Result<ModelInfo> {
     let path = sidecar_path(model);
     let text = std::fs::read_to_string(&path).map_err(|e| Error::Plugin {
         plugin: "onnx".into(),
@@ -160,6 +163,17 @@ fn read_sidecar(model: &Path) -> Result<ModelInfo> {
 }
 
 type Plan = Arc<TypedRunnableModel>;
+
+/// The ONNX file at `path` and its graph, if matup's executor runs it (what a trainer can
+/// rebuild and write back).
+pub fn read_graph(path: &Path) -> Result<(ModelProto, Graph)> {
+    let proto = tract_onnx::onnx()
+        .proto_model_for_path(path)
+        .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
+    let graph = Graph::from_model(&proto)
+        .map_err(|e| model_error(path, "matup's executor cannot run it", e))?;
+    Ok((proto, graph))
+}
 
 /// Which engine runs a network: `auto` picks matup's executor where the graph allows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

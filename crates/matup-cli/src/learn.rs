@@ -1,0 +1,65 @@
+//! `matup learn`: train a super-resolution network for material maps in render space.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use matup_core::tensor::parse_device;
+use matup_learn::{train, LearnConfig};
+
+use crate::progress_bars::Bars;
+
+#[derive(Args, Debug)]
+pub struct LearnArgs {
+    /// The run's settings (a TOML file such as configs/learn/span_x4_materials.toml).
+    pub config: PathBuf,
+    /// The run folder: checkpoints, train.csv, val.csv, best.onnx and last.onnx. A folder
+    /// holding a checkpoint of the same settings is resumed.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Train up to this many steps instead of the configuration's.
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Where candle trains: cpu, cuda or cuda:N (CUDA needs the cuda feature).
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
+    /// No progress bars.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
+    let mut config = LearnConfig::load(&args.config)?;
+    if let Some(n) = args.iterations {
+        config.iterations = n;
+    }
+    let device = parse_device(&args.device)?;
+    // The network's matrix products are large: candle may split them over every core
+    // (`configure_threads` limits it to one thread for the filter's small products).
+    // SAFETY: no thread of ours reads the environment now (the pool is idle).
+    unsafe {
+        std::env::set_var(
+            "RAYON_NUM_THREADS",
+            rayon::current_num_threads().to_string(),
+        )
+    };
+    let bars = Bars::new(args.quiet);
+    let summary = train(&config, &args.output, &device, &bars);
+    bars.finish();
+    let summary = summary?;
+    eprintln!(
+        "{} steps{} in {:.0} s; {}",
+        summary.iterations,
+        summary
+            .resumed_from
+            .map_or(String::new(), |i| format!(" (resumed at {i})")),
+        summary.seconds,
+        match summary.best {
+            Some((psnr, at)) => format!(
+                "best validation render PSNR {psnr:.3} dB at step {at}: {}",
+                args.output.join("best.onnx").display()
+            ),
+            None => "no validation".into(),
+        }
+    );
+    Ok(())
+}

@@ -1,0 +1,132 @@
+//! A training run's settings, read from TOML (`configs/learn/*.toml`).
+
+use std::path::{Path, PathBuf};
+
+use matup_core::{Error, LossNorm, Result};
+use serde::{Deserialize, Serialize};
+
+/// What `matup learn` trains and how. Paths are relative to the directory matup runs in.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LearnConfig {
+    /// The network to start from (`NAME.onnx` with its sidecar `NAME.toml`).
+    pub base_model: PathBuf,
+    /// The folder holding the training and validation materials.
+    pub corpus: PathBuf,
+    /// Materials trained on (folder names in `corpus`).
+    pub train: Vec<String>,
+    /// Materials validated on, never trained on.
+    pub val: Vec<String>,
+    /// Upsampling factor (the network's).
+    #[serde(default = "default_scale")]
+    pub scale: usize,
+    /// Optimiser steps in all (a resumed run continues to this count).
+    pub iterations: usize,
+    /// Material crops per step; each sends its four maps through the network.
+    #[serde(default = "default_batch")]
+    pub batch: usize,
+    /// Side of a true crop in texels (its LR version is `patch / scale`).
+    #[serde(default = "default_patch")]
+    pub patch: usize,
+    /// Random lights over the hemisphere per step.
+    #[serde(default = "default_lights")]
+    pub lights: usize,
+    /// Adam's step size.
+    pub learning_rate: f64,
+    /// The render loss's norm over colour and lights (as the method's `train.loss`).
+    #[serde(default = "default_loss")]
+    pub loss: String,
+    /// Weight of the normal term (mean chordal distance between the normals) beside the renders.
+    #[serde(default)]
+    pub normal_weight: f64,
+    /// Steps between checkpoints.
+    #[serde(default = "default_checkpoint_every")]
+    pub checkpoint_every: usize,
+    /// Steps between validations (each exports the network and runs `matup upscale`'s
+    /// defaults with it on every validation material).
+    #[serde(default = "default_validate_every")]
+    pub validate_every: usize,
+    /// Side of the validation crops (top-left) of the true materials.
+    #[serde(default = "default_val_crop")]
+    pub val_crop: usize,
+    /// Held-out lights of the validation renders.
+    #[serde(default = "default_val_lights")]
+    pub val_lights: usize,
+    pub seed: u64,
+}
+
+fn default_scale() -> usize {
+    4
+}
+fn default_batch() -> usize {
+    3
+}
+fn default_patch() -> usize {
+    128
+}
+fn default_lights() -> usize {
+    8
+}
+fn default_loss() -> String {
+    "l11".into()
+}
+fn default_checkpoint_every() -> usize {
+    25
+}
+fn default_validate_every() -> usize {
+    200
+}
+fn default_val_crop() -> usize {
+    512
+}
+fn default_val_lights() -> usize {
+    16
+}
+
+impl LearnConfig {
+    /// Reads and checks a configuration file.
+    pub fn load(path: &Path) -> Result<LearnConfig> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| Error::Invalid(format!("{}: cannot read: {e}", path.display())))?;
+        let config: LearnConfig = toml::from_str(&text)
+            .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        config
+            .validate()
+            .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        Ok(config)
+    }
+
+    /// The loss norm `loss` names.
+    pub fn loss_norm(&self) -> Result<LossNorm> {
+        self.loss.parse()
+    }
+
+    fn validate(&self) -> std::result::Result<(), String> {
+        if self.train.is_empty() {
+            return Err("train lists no material".into());
+        }
+        if let Some(m) = self.train.iter().find(|m| self.val.contains(m)) {
+            return Err(format!("'{m}' is in both train and val"));
+        }
+        if self.scale < 2 || self.patch % self.scale != 0 || self.patch < 4 * self.scale {
+            return Err(format!(
+                "patch {} must be a multiple of scale {} and at least 4 LR texels",
+                self.patch, self.scale
+            ));
+        }
+        if self.val_crop % self.scale != 0 {
+            return Err(format!(
+                "val_crop {} is not a multiple of scale {}",
+                self.val_crop, self.scale
+            ));
+        }
+        if self.batch == 0 || self.lights == 0 || self.checkpoint_every == 0 {
+            return Err("batch, lights and checkpoint_every must be positive".into());
+        }
+        if !(self.learning_rate > 0.0) {
+            return Err("learning_rate must be positive".into());
+        }
+        self.loss_norm().map_err(|e| e.to_string())?;
+        Ok(())
+    }
+}

@@ -1,0 +1,104 @@
+//! Training pairs made as matup makes its inputs: a true material, cropped and turned by a
+//! symmetry of the square (normals turning with it), and its box-filtered LR version
+//! (`Material::box_downsample`, what `matup downsample` writes).
+
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor};
+use matup_core::baseline::encode_for_upsampler;
+use matup_core::filter::FEATURES;
+use matup_core::pipeline::{constant_features, features};
+use matup_core::{load_material, Dihedral, LoadOptions, MapKind, Material, Result};
+use rand::Rng;
+
+use crate::shipped::IMAGES_PER_MATERIAL;
+
+/// Materials loaded from a corpus folder.
+pub struct Corpus {
+    pub names: Vec<String>,
+    pub materials: Vec<Material>,
+}
+
+impl Corpus {
+    /// Loads `names` from `folder` (each a material folder).
+    pub fn load(folder: &Path, names: &[String]) -> Result<Corpus> {
+        let materials = names
+            .iter()
+            .map(|name| load_material(Some(&folder.join(name)), &LoadOptions::default()))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Corpus {
+            names: names.to_vec(),
+            materials,
+        })
+    }
+
+    /// The folders of the corpus' materials.
+    pub fn folders(folder: &Path, names: &[String]) -> Vec<PathBuf> {
+        names.iter().map(|n| folder.join(n)).collect()
+    }
+}
+
+/// One training example: a true material and its LR version.
+pub struct Pair {
+    pub truth: Material,
+    pub lr: Material,
+}
+
+impl Pair {
+    /// `truth` and its box-filtered version, `scale` times smaller: what `matup downsample`
+    /// writes (before its files quantise it).
+    pub fn new(truth: Material, scale: usize) -> Pair {
+        let lr = truth.box_downsample(scale);
+        Pair { truth, lr }
+    }
+}
+
+/// A random `size × size` crop of a random material, at a position that is a multiple of
+/// `scale` (so its LR version is a crop of the whole material's), under a random symmetry.
+pub fn random_pair(corpus: &Corpus, size: usize, scale: usize, rng: &mut impl Rng) -> Pair {
+    let m = &corpus.materials[rng.random_range(0..corpus.materials.len())];
+    let cells = |extent: usize| (extent - size) / scale + 1;
+    let x0 = rng.random_range(0..cells(m.width())) * scale;
+    let y0 = rng.random_range(0..cells(m.height_px())) * scale;
+    let symmetry = Dihedral::ALL[rng.random_range(0..8)];
+    Pair::new(m.crop(x0, y0, size, size).transformed(symmetry), scale)
+}
+
+/// The network inputs of LR materials, `[4B, 3, h, w]`: each map encoded as the per-map
+/// upsampler sends it, in the order base colour, normal, roughness, metallic.
+pub fn network_inputs(lrs: &[&Material], device: &Device) -> candle_core::Result<Tensor> {
+    let (w, h) = (lrs[0].width(), lrs[0].height_px());
+    let mut data = Vec::with_capacity(lrs.len() * IMAGES_PER_MATERIAL * 3 * w * h);
+    for lr in lrs {
+        for kind in [
+            MapKind::BaseColor,
+            MapKind::Normal,
+            MapKind::Roughness,
+            MapKind::Metallic,
+        ] {
+            let map = lr.map(kind).expect("every material has these maps");
+            data.extend_from_slice(encode_for_upsampler(kind, map).data());
+        }
+    }
+    Tensor::from_vec(data, (lrs.len() * IMAGES_PER_MATERIAL, 3, h, w), device)
+}
+
+/// The 7 features of LR materials, `[B, 7, h, w]`, and per material the features that are
+/// constant (held, not learned, as the pipeline holds them).
+pub fn lr_features(
+    lrs: &[&Material],
+    device: &Device,
+) -> candle_core::Result<(Tensor, Vec<[Option<f32>; FEATURES]>)> {
+    let (w, h) = (lrs[0].width(), lrs[0].height_px());
+    let mut data = Vec::with_capacity(lrs.len() * FEATURES * w * h);
+    let mut fixed = Vec::with_capacity(lrs.len());
+    for lr in lrs {
+        let f = features(lr);
+        fixed.push(constant_features(&f, true));
+        data.extend_from_slice(f.data());
+    }
+    Ok((
+        Tensor::from_vec(data, (lrs.len(), FEATURES, h, w), device)?,
+        fixed,
+    ))
+}

@@ -1,0 +1,16 @@
+//! `matup learn`: super-resolution networks for material maps, trained and judged in render
+//! space. A network that matup's ONNX executor runs is rebuilt from candle operations
+//! ([`net`]), fed pairs made as matup makes its inputs ([`data`]), and its maps go through what
+//! `matup upscale` does with them (decoding, back-projection, rendering: [`shipped`]) before
+//! the loss compares their renders with the truth's under random lights ([`train`]). The
+//! result is written back into the ONNX file ([`export`]) and validated by `matup upscale`.
+
+pub mod config;
+pub mod data;
+pub mod export;
+pub mod net;
+pub mod shipped;
+pub mod train;
+
+pub use config::LearnConfig;
+pub use train::{train, Summary};

@@ -1,0 +1,157 @@
+//! What `matup upscale` does with the network's outputs by default, as differentiable candle
+//! operations, so that training sees what users get: each map decoded as the per-map upsampler
+//! decodes it (`matup_core::baseline::upscale_per_map`), the 7 features back-projected onto the
+//! LR features (`matup_core::residual::back_project`), decoded to shading parameters
+//! (`matup_core::filter::decode`), rendered with the shading model's tensor form and shown
+//! through the display transform. The tests hold each step equal to matup's own code.
+
+use candle_core::{Device, Tensor, D};
+use matup_core::filter::decode::decode_tensors;
+use matup_core::filter::FEATURES;
+use matup_core::material::{MIN_ALPHA, MIN_ROUGHNESS};
+use matup_core::resample::{upsample, Border, Kernel};
+use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
+use matup_core::Map;
+
+/// Rounds of back-projection, as `matup_core::residual` runs them.
+pub const BACK_PROJECTIONS: usize = 3;
+
+/// The images the per-map upsampler sends through the network for `B` materials, in this
+/// order per material (`[4B, 3, h, w]`).
+pub const IMAGES_PER_MATERIAL: usize = 4;
+
+/// sRGB-encoded → linear, as `matup_core::color::srgb_to_linear`.
+fn srgb_to_linear(v: &Tensor) -> candle_core::Result<Tensor> {
+    const KNEE: f64 = 0.04045;
+    let linear = (v / 12.92)?;
+    // The power only where it is used, so its gradient stays finite.
+    let curve = ((v.maximum(KNEE)? + 0.055)? / 1.055)?.powf(2.4)?;
+    v.le(KNEE)?.where_cond(&linear, &curve)
+}
+
+/// The network's `[4B, 3, H, W]` outputs decoded as the per-map upsampler decodes them, with
+/// the material's invariants restored, as the 7 filter features `[B, 7, H, W]`.
+pub fn decode_outputs(outputs: &Tensor) -> candle_core::Result<Tensor> {
+    let (n, _, h, w) = outputs.dims4()?;
+    let b = n / IMAGES_PER_MATERIAL;
+    let per_material = outputs.reshape((b, IMAGES_PER_MATERIAL, 3, h, w))?;
+    let image = |k: usize| per_material.narrow(1, k, 1)?.squeeze(1);
+    let base = srgb_to_linear(&image(0)?.clamp(0f32, 1f32)?)?.clamp(0f32, 1f32)?;
+    // DirectX encoding, (n + 1) / 2; renormalised (a zero vector cannot come out of 2v − 1
+    // in practice, the floor only keeps the division finite).
+    let normal = image(1)?.affine(2.0, -1.0)?;
+    let length = normal.sqr()?.sum_keepdim(1)?.maximum(1e-20f32)?.sqrt()?;
+    let normal = normal.broadcast_div(&length)?;
+    let grey = |k: usize| image(k)?.mean_keepdim(1);
+    let roughness = grey(2)?.clamp(MIN_ROUGHNESS, 1f32)?;
+    let metallic = grey(3)?.clamp(0f32, 1f32)?;
+    let alpha = roughness.sqr()?.clamp(MIN_ALPHA, 1f32)?;
+    Tensor::cat(&[&base, &metallic, &normal.narrow(1, 0, 2)?, &alpha], 1)
+}
+
+/// Back-projection onto the LR features as matrix products: the box filter as a mean of
+/// `scale × scale` blocks, the bilinear spread as `U · M · Uᵀ` with `U` matup's own bilinear
+/// upsampling of unit impulses (so borders are handled exactly as `upsample` handles them).
+pub struct BackProjection {
+    scale: usize,
+    /// `[H, h]`.
+    spread: Tensor,
+    spread_t: Tensor,
+    lo: Tensor,
+    hi: Tensor,
+}
+
+impl BackProjection {
+    /// For LR maps of `size × size` upsampled by `scale`.
+    pub fn new(
+        size: usize,
+        scale: usize,
+        border: Border,
+        device: &Device,
+    ) -> candle_core::Result<Self> {
+        // Channel j: an impulse at column j. Its bilinear upsampling's first row is column j
+        // of U (the kernel is separable and its weights along one axis sum to 1).
+        let impulses = Map::from_fn(size, 1, size, |c, _, x| (c == x) as u8 as f32);
+        let up = upsample(&impulses, scale, Kernel::Bilinear, border);
+        let big = size * scale;
+        let u = Tensor::from_vec(
+            (0..big)
+                .flat_map(|x| (0..size).map(move |j| (x, j)))
+                .map(|(x, j)| up.get(j, 0, x))
+                .collect::<Vec<f32>>(),
+            (big, size),
+            device,
+        )?;
+        let range = |f: fn(usize) -> f32| {
+            Tensor::from_vec(
+                (0..FEATURES).map(f).collect::<Vec<f32>>(),
+                (1, FEATURES, 1, 1),
+                device,
+            )
+        };
+        Ok(BackProjection {
+            scale,
+            spread_t: u.t()?.contiguous()?,
+            spread: u,
+            lo: range(|k| feature_range(k).0)?,
+            hi: range(|k| feature_range(k).1)?,
+        })
+    }
+
+    /// `hr` `[B, 7, H, W]` corrected so that its box-downsample comes back to `lr`
+    /// `[B, 7, h, w]`, values kept in their ranges.
+    pub fn apply(&self, hr: &Tensor, lr: &Tensor) -> candle_core::Result<Tensor> {
+        let mut hr = hr.clone();
+        for _ in 0..BACK_PROJECTIONS {
+            let mismatch = (lr - hr.avg_pool2d(self.scale)?)?;
+            let correction = self
+                .spread
+                .broadcast_matmul(&mismatch.broadcast_matmul(&self.spread_t)?)?;
+            hr = (hr + correction)?
+                .broadcast_maximum(&self.lo)?
+                .broadcast_minimum(&self.hi)?;
+        }
+        Ok(hr)
+    }
+}
+
+/// The range a feature's values may take, as `matup_core::residual` keeps them.
+fn feature_range(feature: usize) -> (f32, f32) {
+    match feature {
+        4 | 5 => (-1.0, 1.0),
+        6 => (MIN_ALPHA, 1.0),
+        _ => (0.0, 1.0),
+    }
+}
+
+/// Features `[7, H, W]` of one material → shading parameters `[H·W, 10]`, constant features
+/// held (`fixed`), as inference decodes the residual base.
+pub fn shading_params(
+    features: &Tensor,
+    fixed: &[Option<f32>; FEATURES],
+) -> candle_core::Result<Tensor> {
+    let texel_major = features.flatten_from(1)?.t()?;
+    let zeros = texel_major.zeros_like()?;
+    Ok(decode_tensors(&zeros, &texel_major, fixed)?.0)
+}
+
+/// Display-space renders `[T, L, 3]` of shading parameters `[T, 10]`.
+pub fn shown(
+    model: &dyn TensorShading,
+    params: &Tensor,
+    lights: &LightTensors,
+) -> candle_core::Result<Tensor> {
+    display(&model.shade(&SvbrdfTensors::from_params(params)?, lights)?)
+}
+
+/// Mean chordal distance `|a − b|` between the normals of parameters `[T, 10]`: `2·sin(θ/2)`
+/// for unit normals, monotone in the angle θ (candle has no `acos`), floored so that its
+/// gradient stays finite where the normals agree.
+pub fn normal_chord(a: &Tensor, b: &Tensor) -> candle_core::Result<Tensor> {
+    let d = (a.narrow(1, 4, 3)? - b.narrow(1, 4, 3)?)?;
+    d.sqr()?
+        .sum(D::Minus1)?
+        .maximum(1e-12f32)?
+        .sqrt()?
+        .mean_all()
+}

@@ -1,0 +1,578 @@
+//! The training loop: random pairs from the training materials, the network's maps through
+//! what `matup upscale` does with them ([`crate::shipped`]), rendered under random lights
+//! against the truth's renders; Adam; checkpoints that resume exactly; validation of the
+//! exported network by `matup upscale` itself.
+
+use std::collections::HashMap;
+use std::f64::consts::TAU;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use candle_core::{backprop::GradStore, Device, Tensor, Var};
+use matup_core::io::write_atomic;
+use matup_core::lights::Light;
+use matup_core::metrics::{evaluate, Evaluation};
+use matup_core::progress::Progress;
+use matup_core::resample::Border;
+use matup_core::shading::{shading_model, ShadingModel};
+use matup_core::tensor::{loss_norm, params_tensor, tensor_form, LightTensors};
+use matup_core::{
+    upscale, Config, Error, LightSetSpec, LossNorm, Material, PluginSpec, Result, RunOptions,
+};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use serde::{Deserialize, Serialize};
+
+use crate::config::LearnConfig;
+use crate::data::{lr_features, network_inputs, random_pair, Corpus, Pair};
+use crate::export::export;
+use crate::net::TrainableNet;
+use crate::shipped::{decode_outputs, normal_chord, shading_params, shown, BackProjection};
+
+/// Adam (Kingma & Ba 2015) over the network's tensors, its moments checkpointed with them.
+struct Adam {
+    m: Vec<Tensor>,
+    v: Vec<Tensor>,
+    step: usize,
+    learning_rate: f64,
+}
+
+const BETA1: f64 = 0.9;
+const BETA2: f64 = 0.999;
+const EPSILON: f64 = 1e-8;
+
+impl Adam {
+    fn new(vars: &[Var], learning_rate: f64) -> candle_core::Result<Adam> {
+        let zeros = |v: &Var| v.as_tensor().zeros_like();
+        Ok(Adam {
+            m: vars.iter().map(zeros).collect::<candle_core::Result<_>>()?,
+            v: vars.iter().map(zeros).collect::<candle_core::Result<_>>()?,
+            step: 0,
+            learning_rate,
+        })
+    }
+
+    fn update(&mut self, vars: &[Var], grads: &GradStore) -> candle_core::Result<()> {
+        self.step += 1;
+        let c1 = 1.0 - BETA1.powi(self.step as i32);
+        let c2 = 1.0 - BETA2.powi(self.step as i32);
+        for ((var, m), v) in vars.iter().zip(&mut self.m).zip(&mut self.v) {
+            let Some(g) = grads.get(var.as_tensor()) else {
+                continue;
+            };
+            *m = ((&*m * BETA1)? + (g * (1.0 - BETA1))?)?;
+            *v = ((&*v * BETA2)? + (g.sqr()? * (1.0 - BETA2))?)?;
+            let step = ((&*m / c1)? / ((&*v / c2)?.sqrt()? + EPSILON)?)?;
+            var.set(&(var.as_tensor() - (step * self.learning_rate)?)?)?;
+        }
+        Ok(())
+    }
+}
+
+/// What a checkpoint records beside its tensors.
+#[derive(Debug, Serialize, Deserialize, PartialEq)]
+struct CheckpointInfo {
+    iteration: usize,
+    /// The configuration it was trained with (a resume must use the same).
+    config: LearnConfig,
+    /// Mean validation render PSNR of the best export so far, and its iteration.
+    best: Option<(f64, usize)>,
+}
+
+/// A run folder's files.
+pub struct RunFiles {
+    pub dir: PathBuf,
+}
+
+impl RunFiles {
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+    pub fn checkpoint(&self) -> PathBuf {
+        self.path("checkpoint.safetensors")
+    }
+    pub fn checkpoint_info(&self) -> PathBuf {
+        self.path("checkpoint.json")
+    }
+    /// Per step: iteration, loss, render loss, normal term, seconds.
+    pub fn train_log(&self) -> PathBuf {
+        self.path("train.csv")
+    }
+    /// Per validation: iteration, material and its numbers (`mean` for the mean).
+    pub fn val_log(&self) -> PathBuf {
+        self.path("val.csv")
+    }
+    /// The exported network with the best mean validation PSNR (`best.onnx`, `best.toml`).
+    pub fn best(&self) -> PathBuf {
+        self.path("best.onnx")
+    }
+    /// The last exported network (what validation ran).
+    pub fn last(&self) -> PathBuf {
+        self.path("last.onnx")
+    }
+}
+
+/// One step's numbers.
+#[derive(Clone, Copy, Debug)]
+pub struct StepLoss {
+    pub loss: f64,
+    pub render: f64,
+    pub normal: f64,
+}
+
+/// Everything a training step needs that does not change between steps.
+pub struct Trainer {
+    pub config: LearnConfig,
+    pub net: TrainableNet,
+    model: Box<dyn ShadingModel>,
+    norm: LossNorm,
+    corpus: Corpus,
+    back_projection: BackProjection,
+    lights: LightSetSpec,
+    device: Device,
+}
+
+impl Trainer {
+    pub fn new(config: &LearnConfig, device: &Device) -> Result<Trainer> {
+        let net = TrainableNet::load(&config.base_model, device)?;
+        if net.info.scale != config.scale {
+            return Err(Error::Invalid(format!(
+                "{}: a ×{} network, but the configuration asks for ×{}",
+                config.base_model.display(),
+                net.info.scale,
+                config.scale
+            )));
+        }
+        let model = shading_model(&"ggx".parse::<PluginSpec>()?)?;
+        tensor_form(model.as_ref())?;
+        Ok(Trainer {
+            net,
+            model,
+            norm: config.loss_norm()?,
+            corpus: Corpus::load(&config.corpus, &config.train)?,
+            // Crops do not tile: the bilinear spread mirrors at their borders, as `matup
+            // upscale` does for materials that do not tile.
+            back_projection: BackProjection::new(
+                config.patch / config.scale,
+                config.scale,
+                Border::Mirror,
+                device,
+            )?,
+            lights: LightSetSpec::default(),
+            config: config.clone(),
+            device: device.clone(),
+        })
+    }
+
+    /// The random generator of step `iteration`: a function of the seed and the step alone,
+    /// so that a resumed run draws what an uninterrupted one would.
+    fn rng(&self, iteration: usize) -> StdRng {
+        StdRng::seed_from_u64(
+            self.config
+                .seed
+                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                .wrapping_add(iteration as u64),
+        )
+    }
+
+    /// `count` lights in directions uniform over the upper hemisphere.
+    fn random_lights(&self, count: usize, rng: &mut impl Rng) -> Vec<Light> {
+        (0..count)
+            .map(|_| {
+                let z: f64 = rng.random_range(0.0..1.0);
+                let phi: f64 = rng.random_range(0.0..TAU);
+                let r = (1.0 - z * z).sqrt();
+                let d = [r * phi.cos(), r * phi.sin(), z].map(|v| v as f32);
+                self.lights.light_towards(d)
+            })
+            .collect()
+    }
+
+    /// The loss of step `iteration` (its pairs and lights), as a tensor to differentiate.
+    pub fn loss(&self, iteration: usize) -> Result<(Tensor, StepLoss)> {
+        let mut rng = self.rng(iteration);
+        let c = &self.config;
+        let pairs: Vec<_> = (0..c.batch)
+            .map(|_| random_pair(&self.corpus, c.patch, c.scale, &mut rng))
+            .collect();
+        let lights = self.random_lights(c.lights, &mut rng);
+        let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
+        let inputs = network_inputs(&lrs, &self.device)?;
+        let (lr, fixed) = lr_features(&lrs, &self.device)?;
+        let outputs = self.net.forward(&inputs)?;
+        let hr = self
+            .back_projection
+            .apply(&decode_outputs(&outputs)?, &lr)?;
+        let params = (0..c.batch)
+            .map(|b| shading_params(&hr.get(b)?, &fixed[b]))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        let params = Tensor::cat(&params, 0)?;
+        let truth_texels: Vec<_> = pairs
+            .iter()
+            .flat_map(|p| (0..p.truth.base_color.texels()).map(|i| p.truth.texel(i)))
+            .collect();
+        let truth = params_tensor(
+            &truth_texels.iter().map(|t| t.params).collect::<Vec<_>>(),
+            &self.device,
+        )?;
+        // Both rendered at the truth's positions (height displaced): the network makes no
+        // height, and the loss should see only what it makes.
+        let positions: Vec<[f32; 3]> = truth_texels.iter().map(|t| t.position).collect();
+        let light_tensors = LightTensors::new(&lights, &positions, &self.device)?;
+        let shading = tensor_form(self.model.as_ref())?;
+        let target = shown(shading, &truth, &light_tensors)?.detach();
+        let rendered = shown(shading, &params, &light_tensors)?;
+        let render = loss_norm(&self.norm, &(rendered - target)?)?.mean_all()?;
+        let normal = normal_chord(&params, &truth)?;
+        let loss = (&render + (&normal * c.normal_weight)?)?;
+        let numbers = StepLoss {
+            loss: loss.to_scalar::<f32>()? as f64,
+            render: render.to_scalar::<f32>()? as f64,
+            normal: normal.to_scalar::<f32>()? as f64,
+        };
+        Ok((loss, numbers))
+    }
+}
+
+/// Saves the network's tensors and the optimiser's moments, then the info (the info last: a
+/// checkpoint is whole once its info names its iteration).
+fn save_checkpoint(
+    files: &RunFiles,
+    vars: &[Var],
+    adam: &Adam,
+    info: &CheckpointInfo,
+) -> Result<()> {
+    let mut tensors = HashMap::new();
+    for (i, var) in vars.iter().enumerate() {
+        tensors.insert(format!("w{i}"), var.as_tensor().clone());
+        tensors.insert(format!("m{i}"), adam.m[i].clone());
+        tensors.insert(format!("v{i}"), adam.v[i].clone());
+    }
+    let tmp = files.dir.join(".checkpoint.safetensors.tmp");
+    candle_core::safetensors::save(&tensors, &tmp)?;
+    std::fs::rename(&tmp, files.checkpoint())
+        .map_err(|e| Error::Invalid(format!("{}: {e}", files.checkpoint().display())))?;
+    write_atomic(
+        &files.checkpoint_info(),
+        serde_json::to_string_pretty(info)
+            .expect("serialisable")
+            .as_bytes(),
+    )
+}
+
+/// Restores a checkpoint into the network and optimiser; its iteration and best export.
+fn load_checkpoint(
+    files: &RunFiles,
+    vars: &[Var],
+    adam: &mut Adam,
+    config: &LearnConfig,
+    device: &Device,
+) -> Result<Option<CheckpointInfo>> {
+    let Ok(text) = std::fs::read_to_string(files.checkpoint_info()) else {
+        return Ok(None);
+    };
+    let info: CheckpointInfo = serde_json::from_str(&text)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", files.checkpoint_info().display())))?;
+    if &info.config != config {
+        return Err(Error::Invalid(format!(
+            "{} was trained with other settings; use a new run folder, or the configuration in {}",
+            files.dir.display(),
+            files.checkpoint_info().display()
+        )));
+    }
+    let tensors = candle_core::safetensors::load(files.checkpoint(), device)?;
+    let get = |name: String| {
+        tensors.get(&name).cloned().ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: no tensor {name}",
+                files.checkpoint().display()
+            ))
+        })
+    };
+    for (i, var) in vars.iter().enumerate() {
+        var.set(&get(format!("w{i}"))?)?;
+        adam.m[i] = get(format!("m{i}"))?;
+        adam.v[i] = get(format!("v{i}"))?;
+    }
+    adam.step = info.iteration;
+    Ok(Some(info))
+}
+
+/// Keeps the first `rows` data rows of a CSV log (what a checkpoint had seen), so that a
+/// resumed run's log reads as an uninterrupted one's.
+fn truncate_log(path: &Path, keep: impl Fn(&str) -> bool) -> Result<()> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Ok(());
+    };
+    let kept: String = text
+        .lines()
+        .enumerate()
+        .filter(|(i, line)| *i == 0 || keep(line))
+        .map(|(_, line)| format!("{line}\n"))
+        .collect();
+    write_atomic(path, kept.as_bytes())
+}
+
+fn append(path: &Path, header: &str, line: &str) -> Result<()> {
+    let new = !path.exists();
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let text = if new {
+        format!("{header}\n{line}\n")
+    } else {
+        format!("{line}\n")
+    };
+    f.write_all(text.as_bytes())
+        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+}
+
+fn iteration_of(line: &str) -> usize {
+    line.split(',')
+        .next()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(usize::MAX)
+}
+
+/// A validation material: the true crop and its LR version.
+pub struct ValMaterial {
+    pub name: String,
+    pub truth: Material,
+    pub lr: Material,
+}
+
+/// The validation crops of `config.val` (top-left `val_crop²` of each).
+pub fn validation_set(config: &LearnConfig) -> Result<Vec<ValMaterial>> {
+    let corpus = Corpus::load(&config.corpus, &config.val)?;
+    Ok(corpus
+        .names
+        .into_iter()
+        .zip(corpus.materials)
+        .map(|(name, m)| {
+            let size = config.val_crop.min(m.width()).min(m.height_px());
+            let size = size - size % config.scale;
+            let pair = Pair::new(m.crop(0, 0, size, size), config.scale);
+            ValMaterial {
+                name,
+                truth: pair.truth,
+                lr: pair.lr,
+            }
+        })
+        .collect())
+}
+
+/// `matup upscale`'s defaults with `upsampler`, on every validation material, against the
+/// truth under `lights` held-out lights.
+pub fn validate(
+    upsampler: &str,
+    set: &[ValMaterial],
+    lights: usize,
+) -> Result<Vec<(String, Evaluation)>> {
+    let config = Config {
+        upsampler: upsampler.to_string(),
+        ..Config::default()
+    };
+    let model = shading_model(&"ggx".parse::<PluginSpec>()?)?;
+    set.iter()
+        .map(|v| {
+            let (out, _) = upscale(
+                &v.lr,
+                &config,
+                &RunOptions::default(),
+                &matup_core::progress::Silent,
+            )?;
+            let e = evaluate(
+                &v.truth,
+                &out,
+                model.as_ref(),
+                &LightSetSpec::held_out(lights),
+            )?;
+            Ok((v.name.clone(), e))
+        })
+        .collect()
+}
+
+/// The mean render PSNR and FLIP of an evaluation list.
+pub fn means(evaluations: &[(String, Evaluation)]) -> (f64, f64) {
+    let n = evaluations.len().max(1) as f64;
+    (
+        evaluations.iter().map(|e| e.1.render_psnr).sum::<f64>() / n,
+        evaluations.iter().map(|e| e.1.render_flip).sum::<f64>() / n,
+    )
+}
+
+const VAL_HEADER: &str = "iteration,material,render_psnr,render_flip,normal_degrees,base_color_rmse,roughness_rmse,metallic_rmse,render_sharpness,reference_render_sharpness";
+
+fn log_validation(
+    files: &RunFiles,
+    iteration: usize,
+    evaluations: &[(String, Evaluation)],
+) -> Result<()> {
+    let row = |name: &str, e: &Evaluation| {
+        format!(
+            "{iteration},{name},{:.4},{:.5},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5}",
+            e.render_psnr,
+            e.render_flip,
+            e.normal_error_degrees,
+            e.base_color_rmse,
+            e.roughness_rmse,
+            e.metallic_rmse,
+            e.render_sharpness,
+            e.reference_render_sharpness
+        )
+    };
+    for (name, e) in evaluations {
+        append(&files.val_log(), VAL_HEADER, &row(name, e))?;
+    }
+    let (psnr, flip) = means(evaluations);
+    append(
+        &files.val_log(),
+        VAL_HEADER,
+        &format!("{iteration},mean,{psnr:.4},{flip:.5},,,,,,"),
+    )
+}
+
+/// How a call to [`train`] ended.
+#[derive(Debug)]
+pub struct Summary {
+    pub iterations: usize,
+    pub resumed_from: Option<usize>,
+    /// The best mean validation render PSNR and its iteration.
+    pub best: Option<(f64, usize)>,
+    pub seconds: f64,
+}
+
+/// Trains (or resumes) the run in `dir` up to `config.iterations` steps, checkpointing every
+/// `checkpoint_every` steps and validating every `validate_every` (and at the start and the
+/// end), keeping the best export as `best.onnx`. Stops cleanly, checkpoint written, when
+/// `progress` says cancelled.
+pub fn train(
+    config: &LearnConfig,
+    dir: &Path,
+    device: &Device,
+    progress: &dyn Progress,
+) -> Result<Summary> {
+    let start = Instant::now();
+    std::fs::create_dir_all(dir).map_err(|e| Error::Invalid(format!("{}: {e}", dir.display())))?;
+    let files = RunFiles {
+        dir: dir.to_path_buf(),
+    };
+    let trainer = Trainer::new(config, device)?;
+    let vars = trainer.net.vars();
+    let mut adam = Adam::new(&vars, config.learning_rate)?;
+    let info = load_checkpoint(&files, &vars, &mut adam, config, device)?;
+    let resumed_from = info.as_ref().map(|i| i.iteration);
+    let mut iteration = resumed_from.unwrap_or(0);
+    let mut best = info.and_then(|i| i.best);
+    if let Some(i) = resumed_from {
+        progress.note(&format!("resuming {} at step {i}", dir.display()));
+    }
+    truncate_log(&files.train_log(), |l| iteration_of(l) <= iteration)?;
+    truncate_log(&files.val_log(), |l| iteration_of(l) <= iteration)?;
+
+    let set = if config.validate_every > 0 {
+        validation_set(config)?
+    } else {
+        Vec::new()
+    };
+    let validate_now = |iteration: usize, best: &mut Option<(f64, usize)>| -> Result<()> {
+        if set.is_empty() {
+            return Ok(());
+        }
+        progress.stage(&format!("validate step {iteration}"), set.len() as u64);
+        export(&trainer.net, &files.last(), config, iteration)?;
+        let evaluations = validate(
+            &format!("onnx:{}", files.last().display()),
+            &set,
+            config.val_lights,
+        )?;
+        progress.advance(set.len() as u64, None);
+        log_validation(&files, iteration, &evaluations)?;
+        let (psnr, flip) = means(&evaluations);
+        progress.note(&format!(
+            "step {iteration}: validation render PSNR {psnr:.3} dB, FLIP {flip:.4}"
+        ));
+        if best.is_none_or(|(b, _)| psnr > b) {
+            *best = Some((psnr, iteration));
+            export(&trainer.net, &files.best(), config, iteration)?;
+        }
+        Ok(())
+    };
+    if resumed_from.is_none() {
+        validate_now(0, &mut best)?;
+    }
+
+    progress.stage("train", config.iterations as u64);
+    progress.advance(iteration as u64, None);
+    while iteration < config.iterations {
+        if progress.cancelled() {
+            save_checkpoint(
+                &files,
+                &vars,
+                &adam,
+                &CheckpointInfo {
+                    iteration,
+                    config: config.clone(),
+                    best,
+                },
+            )?;
+            return Err(Error::Cancelled {
+                epochs_done: iteration,
+            });
+        }
+        let step_start = Instant::now();
+        let (loss, numbers) = trainer.loss(iteration)?;
+        if !numbers.loss.is_finite() {
+            return Err(Error::Invalid(format!(
+                "step {}: the loss is {}; training diverged (lower learning_rate), the last checkpoint in {} is intact",
+                iteration + 1,
+                numbers.loss,
+                dir.display()
+            )));
+        }
+        let grads = loss.backward()?;
+        adam.update(&vars, &grads)?;
+        iteration += 1;
+        append(
+            &files.train_log(),
+            "iteration,loss,render_loss,normal_term,seconds",
+            &format!(
+                "{iteration},{:.6},{:.6},{:.6},{:.3}",
+                numbers.loss,
+                numbers.render,
+                numbers.normal,
+                step_start.elapsed().as_secs_f64()
+            ),
+        )?;
+        progress.advance(1, Some(numbers.loss));
+        let validating = config.validate_every > 0
+            && (iteration % config.validate_every == 0 || iteration == config.iterations);
+        if validating {
+            validate_now(iteration, &mut best)?;
+            progress.stage("train", config.iterations as u64);
+            progress.advance(iteration as u64, None);
+        }
+        if validating || iteration % config.checkpoint_every == 0 || iteration == config.iterations
+        {
+            save_checkpoint(
+                &files,
+                &vars,
+                &adam,
+                &CheckpointInfo {
+                    iteration,
+                    config: config.clone(),
+                    best,
+                },
+            )?;
+        }
+    }
+    Ok(Summary {
+        iterations: iteration,
+        resumed_from,
+        best,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}

@@ -1,0 +1,386 @@
+//! matup learn: the training pipeline equals what matup ships, the augmentation turns normals
+//! with the surface, and a tiny run trains, resumes exactly and exports a network matup runs.
+
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor};
+use matup_core::config::{FilterConfig, ResidualBase};
+use matup_core::render::{render, RenderOptions};
+use matup_core::resample::{upsample, Border, Kernel};
+use matup_core::residual::residual_base;
+use matup_core::shading::shading_model;
+use matup_core::tensor::{params_tensor, tensor_form, LightTensors};
+use matup_core::upsample::RgbUpsampler;
+use matup_core::{
+    load_material, save_material, Dihedral, LightSetSpec, LoadOptions, Map, Material, PluginSpec,
+    SaveOptions,
+};
+use matup_learn::data::{lr_features, network_inputs};
+use matup_learn::net::TrainableNet;
+use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection};
+use matup_learn::{train, LearnConfig};
+use matup_shading as _;
+use matup_upsamplers::onnx::{EngineChoice, OnnxUpsampler};
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// A crop of a real corpus material (CI has `../shared` beside the repository).
+fn corpus_crop(name: &str, size: usize) -> Material {
+    let folder = repo().join("../shared/corpus").join(name);
+    assert!(
+        folder.is_dir(),
+        "{} is missing: the tests read the shared corpus",
+        folder.display()
+    );
+    load_material(Some(&folder), &LoadOptions::default())
+        .unwrap()
+        .crop(100, 200, size, size)
+}
+
+fn max_difference(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+/// Lanczos-3 on every image: overshoots, so the clamps of the decoding are exercised.
+struct Lanczos;
+impl RgbUpsampler for Lanczos {
+    fn upsample(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+    ) -> matup_core::Result<Vec<Map>> {
+        Ok(images
+            .iter()
+            .map(|m| upsample(m, scale, Kernel::Lanczos3, border))
+            .collect())
+    }
+}
+
+#[test]
+fn the_training_pipeline_computes_what_matup_upscale_ships() {
+    let device = Device::Cpu;
+    let truth = corpus_crop("ambientcg_MetalPlates007", 64);
+    let lr = truth.box_downsample(4);
+    // matup's own residual base: each map through the upsampler, decoded, back-projected.
+    let config = FilterConfig {
+        residual_base: ResidualBase::Upsampler,
+        back_project: true,
+        ..FilterConfig::default()
+    };
+    let shipped = residual_base(&lr, &config, &Lanczos, 4, Border::Mirror).unwrap();
+
+    // The same in candle, from the same upsampled images.
+    let inputs = network_inputs(&[&lr], &device).unwrap();
+    let (n, c, h, w) = inputs.dims4().unwrap();
+    let images: Vec<Map> = (0..n)
+        .map(|i| {
+            Map::from_planar(
+                w,
+                h,
+                c,
+                inputs
+                    .get(i)
+                    .unwrap()
+                    .flatten_all()
+                    .unwrap()
+                    .to_vec1()
+                    .unwrap(),
+            )
+        })
+        .collect();
+    let upsampled: Vec<f32> = Lanczos
+        .upsample(&images, 4, Border::Mirror)
+        .unwrap()
+        .into_iter()
+        .flat_map(|m| m.into_data())
+        .collect();
+    let outputs = Tensor::from_vec(upsampled, (n, c, 4 * h, 4 * w), &device).unwrap();
+    let (lr, fixed) = lr_features(&[&lr], &device).unwrap();
+    let back_projection = BackProjection::new(h, 4, Border::Mirror, &device).unwrap();
+    let ours = back_projection
+        .apply(&decode_outputs(&outputs).unwrap(), &lr)
+        .unwrap();
+    let ours: Vec<f32> = ours.flatten_all().unwrap().to_vec1().unwrap();
+    let difference = max_difference(&ours, shipped.data());
+    println!("residual base: max |difference| {difference:.2e}");
+    assert!(difference <= 1e-4, "{difference}");
+
+    // Renders: the tensor form at the material's positions against matup's renderer.
+    let model = shading_model(&"ggx".parse::<PluginSpec>().unwrap()).unwrap();
+    let lights = LightSetSpec::held_out(6).build();
+    let texels: Vec<_> = (0..truth.base_color.texels())
+        .map(|i| truth.texel(i))
+        .collect();
+    let params = params_tensor(
+        &texels.iter().map(|t| t.params).collect::<Vec<_>>(),
+        &device,
+    )
+    .unwrap();
+    let positions: Vec<[f32; 3]> = texels.iter().map(|t| t.position).collect();
+    let light_tensors = LightTensors::new(&lights, &positions, &device).unwrap();
+    let ours = shown(
+        tensor_form(model.as_ref()).unwrap(),
+        &params,
+        &light_tensors,
+    )
+    .unwrap();
+    let renders = render(
+        &truth,
+        model.as_ref(),
+        &lights,
+        RenderOptions {
+            supersample: false,
+            border: Border::Mirror,
+        },
+    );
+    let ours: Vec<f32> = ours.flatten_all().unwrap().to_vec1().unwrap();
+    // ours is [texel][light][channel]; matup's renders are per light, planar.
+    let t = texels.len();
+    let theirs: Vec<f32> = (0..t)
+        .flat_map(|i| {
+            renders
+                .iter()
+                .flat_map(move |r| (0..3).map(move |c| r.plane(c)[i]))
+        })
+        .collect();
+    let difference = max_difference(&ours, &theirs);
+    println!("renders: max |difference| {difference:.2e}");
+    assert!(difference <= 1e-4, "{difference}");
+
+    assert!(
+        fixed[0].iter().all(Option::is_none),
+        "every feature varies in this crop"
+    );
+
+    // Constant features are held, as the pipeline holds them: Metal009 is metal throughout.
+    let metal = corpus_crop("ambientcg_Metal009", 32).box_downsample(4);
+    let (features, fixed) = lr_features(&[&metal], &device).unwrap();
+    assert_eq!(fixed[0][3], Some(1.0));
+    let noisy = (features.get(0).unwrap() + 0.3).unwrap();
+    let params = shading_params(&noisy, &fixed[0]).unwrap();
+    let metallic: Vec<f32> = params
+        .narrow(1, 3, 1)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    assert_eq!(metallic.len(), 8 * 8);
+    assert!(metallic.iter().all(|&m| m == 1.0));
+}
+
+#[test]
+fn a_turned_material_renders_as_the_turned_render() {
+    let material = corpus_crop("ambientcg_Bricks059", 32);
+    assert!(material.height.is_some());
+    let model = shading_model(&"ggx".parse::<PluginSpec>().unwrap()).unwrap();
+    let lights = LightSetSpec::held_out(5).build();
+    let options = RenderOptions {
+        supersample: false,
+        border: Border::Mirror,
+    };
+    let renders = render(&material, model.as_ref(), &lights, options);
+    for t in Dihedral::ALL {
+        // The lights turn with the surface (positions are tangent-plane vectors too).
+        let turned_lights: Vec<_> = lights
+            .iter()
+            .map(|l| {
+                let [x, y] = t.vector([l.position[0], l.position[1]]);
+                matup_core::Light {
+                    position: [x, y, l.position[2]],
+                    ..*l
+                }
+            })
+            .collect();
+        let turned = render(
+            &material.transformed(t),
+            model.as_ref(),
+            &turned_lights,
+            options,
+        );
+        for (a, b) in turned.iter().zip(&renders) {
+            let difference = max_difference(a.data(), b.transformed(t).data());
+            assert!(difference <= 1e-5, "{t:?}: {difference}");
+        }
+        // The identity aside, the render does change: the normals do not just move.
+        if t != Dihedral::default() {
+            let unturned_normals = render(
+                &Material {
+                    normal: material.normal.transformed(t),
+                    ..material.transformed(t)
+                },
+                model.as_ref(),
+                &turned_lights,
+                options,
+            );
+            let difference = max_difference(unturned_normals[0].data(), turned[0].data());
+            assert!(
+                difference > 0.01,
+                "{t:?}: moving the normals without turning them changes nothing ({difference})"
+            );
+        }
+    }
+}
+
+/// A corpus of two 32² crops (`a` to train on, `b` to validate on) and a configuration
+/// training SPAN ×4 on it for `iterations` steps.
+fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
+    let corpus = dir.join("corpus");
+    if !corpus.exists() {
+        for (name, source) in [("a", "ambientcg_Fabric032"), ("b", "ambientcg_Rock029")] {
+            save_material(
+                &corpus_crop(source, 32),
+                &corpus.join(name),
+                &SaveOptions::default(),
+            )
+            .unwrap();
+        }
+    }
+    LearnConfig {
+        base_model: repo().join("models/span_x4_ch48.onnx"),
+        corpus,
+        train: vec!["a".into()],
+        val: vec!["b".into()],
+        scale: 4,
+        iterations,
+        batch: 1,
+        patch: 32,
+        lights: 4,
+        learning_rate: 2e-4,
+        loss: "l11".into(),
+        normal_weight: 0.1,
+        checkpoint_every: 2,
+        validate_every: 3,
+        val_crop: 32,
+        val_lights: 4,
+        seed: 3,
+    }
+}
+
+fn checkpoint_tensors(run: &Path) -> Vec<(String, Vec<f32>)> {
+    let mut tensors: Vec<_> =
+        candle_core::safetensors::load(run.join("checkpoint.safetensors"), &Device::Cpu)
+            .unwrap()
+            .into_iter()
+            .map(|(k, t)| (k, t.flatten_all().unwrap().to_vec1::<f32>().unwrap()))
+            .collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    tensors
+}
+
+fn losses(run: &Path) -> Vec<String> {
+    std::fs::read_to_string(run.join("train.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string()) // without the seconds
+        .collect()
+}
+
+#[test]
+fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let device = Device::Cpu;
+    let config = tiny_run(dir.path(), 8);
+
+    // Uninterrupted, and interrupted after 4 steps then resumed: the same steps.
+    let whole = dir.path().join("whole");
+    let summary = train(&config, &whole, &device, &matup_core::progress::Silent).unwrap();
+    assert_eq!((summary.iterations, summary.resumed_from), (8, None));
+    let parts = dir.path().join("parts");
+    let first = train_until(&config, &parts, 4);
+    assert_eq!(first.iterations, 4);
+    let second = train(&config, &parts, &device, &matup_core::progress::Silent).unwrap();
+    assert_eq!(second.resumed_from, Some(4));
+    assert_eq!(losses(&whole), losses(&parts));
+    assert_eq!(checkpoint_tensors(&whole), checkpoint_tensors(&parts));
+
+    // The steps' losses (their crops, symmetries and lights) are lower with the trained
+    // weights than with the stock network.
+    let trained = whole.join("last.onnx");
+    let mean_loss = |model: &Path| {
+        let trainer = matup_learn::train::Trainer::new(
+            &LearnConfig {
+                base_model: model.to_path_buf(),
+                ..config.clone()
+            },
+            &device,
+        )
+        .unwrap();
+        (0..config.iterations)
+            .map(|i| trainer.loss(i).unwrap().1.loss)
+            .sum::<f64>()
+            / config.iterations as f64
+    };
+    let (before, after) = (mean_loss(&config.base_model), mean_loss(&trained));
+    println!("the steps' mean loss: {before:.5} → {after:.5}");
+    assert!(after < 0.95 * before, "{before} → {after}");
+
+    // matup's own executor runs the export as candle ran it (inside the border, where the
+    // executor's mirrored context and candle's zero padding agree), and it differs from the
+    // stock network.
+    let image = Map::from_fn(48, 48, 3, |c, y, x| {
+        0.5 + 0.4 * ((x as f32 * 0.37 + y as f32 * 0.21 + c as f32).sin())
+    });
+    let executor = |path: &Path| {
+        OnnxUpsampler::load(path, EngineChoice::Matup)
+            .unwrap()
+            .upsample(std::slice::from_ref(&image), 4, Border::Mirror)
+            .unwrap()
+            .remove(0)
+    };
+    let candle = TrainableNet::load(&trained, &device).unwrap();
+    let input = Tensor::from_slice(image.data(), (1, 3, 48, 48), &device).unwrap();
+    let ours = candle.forward(&input).unwrap().get(0).unwrap();
+    let ours = Map::from_planar(192, 192, 3, ours.flatten_all().unwrap().to_vec1().unwrap());
+    let theirs = executor(&trained);
+    let stock = executor(&config.base_model);
+    // SPAN sees 21 LR texels around each; the centre 6² LR texels are beyond every border.
+    let inner = |m: &Map| m.crop(84, 84, 24, 24);
+    let difference = max_difference(inner(&ours).data(), inner(&theirs).data());
+    println!("exported network, executor against candle: max |difference| {difference:.2e}");
+    assert!(difference <= 1e-4, "{difference}");
+    assert!(
+        max_difference(theirs.data(), stock.data()) > 1e-3,
+        "training changed nothing"
+    );
+    assert!(whole.join("best.onnx").is_file() && whole.join("best.toml").is_file());
+    let val = std::fs::read_to_string(whole.join("val.csv")).unwrap();
+    // Validations at steps 0, 3, 6 and 8, each a material row and a mean row.
+    assert_eq!(
+        val.lines().filter(|l| l.contains(",mean,")).count(),
+        4,
+        "{val}"
+    );
+}
+
+/// Trains the run in `dir` up to `steps` steps of `config` (whose count is larger): the
+/// first part of an interrupted run, stopped the way Ctrl-C stops it.
+fn train_until(config: &LearnConfig, dir: &Path, steps: usize) -> matup_learn::Summary {
+    struct StopAt(std::path::PathBuf, usize);
+    impl matup_core::progress::Progress for StopAt {
+        fn cancelled(&self) -> bool {
+            let done = std::fs::read_to_string(self.0.join("train.csv"))
+                .map(|t| t.lines().count().saturating_sub(1))
+                .unwrap_or(0);
+            done >= self.1
+        }
+    }
+    let stop = StopAt(dir.to_path_buf(), steps);
+    match train(config, dir, &Device::Cpu, &stop) {
+        Err(matup_core::Error::Cancelled { epochs_done }) => matup_learn::Summary {
+            iterations: epochs_done,
+            resumed_from: None,
+            best: None,
+            seconds: 0.0,
+        },
+        other => panic!("expected the run to stop at step {steps}: {other:?}"),
+    }
+}
