@@ -6,14 +6,15 @@ use clap::Args;
 use matup_core::tensor::parse_device;
 use matup_learn::{train, LearnConfig};
 
+use crate::plot::plot_learning_curves;
 use crate::progress_bars::Bars;
 
 #[derive(Args, Debug)]
 pub struct LearnArgs {
     /// The run's settings (a TOML file such as configs/learn/span_x4_materials.toml).
     pub config: PathBuf,
-    /// The run folder: checkpoints, train.csv, val.csv, best.onnx and last.onnx. A folder
-    /// holding a checkpoint of the same settings is resumed.
+    /// The run folder: checkpoints, train.csv, val.csv, curves.png, best.onnx and last.onnx.
+    /// A folder holding a checkpoint of the same settings is resumed.
     #[arg(short, long)]
     pub output: PathBuf,
     /// Train up to this many steps instead of the configuration's.
@@ -45,6 +46,10 @@ pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
     let bars = Bars::new(args.quiet);
     let summary = train(&config, &args.output, &device, &bars);
     bars.finish();
+    // Drawn whether the run finished or stopped: the curves so far.
+    if args.output.join("train.csv").is_file() {
+        plot_learning_curves(&args.output)?;
+    }
     let summary = summary?;
     eprintln!(
         "{} steps{} in {:.0} s; {}",

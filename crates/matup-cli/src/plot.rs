@@ -122,3 +122,110 @@ mod tests {
         assert_eq!(front, vec![0, 2, 3]);
     }
 }
+
+/// `curves.png` of a `matup learn` run: the training loss (mean of every 100 steps) and each
+/// validation's render PSNR gain over the start (per material and the mean), against the step.
+pub fn plot_learning_curves(run: &Path) -> anyhow::Result<()> {
+    let read = |name: &str| -> anyhow::Result<Vec<Vec<String>>> {
+        let text = std::fs::read_to_string(run.join(name))?;
+        Ok(text
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(str::to_string).collect())
+            .collect())
+    };
+    let train = read("train.csv")?;
+    let val = read("val.csv").unwrap_or_default();
+    let number = |s: &str| s.parse::<f64>().unwrap_or(f64::NAN);
+    let loss: Vec<(f64, f64)> = train
+        .chunks(100)
+        .map(|c| {
+            let mean = c.iter().map(|r| number(&r[2])).sum::<f64>() / c.len() as f64;
+            (number(&c[c.len() - 1][0]), mean)
+        })
+        .collect();
+    // Per material (and "mean"): (step, PSNR − PSNR at the first validation).
+    let mut gains: BTreeMap<String, Vec<(f64, f64)>> = BTreeMap::new();
+    let mut first: BTreeMap<String, f64> = BTreeMap::new();
+    for r in &val {
+        let psnr = number(&r[2]);
+        let start = *first.entry(r[1].clone()).or_insert(psnr);
+        gains
+            .entry(r[1].clone())
+            .or_default()
+            .push((number(&r[0]), psnr - start));
+    }
+    if loss.is_empty() {
+        return Ok(());
+    }
+    let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    let path = run.join("curves.png");
+    let tmp = run.join("curves.partial.png");
+    draw_curves(&loss, &gains, &tmp)
+        .map_err(|e| anyhow!("{}: cannot draw the plot: {e}", path.display()))?;
+    std::fs::rename(&tmp, path)?;
+    Ok(())
+}
+
+type Curve = Vec<(f64, f64)>;
+
+fn draw_curves(
+    loss: &Curve,
+    gains: &BTreeMap<String, Curve>,
+    path: &Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let root = BitMapBackend::new(path, (1400, 600)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (left, right) = root.split_horizontally(560);
+    let last_step = loss.last().map_or(1.0, |p| p.0).max(1.0);
+    let (lo, hi) = loss.iter().fold((f64::INFINITY, 0f64), |(lo, hi), p| {
+        (lo.min(p.1), hi.max(p.1))
+    });
+    let mut chart = ChartBuilder::on(&left)
+        .caption(
+            "training render loss (mean of 100 steps)",
+            ("sans-serif", 20),
+        )
+        .margin(20)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..last_step, (lo * 0.9)..(hi * 1.1))?;
+    chart.configure_mesh().x_desc("step").draw()?;
+    chart.draw_series(LineSeries::new(loss.iter().copied(), &BLUE))?;
+
+    let all = gains.values().flatten();
+    let (g_lo, g_hi) = all.fold((0f64, 0f64), |(lo, hi), p| (lo.min(p.1), hi.max(p.1)));
+    let pad = (g_hi - g_lo).max(0.05) * 0.1;
+    let mut chart = ChartBuilder::on(&right)
+        .caption(
+            "validation: render PSNR gain over the start (dB), matup upscale's defaults",
+            ("sans-serif", 20),
+        )
+        .margin(20)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..last_step, (g_lo - pad)..(g_hi + pad))?;
+    chart.configure_mesh().x_desc("step").draw()?;
+    for (i, (name, curve)) in gains.iter().enumerate() {
+        let mean = name == "mean";
+        let colour = if mean {
+            BLACK.to_rgba()
+        } else {
+            Palette99::pick(i).to_rgba()
+        };
+        let style = colour.stroke_width(if mean { 3 } else { 1 });
+        let label = name.trim_start_matches("ambientcg_").to_string();
+        chart
+            .draw_series(LineSeries::new(curve.iter().copied(), style))?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}

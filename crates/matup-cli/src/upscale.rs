@@ -102,6 +102,10 @@ pub struct SettingsArgs {
     /// Use the residual base as upsampled, without back-projection.
     #[arg(long)]
     pub no_back_project: bool,
+    /// Upsample the maps under the eight symmetries of the square and average them
+    /// (geometric self-ensemble; eight times the upsampler's time).
+    #[arg(long)]
+    pub self_ensemble: bool,
     /// Learning rate.
     #[arg(long)]
     pub lr: Option<f64>,
@@ -216,6 +220,9 @@ impl SettingsArgs {
         }
         if self.no_back_project {
             c.filter.back_project = false;
+        }
+        if self.self_ensemble {
+            c.filter.self_ensemble = true;
         }
         if self.early_stop {
             c.train.early_stop.enabled = true;

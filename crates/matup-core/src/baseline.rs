@@ -3,6 +3,7 @@
 
 use crate::color::{linear_to_srgb, srgb_to_linear};
 use crate::io::{decode_normals, encode_normals};
+use crate::map::Dihedral;
 use crate::map::Map;
 use crate::material::{MapKind, Material, NormalConvention};
 use crate::resample::Border;
@@ -47,6 +48,53 @@ pub fn upscale_per_map(
     }
     out.restore_invariants();
     Ok(out)
+}
+
+/// [`upscale_per_map`] under each of the eight symmetries of the square, turned back and
+/// averaged (geometric self-ensemble, as SR papers report it): the material is mirrored and
+/// transposed as a surface (normals turn with it, [`Material::transformed`]), so the normal
+/// maps the network sees are real normal maps. Maps are averaged, normals renormalised after.
+/// Eight times the cost of one pass.
+pub fn upscale_per_map_ensemble(
+    material: &Material,
+    upsampler: &dyn RgbUpsampler,
+    scale: usize,
+    border: Border,
+) -> Result<Material> {
+    let mut sum: Option<Material> = None;
+    for t in Dihedral::ALL {
+        let up = upscale_per_map(&material.transformed(t), upsampler, scale, border)?
+            .transformed(t.inverse());
+        match sum.as_mut() {
+            None => sum = Some(up),
+            Some(total) => {
+                for kind in MapKind::ALL {
+                    if let (Some(a), Some(b)) = (total.map_mut(kind), up.map(kind)) {
+                        a.data_mut()
+                            .iter_mut()
+                            .zip(b.data())
+                            .for_each(|(a, b)| *a += b);
+                    }
+                }
+            }
+        }
+    }
+    let mut mean = sum.expect("eight symmetries");
+    let n = Dihedral::ALL.len() as f32;
+    for kind in MapKind::ALL {
+        if let Some(m) = mean.map_mut(kind) {
+            m.data_mut().iter_mut().for_each(|v| *v /= n);
+        }
+    }
+    if mean.anisotropy_angle.is_some() {
+        // Directions do not average as numbers; not what the ensemble is for.
+        return Err(crate::Error::Invalid(
+            "the self-ensemble does not handle anisotropy directions".into(),
+        ));
+    }
+    mean.origin = material.origin.clone();
+    mean.restore_invariants();
+    Ok(mean)
 }
 
 /// A map of `kind` as the RGB image an upsampler sees: base colour sRGB-encoded, normals as

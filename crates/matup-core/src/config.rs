@@ -328,6 +328,9 @@ pub struct FilterConfig {
     /// Back-project the residual base onto the LR maps first (its box-downsample made equal
     /// to them).
     pub back_project: bool,
+    /// Upsample the maps for the residual base under all eight symmetries of the square,
+    /// averaged (geometric self-ensemble; eight times the upsampler's time).
+    pub self_ensemble: bool,
 }
 
 impl Default for FilterConfig {
@@ -340,6 +343,7 @@ impl Default for FilterConfig {
             input: Interpolation(Kernel::Bilinear),
             residual_base: ResidualBase::Upsampler,
             back_project: true,
+            self_ensemble: false,
         }
     }
 }
@@ -645,6 +649,11 @@ impl Config {
         }
         if f.hidden_width == 0 {
             return bad("filter.hidden_width must be positive".into());
+        }
+        if f.self_ensemble && f.residual_base != ResidualBase::Upsampler {
+            return bad(
+                "filter.self_ensemble averages the upsampler's passes: it needs filter.residual_base = \"upsampler\"".into(),
+            );
         }
         let t = &self.train;
         if t.batch_size == 0 {

@@ -199,6 +199,20 @@ impl Dihedral {
         all
     };
 
+    /// The symmetry that undoes this one. (Flips then a transpose are undone by the transpose
+    /// then the flips, which is the flips swapped, then the transpose.)
+    pub fn inverse(self) -> Dihedral {
+        if self.transpose {
+            Dihedral {
+                flip_x: self.flip_y,
+                flip_y: self.flip_x,
+                transpose: true,
+            }
+        } else {
+            self
+        }
+    }
+
     /// Where a tangent-plane vector (x right, y down the rows) points after the symmetry.
     pub fn vector(self, [x, y]: [f32; 2]) -> [f32; 2] {
         let x = if self.flip_x { -x } else { x };
@@ -208,5 +222,30 @@ impl Dihedral {
         } else {
             [x, y]
         }
+    }
+}
+
+#[cfg(test)]
+mod dihedral_tests {
+    use super::*;
+
+    #[test]
+    fn each_symmetry_is_undone_by_its_inverse_and_they_are_all_different() {
+        let m = Map::from_fn(5, 3, 2, |c, y, x| (c * 100 + y * 10 + x) as f32);
+        let mut seen = Vec::new();
+        for t in Dihedral::ALL {
+            let turned = m.transformed(t);
+            assert_eq!(turned.transformed(t.inverse()), m, "{t:?}");
+            assert!(!seen.contains(&turned), "{t:?} repeats another symmetry");
+            seen.push(turned);
+            let v = t.inverse().vector(t.vector([0.3, -0.7]));
+            assert_eq!(v, [0.3, -0.7], "{t:?}");
+        }
+        // Mirroring the columns moves the first column last.
+        let flipped = m.transformed(Dihedral {
+            flip_x: true,
+            ..Dihedral::default()
+        });
+        assert_eq!(flipped.get(1, 2, 0), m.get(1, 2, 4));
     }
 }

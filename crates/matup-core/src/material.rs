@@ -219,7 +219,7 @@ impl Material {
         }
     }
 
-    pub(crate) fn map_mut(&mut self, kind: MapKind) -> Option<&mut Map> {
+    pub fn map_mut(&mut self, kind: MapKind) -> Option<&mut Map> {
         match kind {
             MapKind::BaseColor => Some(&mut self.base_color),
             MapKind::Normal => Some(&mut self.normal),

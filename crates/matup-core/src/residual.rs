@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use crate::baseline::upscale_per_map;
+use crate::baseline::{upscale_per_map, upscale_per_map_ensemble};
 use crate::config::{FilterConfig, ResidualBase};
 use crate::filter::FEATURES;
 use crate::map::Map;
@@ -28,7 +28,7 @@ pub fn residual_base(
     scale: usize,
     border: Border,
 ) -> Result<Map> {
-    let mut base = upsampled_base(lr, config.residual_base, upsampler, scale, border)?;
+    let mut base = upsampled_base(lr, config, upsampler, scale, border)?;
     if config.back_project {
         back_project(&mut base, &features(lr), scale, border);
     }
@@ -72,12 +72,12 @@ fn feature_range(feature: usize) -> (f32, f32) {
 /// The residual base before any back-projection.
 fn upsampled_base(
     lr: &Material,
-    base: ResidualBase,
+    config: &FilterConfig,
     upsampler: &dyn RgbUpsampler,
     scale: usize,
     border: Border,
 ) -> Result<Map> {
-    Ok(match base {
+    Ok(match config.residual_base {
         ResidualBase::Kernel(kernel) => upsample(&features(lr), scale, kernel, border),
         ResidualBase::Upsampler => {
             // Height is no filter feature: leave it out of the upsampler's batch.
@@ -87,7 +87,12 @@ fn upsampled_base(
                 anisotropy_angle: None,
                 ..lr.clone()
             };
-            features(&upscale_per_map(&maps, upsampler, scale, border)?)
+            let up = if config.self_ensemble {
+                upscale_per_map_ensemble(&maps, upsampler, scale, border)?
+            } else {
+                upscale_per_map(&maps, upsampler, scale, border)?
+            };
+            features(&up)
         }
     })
 }

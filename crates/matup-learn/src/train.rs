@@ -274,7 +274,12 @@ fn load_checkpoint(
     };
     let info: CheckpointInfo = serde_json::from_str(&text)
         .map_err(|e| Error::Invalid(format!("{}: {e}", files.checkpoint_info().display())))?;
-    if &info.config != config {
+    // The step count may change between calls (a run is extended by asking for more).
+    let settings = |c: &LearnConfig| LearnConfig {
+        iterations: 0,
+        ..c.clone()
+    };
+    if settings(&info.config) != settings(config) {
         return Err(Error::Invalid(format!(
             "{} was trained with other settings; use a new run folder, or the configuration in {}",
             files.dir.display(),
