@@ -8,10 +8,10 @@ use crate::color::to_u8;
 use crate::lights::{Light, LightSetSpec};
 use crate::map::Map;
 use crate::material::Material;
-use crate::pipeline::{detect_tileable, wrap_seam_ratio};
 use crate::render::{render, RenderOptions};
 use crate::resample::{gaussian_blur, Border};
 use crate::shading::ShadingModel;
+use crate::tileable::{detect_tileable, wrap_seam_ratio};
 use crate::{Error, Result};
 
 /// PSNR of identical images: the mean squared error is floored at 1e-10, so PSNR tops out at

@@ -16,26 +16,20 @@ use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
 use crate::height::reconstruct_height;
 use crate::lights::Light;
 use crate::map::Map;
-use crate::material::{alpha_from_roughness, Material};
+use crate::material::Material;
 use crate::progress::Progress;
 use crate::render::{labelled_sheet, render, RenderOptions};
-use crate::resample::{seam_ratio, upsample, Border, Kernel};
+use crate::resample::{upsample, Border, Kernel};
 use crate::residual::residual_base;
 use crate::select::{self, SelectionReport};
 use crate::shading::{shading_model, ShadingModel};
 use crate::targets::{oracle_targets, upsampled_targets, DetailBase, LrRenders, Targets};
 use crate::train::{train, Checkpoint, Examples, Shading, TrainStats};
 use crate::upsample::{check_scale, upsampler, RgbUpsampler};
-use crate::{Error, PluginSpec, Result};
 
-/// A material whose wrap-around seam ratio (see [`wrap_seam_ratio`]) stays below this tiles.
-/// Measured on the shared materials box-filtered to 64²–256²: seamless ones read 1.0–1.7
-/// (the shipped sample, a tileable pattern whose grooves meet the border, 2.02); crops of
-/// them 1.65–5.5, every crop above 2.2 but the low-contrast leather's and one of wood, where
-/// wrapping costs least; regular tiles whose joints lie on the border 2.3–18 whole (called not
-/// tileable: `--tileable` forces it). Mirroring a tileable material breaks its tiling, so the
-/// threshold errs toward tileable.
-pub const TILEABLE_SEAM_RATIO: f32 = 2.2;
+pub use crate::features::{constant_features, features};
+pub use crate::tileable::{detect_tileable, wrap_seam_ratio, TILEABLE_SEAM_RATIO};
+use crate::{Error, PluginSpec, Result};
 
 /// What a run did, for `run.json` and the CLI summary.
 #[derive(Clone, Debug, Serialize)]
@@ -91,25 +85,6 @@ pub struct RunOptions {
     /// upsampled ones as targets, which measures the method's ceiling (what the RGB upsampler
     /// costs).
     pub oracle: Option<Material>,
-}
-
-/// The 7 filter features of a material: linear base colour, metallic, normal x and y, alpha.
-pub fn features(material: &Material) -> Map {
-    let alpha = material.roughness.clone().map_values(alpha_from_roughness);
-    let normal_xy = material.normal.select_channels(&[0, 1]);
-    Map::stack(&[&material.base_color, &material.metallic, &normal_xy, &alpha])
-}
-
-/// The wrap-around seam ratio of a material's base colour and normal (the larger): about 1
-/// for tileable materials, well above for others.
-pub fn wrap_seam_ratio(material: &Material) -> f32 {
-    seam_ratio(&material.base_color).max(seam_ratio(&material.normal))
-}
-
-/// Whether a material tiles, judged from its edges, and the seam ratio that says so.
-pub fn detect_tileable(material: &Material) -> (bool, f32) {
-    let ratio = wrap_seam_ratio(material);
-    (ratio < TILEABLE_SEAM_RATIO, ratio)
 }
 
 fn timed<T>(
@@ -310,7 +285,10 @@ fn choose_settings(
         return Ok((config.clone(), None));
     }
     let candidates = select::candidates(config);
-    let (best, report) = select::select(material, &candidates, scale, tileable, progress)?;
+    let run = |m: &Material, c: &Config, p: &dyn Progress| {
+        upscale(m, c, &RunOptions::default(), p).map(|(result, _)| result)
+    };
+    let (best, report) = select::select(material, &candidates, scale, tileable, &run, progress)?;
     progress.note(&format!(
         "select: {} (validated at {}×{})",
         report.chosen, report.validation_size[0], report.validation_size[1]
@@ -359,14 +337,6 @@ fn fingerprint(material_features: &Map, config: &Config, level: usize) -> String
 struct TrainedFilter {
     filter: Option<Filter>,
     fixed: [Option<f32>; FEATURES],
-}
-
-/// The features of `lr_features` that are constant, with their value (kept, not learned, and
-/// no input), when skipping is on.
-pub fn constant_features(lr_features: &Map, skip: bool) -> [Option<f32>; FEATURES] {
-    std::array::from_fn(|k| {
-        (skip && lr_features.is_constant(k, 0.0)).then(|| lr_features.plane(k)[0])
-    })
 }
 
 /// The anti-aliased LR renders under the lights that light something (all of them with

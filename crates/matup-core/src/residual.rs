@@ -7,10 +7,10 @@ use rayon::prelude::*;
 
 use crate::baseline::{upscale_per_map, upscale_per_map_ensemble};
 use crate::config::{FilterConfig, ResidualBase};
-use crate::filter::FEATURES;
+use crate::features::features;
+use crate::features::FEATURES;
 use crate::map::Map;
 use crate::material::{Material, MIN_ALPHA};
-use crate::pipeline::features;
 use crate::resample::{box_downsample, upsample, Border, Kernel};
 use crate::upsample::RgbUpsampler;
 use crate::Result;

@@ -12,7 +12,6 @@ use crate::config::{Config, ResidualBase, Selection, TargetKind};
 use crate::lights::LightSetSpec;
 use crate::material::Material;
 use crate::metrics::evaluate;
-use crate::pipeline::{upscale, RunOptions};
 use crate::progress::Progress;
 use crate::resample::Kernel;
 use crate::shading::shading_model;
@@ -118,13 +117,18 @@ pub fn too_small(material: &Material, scale: usize) -> Option<String> {
     }
 }
 
-/// Validates `candidates` on `material` one level (`scale`) down, tiling as `tileable` says,
-/// and returns the index of the best with the report.
+/// How a candidate is run: the pipeline without selection (passed in by the pipeline, which
+/// stands above this module).
+pub type Upscale<'a> = &'a dyn Fn(&Material, &Config, &dyn Progress) -> Result<Material>;
+
+/// Validates `candidates` on `material` one level (`scale`) down with `upscale`, tiling as
+/// `tileable` says, and returns the index of the best with the report.
 pub fn select(
     material: &Material,
     candidates: &[Candidate],
     scale: usize,
     tileable: bool,
+    upscale: Upscale,
     progress: &dyn Progress,
 ) -> Result<(usize, SelectionReport)> {
     let start = Instant::now();
@@ -139,7 +143,7 @@ pub fn select(
         config.tileable = Some(tileable);
         config.select = Selection::Off;
         let quiet = Cancellable(progress);
-        let (result, _) = upscale(&lower, &config, &RunOptions::default(), &quiet)?;
+        let result = upscale(&lower, &config, &quiet)?;
         let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
         let e = evaluate(material, &result, model.as_ref(), &lights)?;
         scores.push(CandidateScore {

@@ -8,7 +8,7 @@ use candle_core::{Device, Tensor, D};
 
 use crate::lights::Light;
 use crate::loss::LossNorm;
-use crate::shading::{ShadingModel, Svbrdf, VIEW};
+use crate::svbrdf::{Svbrdf, VIEW};
 use crate::{Error, Result};
 
 /// Shading parameters of `T` texels, each `[T, 1, k]` so that they broadcast over lights.
@@ -71,7 +71,7 @@ impl LightTensors {
     }
 }
 
-/// A shading model's tensor form ([`ShadingModel::tensor_form`]).
+/// A shading model's tensor form (`ShadingModel::tensor_form`).
 pub trait TensorShading: Send + Sync {
     /// Linear RGB radiance towards [`VIEW`], `[T, L, 3]`, made of candle operations (so
     /// that candle's autograd differentiates it).
@@ -133,15 +133,6 @@ pub fn texel_losses(
 ) -> candle_core::Result<Tensor> {
     let shown = display(&model.shade(texels, lights)?)?;
     loss_norm(norm, &(shown - targets)?)?.sum(D::Minus1)
-}
-
-/// The tensor form of `model`, or an error saying it has none.
-pub fn tensor_form(model: &dyn ShadingModel) -> Result<&dyn TensorShading> {
-    model.tensor_form().ok_or_else(|| {
-        Error::Invalid(
-            "the shading model has no tensor form, so the tensor backend cannot train it; use --backend fused (on the CPU)".into(),
-        )
-    })
 }
 
 /// The CUDA device a device spec names: `None` for `cpu`, `Some(N)` for `cuda` (N = 0) or

@@ -15,8 +15,9 @@ use matup_core::lights::Light;
 use matup_core::metrics::{evaluate, Evaluation};
 use matup_core::progress::Progress;
 use matup_core::resample::Border;
+use matup_core::shading::tensor_form;
 use matup_core::shading::{shading_model, ShadingModel};
-use matup_core::tensor::{loss_norm, params_tensor, tensor_form, LightTensors};
+use matup_core::tensor::{loss_norm, params_tensor, LightTensors};
 use matup_core::{
     upscale, Config, Error, LightSetSpec, LossNorm, Material, PluginSpec, Result, RunOptions,
 };

@@ -9,7 +9,8 @@ use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{upsample, Border, Kernel};
 use matup_core::residual::residual_base;
 use matup_core::shading::shading_model;
-use matup_core::tensor::{params_tensor, tensor_form, LightTensors};
+use matup_core::shading::tensor_form;
+use matup_core::tensor::{params_tensor, LightTensors};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::{
     load_material, save_material, Dihedral, LightSetSpec, LoadOptions, Map, Material, PluginSpec,

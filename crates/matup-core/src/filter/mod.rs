@@ -25,12 +25,7 @@ use dense::{Dense, WeightLayout};
 use folded::FoldedLayer;
 use geometry::WindowGeometry;
 
-/// The features the filter reads and answers, per texel: linear base colour (3), metallic,
-/// normal x and y, alpha.
-pub const FEATURES: usize = 7;
-pub const FEATURE_NAMES: [&str; FEATURES] = [
-    "base_r", "base_g", "base_b", "metallic", "normal_x", "normal_y", "alpha",
-];
+pub use crate::features::{FEATURES, FEATURE_NAMES};
 
 /// The MLP: a folded first layer, hidden layers, a 7-wide output.
 pub struct Filter {

@@ -16,7 +16,8 @@ use crate::config::{Activation, FUSED_ONLY_TERMS};
 use crate::filter::decode::decode_tensors;
 use crate::filter::{tensor_name, Filter, FEATURES};
 use crate::material::texel_position;
-use crate::tensor::{tensor_form, texel_losses, LightTensors, SvbrdfTensors, TensorShading};
+use crate::shading::tensor_form;
+use crate::tensor::{texel_losses, LightTensors, SvbrdfTensors, TensorShading};
 use crate::{Error, Result};
 
 /// Steps with candle tensor operations on `device`. The filter's weights are copied into a

@@ -16,7 +16,8 @@ use tract_onnx::pb::{
     tensor_proto::DataType, GraphProto, ModelProto, NodeProto, TensorProto, ValueInfoProto,
 };
 
-use super::kernels::{self, Arith, Conv, Features, Padding, PerTexel};
+use super::conv::Conv;
+use super::kernels::{self, Arith, Features, Padding, PerTexel};
 
 /// Why a graph cannot run here.
 #[derive(Debug)]

@@ -13,6 +13,7 @@
 //! image that fits in one tile runs whole on matup's executor, its convolutions wrapping
 //! around, which needs no context at all.
 
+mod conv;
 mod convnet;
 mod kernels;
 mod winograd;
