@@ -103,26 +103,6 @@ fn draw(points: &[(String, f64, f64)], path: &Path) -> Result<(), Box<dyn std::e
     Ok(())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_front_keeps_points_no_other_beats_on_both() {
-        let p = |t: f64, e: f64| (String::new(), t, e);
-        let points = vec![
-            p(1.0, 0.5),
-            p(2.0, 0.6),
-            p(3.0, 0.3),
-            p(0.5, 0.9),
-            p(10.0, 0.31),
-        ];
-        let mut front = pareto_front(&points);
-        front.sort();
-        assert_eq!(front, vec![0, 2, 3]);
-    }
-}
-
 /// `curves.png` of a `matup learn` run: the training loss (mean of every 100 steps) and each
 /// validation's render PSNR gain over the start (per material and the mean), against the step.
 pub fn plot_learning_curves(run: &Path) -> anyhow::Result<()> {
@@ -228,4 +208,24 @@ fn draw_curves(
         .draw()?;
     root.present()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_front_keeps_points_no_other_beats_on_both() {
+        let p = |t: f64, e: f64| (String::new(), t, e);
+        let points = vec![
+            p(1.0, 0.5),
+            p(2.0, 0.6),
+            p(3.0, 0.3),
+            p(0.5, 0.9),
+            p(10.0, 0.31),
+        ];
+        let mut front = pareto_front(&points);
+        front.sort();
+        assert_eq!(front, vec![0, 2, 3]);
+    }
 }

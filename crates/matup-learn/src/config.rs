@@ -123,7 +123,7 @@ impl LearnConfig {
         if self.batch == 0 || self.lights == 0 || self.checkpoint_every == 0 {
             return Err("batch, lights and checkpoint_every must be positive".into());
         }
-        if !(self.learning_rate > 0.0) {
+        if !self.learning_rate.is_finite() || self.learning_rate <= 0.0 {
             return Err("learning_rate must be positive".into());
         }
         self.loss_norm().map_err(|e| e.to_string())?;
