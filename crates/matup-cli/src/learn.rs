@@ -50,7 +50,12 @@ pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
     if args.output.join("train.csv").is_file() {
         plot_learning_curves(&args.output)?;
     }
-    let summary = summary?;
+    let summary = match summary {
+        Err(matup_core::Error::Cancelled { epochs_done }) => anyhow::bail!(
+            "interrupted after step {epochs_done}, its checkpoint written; run the same command again to continue"
+        ),
+        other => other?,
+    };
     eprintln!(
         "{} steps{} in {:.0} s; {}",
         summary.iterations,

@@ -462,11 +462,12 @@ pub fn train(
     progress: &dyn Progress,
 ) -> Result<Summary> {
     let start = Instant::now();
+    // The data and network first: a run that cannot start leaves no folder behind.
+    let trainer = Trainer::new(config, device)?;
     std::fs::create_dir_all(dir).map_err(|e| Error::Invalid(format!("{}: {e}", dir.display())))?;
     let files = RunFiles {
         dir: dir.to_path_buf(),
     };
-    let trainer = Trainer::new(config, device)?;
     let vars = trainer.net.vars();
     let mut adam = Adam::new(&vars, config.learning_rate)?;
     let info = load_checkpoint(&files, &vars, &mut adam, config, device)?;
