@@ -119,6 +119,8 @@ pub fn plot_learning_curves(run: &Path) -> anyhow::Result<()> {
     let number = |s: &str| s.parse::<f64>().unwrap_or(f64::NAN);
     let loss: Vec<(f64, f64)> = train
         .chunks(100)
+        // A last, partial chunk would be a mean of a few steps: noise.
+        .filter(|c| c.len() == 100 || train.len() < 100)
         .map(|c| {
             let mean = c.iter().map(|r| number(&r[2])).sum::<f64>() / c.len() as f64;
             (number(&c[c.len() - 1][0]), mean)

@@ -2,7 +2,7 @@
 //! symmetry of the square (normals turning with it), and its box-filtered LR version
 //! (`Material::box_downsample`, what `matup downsample` writes).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use candle_core::{Device, Tensor};
 use matup_core::baseline::encode_for_upsampler;
@@ -30,11 +30,6 @@ impl Corpus {
             names: names.to_vec(),
             materials,
         })
-    }
-
-    /// The folders of the corpus' materials.
-    pub fn folders(folder: &Path, names: &[String]) -> Vec<PathBuf> {
-        names.iter().map(|n| folder.join(n)).collect()
     }
 }
 
