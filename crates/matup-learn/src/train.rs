@@ -242,7 +242,9 @@ fn save_checkpoint(
     files: &RunFiles,
     vars: &[Var],
     adam: &Adam,
-    info: &CheckpointInfo,
+    config: &LearnConfig,
+    iteration: usize,
+    best: Option<(f64, usize)>,
 ) -> Result<()> {
     let mut tensors = HashMap::new();
     for (i, var) in vars.iter().enumerate() {
@@ -256,7 +258,11 @@ fn save_checkpoint(
         .map_err(|e| Error::Invalid(format!("{}: {e}", files.checkpoint().display())))?;
     write_atomic(
         &files.checkpoint_info(),
-        serde_json::to_string_pretty(info)
+        serde_json::to_string_pretty(&CheckpointInfo {
+            iteration,
+            config: config.clone(),
+            best,
+        })
             .expect("serialisable")
             .as_bytes(),
     )
@@ -516,16 +522,7 @@ pub fn train(
     progress.advance(iteration as u64, None);
     while iteration < config.iterations {
         if progress.cancelled() {
-            save_checkpoint(
-                &files,
-                &vars,
-                &adam,
-                &CheckpointInfo {
-                    iteration,
-                    config: config.clone(),
-                    best,
-                },
-            )?;
+            save_checkpoint(&files, &vars, &adam, config, iteration, best)?;
             return Err(Error::Cancelled {
                 epochs_done: iteration,
             });
@@ -564,16 +561,7 @@ pub fn train(
         }
         if validating || iteration % config.checkpoint_every == 0 || iteration == config.iterations
         {
-            save_checkpoint(
-                &files,
-                &vars,
-                &adam,
-                &CheckpointInfo {
-                    iteration,
-                    config: config.clone(),
-                    best,
-                },
-            )?;
+            save_checkpoint(&files, &vars, &adam, config, iteration, best)?;
         }
     }
     Ok(Summary {
