@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use anyhow::bail;
 use clap::Args;
-use matup_core::batch::{material_name, run_batch, BatchOptions, ClaimTiming, Shard};
+use matup_apps::batch::{material_name, run_batch, BatchOptions, ClaimTiming, Shard};
 use matup_core::SaveOptions;
 
 use crate::material_args::LoadArgs;

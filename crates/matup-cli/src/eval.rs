@@ -1,8 +1,8 @@
 //! `matup eval`: how close a material is to a reference, in renders and in maps.
 
 use clap::Args;
-use matup_core::metrics::{evaluate, Evaluation};
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, PluginSpec};
+use matup_eval::metrics::{evaluate, Evaluation};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {

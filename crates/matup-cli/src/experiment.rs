@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use matup_core::experiment::{run_experiment, Experiment, Row};
+use matup_apps::experiment::{run_experiment, Experiment, Row};
 
 use crate::plot::plot_time_vs_error;
 use crate::progress_bars::Bars;
@@ -66,7 +66,7 @@ pub struct SweepArgs {
 
 /// The shipped SR network's spec, when this build has it and it loads.
 fn shipped_network() -> Option<String> {
-    let spec = matup_core::config::AUTO_UPSAMPLERS[0];
+    let spec = matup_method::config::AUTO_UPSAMPLERS[0];
     spec.parse()
         .ok()
         .and_then(|s| matup_core::upsampler(&s).ok())
@@ -84,7 +84,7 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read {}", path.display()))?;
             // Checked as a whole configuration first: unknown keys name the line.
-            matup_core::Config::from_toml(&text, &path.display().to_string())?;
+            matup_method::Config::from_toml(&text, &path.display().to_string())?;
             toml::from_str::<toml::Table>(&text)?
         }
         None => toml::Table::new(),

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::anyhow;
-use matup_core::experiment::Row;
+use matup_apps::experiment::Row;
 use matup_core::text::FONT; // shipped, so that a machine without fonts can plot
 use plotters::prelude::*;
 use plotters::style::FontStyle;

@@ -4,7 +4,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
-use matup_core::batch::{BatchProgress, Handled};
+use matup_apps::batch::{BatchProgress, Handled};
 use matup_core::progress::Progress;
 
 /// Every bar's look: its name, the bar, the count, the time, the ETA and a message.

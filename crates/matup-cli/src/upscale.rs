@@ -4,13 +4,14 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use matup_core::config::{
+use matup_apps::folder::{upscale_to_folder, FolderRun};
+use matup_apps::view::write_run_view;
+use matup_core::{FileFormat, LossNorm, SaveOptions};
+use matup_method::config::{
     Activation, Backend, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
 };
-use matup_core::folder::{upscale_to_folder, FolderRun};
-use matup_core::train::Stop;
-use matup_core::view::write_run_view;
-use matup_core::{Config, FileFormat, LossNorm, SaveOptions};
+use matup_method::train::Stop;
+use matup_method::Config;
 
 use crate::material_args::MaterialArgs;
 use crate::progress_bars::Bars;

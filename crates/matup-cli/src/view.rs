@@ -4,8 +4,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::Args;
-use matup_core::view::{bilinear_comparison, write_view};
-use matup_core::{load_material, Config, LoadOptions, Material, NormalConvention};
+use matup_apps::view::{bilinear_comparison, write_view};
+use matup_core::{load_material, LoadOptions, Material, NormalConvention};
+use matup_method::Config;
 
 #[derive(Args, Debug)]
 pub struct ViewArgs {

@@ -375,7 +375,7 @@ fn the_shipped_sweeps_parse_and_expand() {
     use matup_upsamplers as _;
     for (name, points) in [("loss_norms", 4), ("window", 4), ("lights", 4)] {
         let path = format!("{}/../../sweeps/{name}.toml", env!("CARGO_MANIFEST_DIR"));
-        let e = matup_core::experiment::Experiment::from_file(std::path::Path::new(&path))
+        let e = matup_apps::experiment::Experiment::from_file(std::path::Path::new(&path))
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(e.points().unwrap().len(), points, "{name}");
         assert!(
@@ -494,6 +494,6 @@ fn learn_trains_on_pairs_equal_to_what_matup_downsample_writes() {
             .fold(0.0, f32::max);
         assert!(worst <= 0.5 / 255.0 + 1e-5, "{what}: {worst}");
     }
-    let angle = matup_core::metrics::mean_angle_degrees(&pair.lr.normal, &written.normal);
+    let angle = matup_eval::metrics::mean_angle_degrees(&pair.lr.normal, &written.normal);
     assert!(angle < 0.3, "normals {angle}°");
 }

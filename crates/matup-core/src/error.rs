@@ -52,21 +52,21 @@ pub enum Error {
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
-    pub(crate) fn file(path: &Path, message: impl Into<String>) -> Self {
+    pub fn file(path: &Path, message: impl Into<String>) -> Self {
         Error::File {
             path: path.to_path_buf(),
             message: message.into(),
         }
     }
 
-    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+    pub fn io(path: &Path, source: std::io::Error) -> Self {
         Error::Io {
             path: path.to_path_buf(),
             source,
         }
     }
 
-    pub(crate) fn material(folder: &Path, message: impl Into<String>) -> Self {
+    pub fn material(folder: &Path, message: impl Into<String>) -> Self {
         Error::Material {
             folder: folder.to_path_buf(),
             message: message.into(),

@@ -70,7 +70,7 @@ pub fn render(
 
 /// Display-space renders of `texels` (a `width × height` grid, one per output texel) under
 /// each light.
-pub(crate) fn render_texels(
+pub fn render_texels(
     texels: &[Texel],
     width: usize,
     height: usize,

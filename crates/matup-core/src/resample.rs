@@ -121,7 +121,7 @@ impl Kernel {
     /// Taps of each output phase for an integer upscale: output texel `o = i·scale + φ` sits at
     /// input coordinate `i + (φ + ½)/scale − ½`; `taps[φ]` lists (input offset from `i`,
     /// weight), weights normalised to sum to 1 so constants stay constant.
-    pub(crate) fn phase_taps(self, scale: usize) -> Vec<Vec<(isize, f32)>> {
+    pub fn phase_taps(self, scale: usize) -> Vec<Vec<(isize, f32)>> {
         let reach = self.radius().ceil() as isize + 1;
         (0..scale)
             .map(|phase| {

@@ -5,10 +5,10 @@
 use std::path::Path;
 
 use candle_core::{Device, Tensor};
-use matup_core::baseline::encode_for_upsampler;
-use matup_core::filter::FEATURES;
-use matup_core::pipeline::{constant_features, features};
 use matup_core::{load_material, Dihedral, LoadOptions, MapKind, Material, Result};
+use matup_eval::baseline::encode_for_upsampler;
+use matup_method::filter::FEATURES;
+use matup_method::pipeline::{constant_features, features};
 use rand::Rng;
 
 use crate::shipped::IMAGES_PER_MATERIAL;

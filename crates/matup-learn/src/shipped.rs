@@ -1,19 +1,19 @@
 //! What `matup upscale` does with the network's outputs by default, as differentiable candle
 //! operations, so that training sees what users get: each map decoded as the per-map upsampler
-//! decodes it (`matup_core::baseline::upscale_per_map`), the 7 features back-projected onto the
-//! LR features (`matup_core::residual::back_project`), decoded to shading parameters
-//! (`matup_core::filter::decode`), rendered with the shading model's tensor form and shown
+//! decodes it (`matup_eval::baseline::upscale_per_map`), the 7 features back-projected onto the
+//! LR features (`matup_method::residual::back_project`), decoded to shading parameters
+//! (`matup_method::filter::decode`), rendered with the shading model's tensor form and shown
 //! through the display transform. The tests hold each step equal to matup's own code.
 
 use candle_core::{Device, Tensor, D};
-use matup_core::filter::decode::decode_tensors;
-use matup_core::filter::FEATURES;
 use matup_core::material::{MIN_ALPHA, MIN_ROUGHNESS};
 use matup_core::resample::{upsample, Border, Kernel};
 use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
 use matup_core::Map;
+use matup_method::filter::decode::decode_tensors;
+use matup_method::filter::FEATURES;
 
-/// Rounds of back-projection, as `matup_core::residual` runs them.
+/// Rounds of back-projection, as `matup_method::residual` runs them.
 pub const BACK_PROJECTIONS: usize = 3;
 
 /// The images the per-map upsampler sends through the network for `B` materials, in this
@@ -115,7 +115,7 @@ impl BackProjection {
     }
 }
 
-/// The range a feature's values may take, as `matup_core::residual` keeps them.
+/// The range a feature's values may take, as `matup_method::residual` keeps them.
 fn feature_range(feature: usize) -> (f32, f32) {
     match feature {
         4 | 5 => (-1.0, 1.0),

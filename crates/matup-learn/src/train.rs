@@ -12,15 +12,14 @@ use std::time::Instant;
 use candle_core::{backprop::GradStore, Device, Tensor, Var};
 use matup_core::io::write_atomic;
 use matup_core::lights::Light;
-use matup_core::metrics::{evaluate, Evaluation};
 use matup_core::progress::Progress;
 use matup_core::resample::Border;
 use matup_core::shading::tensor_form;
 use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::tensor::{loss_norm, params_tensor, LightTensors};
-use matup_core::{
-    upscale, Config, Error, LightSetSpec, LossNorm, Material, PluginSpec, Result, RunOptions,
-};
+use matup_core::{Error, LightSetSpec, LossNorm, Material, PluginSpec, Result};
+use matup_eval::metrics::{evaluate, Evaluation};
+use matup_method::{upscale, Config, RunOptions};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
@@ -263,8 +262,8 @@ fn save_checkpoint(
             config: config.clone(),
             best,
         })
-            .expect("serialisable")
-            .as_bytes(),
+        .expect("serialisable")
+        .as_bytes(),
     )
 }
 

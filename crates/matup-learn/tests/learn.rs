@@ -4,10 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
-use matup_core::config::{FilterConfig, ResidualBase};
 use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{upsample, Border, Kernel};
-use matup_core::residual::residual_base;
 use matup_core::shading::shading_model;
 use matup_core::shading::tensor_form;
 use matup_core::tensor::{params_tensor, LightTensors};
@@ -20,6 +18,8 @@ use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
 use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection};
 use matup_learn::{train, LearnConfig};
+use matup_method::config::{FilterConfig, ResidualBase};
+use matup_method::residual::residual_base;
 use matup_shading as _;
 use matup_upsamplers::onnx::{EngineChoice, OnnxUpsampler};
 

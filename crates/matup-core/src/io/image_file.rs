@@ -222,7 +222,7 @@ pub(crate) fn write_image(path: &Path, map: &Map, format: FileFormat) -> Result<
 }
 
 /// `map` (values in [0, 1], grey or RGB) as the bytes of an 8-bit PNG file.
-pub(crate) fn encode_png8(map: &Map) -> std::result::Result<Vec<u8>, String> {
+pub fn encode_png8(map: &Map) -> std::result::Result<Vec<u8>, String> {
     encode(map, FileFormat::Png8)
 }
 

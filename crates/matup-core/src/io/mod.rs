@@ -17,7 +17,7 @@ use crate::material::{
     MIN_ROUGHNESS,
 };
 use crate::{Error, Result};
-pub(crate) use image_file::encode_png8;
+pub use image_file::encode_png8;
 use image_file::{read_image, write_image, ImageFile};
 
 /// Explicit files for some maps; they win over what folder discovery finds.
@@ -304,7 +304,7 @@ impl Reader {
 }
 
 /// Encoded [0, 1] normals → unit vectors in matup's (DirectX) frame.
-pub(crate) fn decode_normals(normal: &mut Map, convention: NormalConvention) {
+pub fn decode_normals(normal: &mut Map, convention: NormalConvention) {
     let n = normal.texels();
     let data = normal.data_mut();
     let flip = if convention == NormalConvention::OpenGl {
@@ -398,7 +398,7 @@ pub fn save_material(
 }
 
 /// Unit normals → [0, 1] encoding in `convention`.
-pub(crate) fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
+pub fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
     let flip = if convention == NormalConvention::OpenGl {
         -1.0
     } else {

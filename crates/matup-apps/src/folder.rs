@@ -1,0 +1,63 @@
+//! One material in, one output folder out: what `matup upscale` does, and `matup batch` for
+//! each material of a library. The maps, `preview.png` and `run.json` are each written
+//! atomically, `run.json` last, so a folder with a `run.json` holds a finished run.
+
+use std::path::{Path, PathBuf};
+
+use matup_core::io::{check_output_folder, save_material, save_png, write_atomic, SaveOptions};
+use matup_core::material::Material;
+use matup_core::progress::Progress;
+use matup_core::{Error, Result};
+use matup_method::pipeline::{preview, upscale, RunOptions, RunReport};
+use matup_method::Config;
+
+/// The checkpoint folder of a run inside its output folder (removed once the run finishes).
+pub const CHECKPOINT_FOLDER: &str = ".matup-checkpoint";
+
+/// What [`upscale_to_folder`] wrote.
+pub struct FolderRun {
+    pub report: RunReport,
+    /// The maps, then `preview.png` and `run.json`.
+    pub written: Vec<PathBuf>,
+}
+
+/// Upscales `material` into `out` (created; never the input folder): the maps in `save`'s
+/// formats, `preview.png` and `run.json` (carrying `fingerprint`, when given, as
+/// `settings_fingerprint`). Training checkpoints go to `out/.matup-checkpoint`; with `resume`
+/// a run continues from them.
+pub fn upscale_to_folder(
+    material: &Material,
+    config: &Config,
+    out: &Path,
+    save: &SaveOptions,
+    resume: bool,
+    fingerprint: Option<String>,
+    progress: &dyn Progress,
+) -> Result<FolderRun> {
+    check_output_folder(out, material.origin.as_ref())?;
+    if out.exists() && !out.is_dir() {
+        return Err(Error::file(out, "output exists and is not a folder"));
+    }
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let checkpoints = out.join(CHECKPOINT_FOLDER);
+    let options = RunOptions {
+        checkpoint_folder: Some(checkpoints.clone()),
+        resume,
+        oracle: None,
+    };
+    let (result, mut report) = upscale(material, config, &options, progress)?;
+    report.settings_fingerprint = fingerprint;
+
+    let mut written = save_material(&result, out, save)?;
+    let sheet = preview(material, &result, config, report.tileable)?;
+    let preview_path = out.join("preview.png");
+    save_png(&preview_path, &sheet)?;
+    written.push(preview_path);
+    let json = serde_json::to_string_pretty(&report)
+        .map_err(|e| Error::Invalid(format!("run.json: {e}")))?;
+    let run_json = out.join("run.json");
+    write_atomic(&run_json, json.as_bytes())?;
+    written.push(run_json);
+    let _ = std::fs::remove_dir_all(&checkpoints); // finished: nothing to resume
+    Ok(FolderRun { report, written })
+}

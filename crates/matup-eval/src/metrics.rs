@@ -1,0 +1,290 @@
+//! How close a material is to a reference: its renders under a held-out light set (PSNR, SSIM,
+//! FLIP), its maps (base colour, normal, roughness and metallic errors) and its seam.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use matup_core::color::to_u8;
+use matup_core::lights::{Light, LightSetSpec};
+use matup_core::map::Map;
+use matup_core::material::Material;
+use matup_core::render::{render, RenderOptions};
+use matup_core::resample::{gaussian_blur, Border};
+use matup_core::shading::ShadingModel;
+use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
+use matup_core::{Error, Result};
+
+/// PSNR of identical images: the mean squared error is floored at 1e-10, so PSNR tops out at
+/// 100 dB instead of infinity (JSON has no infinity).
+pub const MAX_PSNR: f64 = 100.0;
+
+/// Lights rendered and compared together by [`evaluate`].
+const LIGHTS_AT_ONCE: usize = 4;
+
+/// The numbers `matup eval` reports. Render metrics are over display-space renders (METHOD.md's
+/// tone mapping and sRGB curve), averaged over the lights.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Evaluation {
+    pub lights: usize,
+    /// dB over every texel of every render (peak 1).
+    pub render_psnr: f64,
+    /// Mean SSIM (Gaussian window σ = 1.5, per channel).
+    pub render_ssim: f64,
+    /// Mean FLIP error (NVIDIA's LDR FLIP at its default 67 pixels per degree); 0 is identical.
+    pub render_flip: f64,
+    /// RMSE of the linear base colour.
+    pub base_color_rmse: f64,
+    /// Mean angle between the normals, in degrees.
+    pub normal_error_degrees: f64,
+    pub roughness_rmse: f64,
+    pub metallic_rmse: f64,
+    /// Wrap-around seam ratio of the candidate (1 is seamless) and of the reference.
+    pub seam_ratio: f64,
+    pub reference_seam_ratio: f64,
+    /// Sharpness of the candidate's and the reference's renders: the mean gradient magnitude
+    /// ([`sharpness`]), averaged over the lights. A blurry result reads below the reference,
+    /// an oversharpened one above.
+    pub render_sharpness: f64,
+    pub reference_render_sharpness: f64,
+}
+
+/// Renders `reference` and `candidate` under `lights` with `model` and compares them.
+/// The materials must have the same size.
+pub fn evaluate(
+    reference: &Material,
+    candidate: &Material,
+    model: &dyn ShadingModel,
+    lights: &LightSetSpec,
+) -> Result<Evaluation> {
+    let size = |m: &Material| (m.width(), m.height_px());
+    if size(reference) != size(candidate) {
+        let name = |m: &Material| {
+            m.origin.as_ref().map_or("(in memory)".to_string(), |o| {
+                o.folder.display().to_string()
+            })
+        };
+        return Err(Error::Invalid(format!(
+            "the reference {} is {}×{} but the candidate {} is {}×{}: compare materials of one size",
+            name(reference),
+            reference.width(),
+            reference.height_px(),
+            name(candidate),
+            candidate.width(),
+            candidate.height_px()
+        )));
+    }
+    let (reference_tiles, reference_seam) = detect_tileable(reference);
+    let options = RenderOptions {
+        supersample: true,
+        border: Border::for_tiling(reference_tiles),
+    };
+    let lights: Vec<Light> = lights.build();
+    // A few lights at a time, so memory stays bounded for large materials.
+    let per_light: Vec<[f64; 5]> = lights
+        .chunks(LIGHTS_AT_ONCE)
+        .flat_map(|chunk| {
+            let a = render(reference, model, chunk, options);
+            let b = render(candidate, model, chunk, options);
+            a.par_iter()
+                .zip(&b)
+                .map(|(x, y)| {
+                    // In the order of the means below.
+                    [
+                        squared_error(x, y),
+                        ssim(x, y),
+                        flip(x, y),
+                        sharpness(y),
+                        sharpness(x),
+                    ]
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let n = per_light.len().max(1) as f64;
+    let mean = |k: usize| per_light.iter().map(|p| p[k]).sum::<f64>() / n;
+    let texels = (reference.width() * reference.height_px()) as f64;
+    Ok(Evaluation {
+        lights: lights.len(),
+        render_psnr: psnr(mean(0) / (3.0 * texels)),
+        render_ssim: mean(1),
+        render_flip: mean(2),
+        base_color_rmse: rmse(&reference.base_color, &candidate.base_color),
+        normal_error_degrees: mean_angle_degrees(&reference.normal, &candidate.normal),
+        roughness_rmse: rmse(&reference.roughness, &candidate.roughness),
+        metallic_rmse: rmse(&reference.metallic, &candidate.metallic),
+        seam_ratio: wrap_seam_ratio(candidate) as f64,
+        reference_seam_ratio: reference_seam as f64,
+        render_sharpness: mean(3),
+        reference_render_sharpness: mean(4),
+    })
+}
+
+/// Sharpness of an image: the gradient magnitude `√(dx² + dy²)` from forward differences
+/// between neighbouring texels, averaged over the texels (the last row and column have no
+/// forward neighbour) and the channels.
+pub fn sharpness(image: &Map) -> f64 {
+    let (w, h) = (image.width(), image.height());
+    if w < 2 || h < 2 {
+        return 0.0;
+    }
+    let total: f64 = (0..image.channels())
+        .map(|c| {
+            let p = image.plane(c);
+            (0..h - 1)
+                .into_par_iter()
+                .map(|y| {
+                    (0..w - 1)
+                        .map(|x| {
+                            let v = p[y * w + x];
+                            let (dx, dy) = (p[y * w + x + 1] - v, p[(y + 1) * w + x] - v);
+                            ((dx * dx + dy * dy) as f64).sqrt()
+                        })
+                        .sum::<f64>()
+                })
+                .sum::<f64>()
+        })
+        .sum();
+    total / (image.channels() * (w - 1) * (h - 1)) as f64
+}
+
+/// PSNR in dB of a mean squared error over values with peak 1.
+pub fn psnr(mse: f64) -> f64 {
+    (-10.0 * mse.max(1e-10).log10()).min(MAX_PSNR)
+}
+
+fn squared_error(a: &Map, b: &Map) -> f64 {
+    a.data()
+        .iter()
+        .zip(b.data())
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum()
+}
+
+/// Root mean squared difference over every value of two maps of one shape.
+pub fn rmse(a: &Map, b: &Map) -> f64 {
+    (squared_error(a, b) / a.data().len().max(1) as f64).sqrt()
+}
+
+/// Mean angle in degrees between two unit normal maps.
+pub fn mean_angle_degrees(a: &Map, b: &Map) -> f64 {
+    let n = a.texels();
+    let total: f64 = (0..n)
+        .map(|i| {
+            let u = glam::DVec3::from_array(std::array::from_fn(|c| a.plane(c)[i] as f64));
+            let v = glam::DVec3::from_array(std::array::from_fn(|c| b.plane(c)[i] as f64));
+            // atan2(|u × v|, u · v) stays exact near 0°, where acos (glam's angle_between)
+            // loses precision.
+            u.cross(v).length().atan2(u.dot(v)).to_degrees()
+        })
+        .sum();
+    total / n.max(1) as f64
+}
+
+/// Mean SSIM of two images with values in [0, 1] (Wang et al. 2004: Gaussian window σ = 1.5
+/// truncated at 11 texels (3σ each side), K1 = 0.01, K2 = 0.03), averaged over texels and channels; borders
+/// repeat the edge texel.
+pub fn ssim(a: &Map, b: &Map) -> f64 {
+    const C1: f32 = 0.01 * 0.01;
+    const C2: f32 = 0.03 * 0.03;
+    let (w, h) = (a.width(), a.height());
+    let mut total = 0.0f64;
+    for c in 0..a.channels() {
+        let x = a.plane(c);
+        let y = b.plane(c);
+        let blur = |v: Vec<f32>| gaussian_blur(&v, w, h, 1.5, Border::Clamp);
+        let mx = blur(x.to_vec());
+        let my = blur(y.to_vec());
+        let xx = blur(x.iter().map(|v| v * v).collect());
+        let yy = blur(y.iter().map(|v| v * v).collect());
+        let xy = blur(x.iter().zip(y).map(|(p, q)| p * q).collect());
+        total += (0..w * h)
+            .map(|i| {
+                let (mx, my) = (mx[i], my[i]);
+                let vx = xx[i] - mx * mx;
+                let vy = yy[i] - my * my;
+                let cov = xy[i] - mx * my;
+                (((2.0 * mx * my + C1) * (2.0 * cov + C2))
+                    / ((mx * mx + my * my + C1) * (vx + vy + C2))) as f64
+            })
+            .sum::<f64>();
+    }
+    total / (a.channels() * w * h).max(1) as f64
+}
+
+/// Mean FLIP error of two display-space RGB images, through NVIDIA's reference
+/// implementation (the `nv-flip` crate) on their 8-bit sRGB form.
+pub fn flip(reference: &Map, test: &Map) -> f64 {
+    let to_rgb8 = |m: &Map| -> Vec<u8> {
+        (0..m.texels())
+            .flat_map(|i| (0..3).map(move |c| to_u8(m.plane(c)[i])))
+            .collect()
+    };
+    let (w, h) = (reference.width() as u32, reference.height() as u32);
+    let error = nv_flip::flip(
+        nv_flip::FlipImageRgb8::with_data(w, h, &to_rgb8(reference)),
+        nv_flip::FlipImageRgb8::with_data(w, h, &to_rgb8(test)),
+        nv_flip::DEFAULT_PIXELS_PER_DEGREE,
+    );
+    nv_flip::FlipPool::from_image(&error).mean() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn noise(w: usize, h: usize, seed: usize) -> Map {
+        Map::from_fn(w, h, 3, |c, y, x| {
+            (((x * 131 + y * 71 + c * 29 + seed * 17) % 97) as f32) / 96.0
+        })
+    }
+
+    #[test]
+    fn identical_images_score_perfectly() {
+        let a = noise(32, 24, 1);
+        assert_eq!(
+            psnr(squared_error(&a, &a) / a.data().len() as f64),
+            MAX_PSNR
+        );
+        assert!((ssim(&a, &a) - 1.0).abs() < 1e-6);
+        assert_eq!(flip(&a, &a), 0.0);
+    }
+
+    #[test]
+    fn sharpness_is_the_mean_gradient_magnitude() {
+        // A ramp rising 0.1 per column: every gradient is (0.1, 0).
+        let ramp = Map::from_fn(5, 4, 3, |_, _, x| 0.1 * x as f32);
+        assert!((sharpness(&ramp) - 0.1).abs() < 1e-6);
+        // A checkerboard of 0 and 1: every gradient is (±1, ±1), magnitude √2.
+        let checker = Map::from_fn(6, 6, 1, |_, y, x| ((x + y) % 2) as f32);
+        assert!((sharpness(&checker) - 2f64.sqrt()).abs() < 1e-6);
+        assert_eq!(sharpness(&Map::filled(8, 8, 3, 0.4)), 0.0);
+    }
+
+    #[test]
+    fn psnr_of_a_known_error() {
+        // A uniform error of 0.1 has MSE 0.01: 20 dB.
+        assert!((psnr(0.01) - 20.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn more_distortion_scores_worse() {
+        let a = noise(48, 48, 2);
+        let slightly = a.clone().map_values(|v| (v + 0.02).min(1.0));
+        let very = noise(48, 48, 3);
+        assert!(ssim(&a, &slightly) > ssim(&a, &very));
+        assert!(flip(&a, &slightly) < flip(&a, &very));
+        assert!(ssim(&a, &very) < 0.5);
+    }
+
+    #[test]
+    fn normal_angles_in_degrees() {
+        let up = Map::from_fn(2, 1, 3, |c, _, _| if c == 2 { 1.0 } else { 0.0 });
+        let side = Map::from_fn(2, 1, 3, |c, _, x| match (c, x) {
+            (0, 0) => 1.0,
+            (2, 1) => 1.0,
+            _ => 0.0,
+        });
+        // One texel at 90°, one at 0°.
+        assert!((mean_angle_degrees(&up, &side) - 45.0).abs() < 1e-4);
+    }
+}

@@ -1,0 +1,715 @@
+//! The method end to end: one function over a [`Config`] that runs the stages in order and
+//! reports progress through a callback. It does not know which plugins exist.
+
+use std::collections::hash_map::DefaultHasher;
+use std::hash::{Hash, Hasher};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::config::{Chain, Config, ResidualBase, Selection, AUTO_UPSAMPLERS};
+use crate::filter::decode::decode;
+use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
+use crate::height::reconstruct_height;
+use crate::residual::residual_base;
+use crate::select::{self, SelectionReport};
+use crate::targets::{oracle_targets, upsampled_targets, DetailBase, LrRenders, Targets};
+use crate::train::{train, Checkpoint, Examples, Shading, TrainStats};
+use matup_core::lights::Light;
+use matup_core::map::Map;
+use matup_core::material::Material;
+use matup_core::progress::Progress;
+use matup_core::render::{labelled_sheet, render, RenderOptions};
+use matup_core::resample::{upsample, Border, Kernel};
+use matup_core::shading::{shading_model, ShadingModel};
+use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
+
+pub use crate::features::{constant_features, features};
+pub use matup_core::tileable::{detect_tileable, wrap_seam_ratio, TILEABLE_SEAM_RATIO};
+use matup_core::{Error, PluginSpec, Result};
+
+/// What a run did, for `run.json` and the CLI summary.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    pub matup_version: &'static str,
+    /// The folder the input was loaded from, when it came from one.
+    pub input_folder: Option<PathBuf>,
+    pub input_size: [usize; 2],
+    pub output_size: [usize; 2],
+    pub config: Config,
+    /// The RGB upsampler that ran (what `auto` chose).
+    pub upsampler_used: String,
+    pub tileable: bool,
+    /// The seam ratio the tileability was detected from (absent when it was given).
+    pub seam_ratio: Option<f32>,
+    /// How the settings were chosen, with `select = "auto"` (`config` is the chosen one).
+    pub selection: Option<SelectionReport>,
+    pub levels: Vec<LevelReport>,
+    /// Seconds per stage, in order.
+    pub timings: Vec<(String, f64)>,
+    pub total_seconds: f64,
+    /// Mean training loss of the last epoch of the last level.
+    pub final_loss: Option<f64>,
+    /// Work skipped because the material could not use it.
+    pub skipped: Vec<String>,
+    /// Peak resident memory of the process (Linux), in MiB.
+    pub peak_memory_mib: Option<f64>,
+    pub threads: usize,
+    /// A digest of the settings and input files, written by `matup batch` to tell a finished
+    /// material from one to redo.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settings_fingerprint: Option<String>,
+}
+
+/// One level (one ×s step) of a run.
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelReport {
+    pub scale: usize,
+    pub input_size: [usize; 2],
+    pub output_size: [usize; 2],
+    pub lights_used: usize,
+    /// Features held constant instead of learned.
+    pub constant_features: Vec<&'static str>,
+    pub training: TrainStats,
+}
+
+/// Where a run may keep checkpoints, and whether to continue from them.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    pub checkpoint_folder: Option<PathBuf>,
+    pub resume: bool,
+    /// The true material at the output size, for benchmarks: its exact renders replace the
+    /// upsampled ones as targets, which measures the method's ceiling (what the RGB upsampler
+    /// costs).
+    pub oracle: Option<Material>,
+}
+
+fn timed<T>(
+    timings: &mut Vec<(String, f64)>,
+    name: String,
+    f: impl FnOnce() -> Result<T>,
+) -> Result<T> {
+    let start = Instant::now();
+    let out = f()?;
+    timings.push((name, start.elapsed().as_secs_f64()));
+    Ok(out)
+}
+
+/// Peak resident memory from `/proc/self/status` (VmHWM), where there is one.
+pub fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// Everything a level needs that stays the same across levels.
+struct Context<'a> {
+    config: &'a Config,
+    model: Arc<dyn ShadingModel>,
+    upsampler: Box<dyn RgbUpsampler>,
+    lights: Vec<Light>,
+    border: Border,
+    options: &'a RunOptions,
+    progress: &'a dyn Progress,
+}
+
+/// Upsamples `material` as `config` says. Returns the HR material (height included when the
+/// input has one) and what the run did.
+pub fn upscale(
+    material: &Material,
+    config: &Config,
+    options: &RunOptions,
+    progress: &dyn Progress,
+) -> Result<(Material, RunReport)> {
+    config.validate()?;
+    let start = Instant::now();
+    let mut timings = Vec::new();
+    let mut skipped = Vec::new();
+
+    let model: Arc<dyn ShadingModel> =
+        Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
+    let (mut upsampler_used, upsampler) = choose_upsampler(config)?;
+    if options.oracle.is_some() {
+        upsampler_used = "oracle (exact renders of the true material)".into();
+    }
+    let (tileable, seam) = match config.tileable {
+        Some(t) => (t, None),
+        None => {
+            let (tileable, ratio) = detect_tileable(material);
+            (tileable, Some(ratio))
+        }
+    };
+    progress.note(&match seam {
+        Some(r) => format!(
+            "tileable: {} (wrap-around seam ratio {r:.2})",
+            if tileable { "yes" } else { "no" }
+        ),
+        None => format!(
+            "tileable: {} (as given)",
+            if tileable { "yes" } else { "no" }
+        ),
+    });
+    let (chosen, selection) = choose_settings(material, config, options, tileable, progress)?;
+    let config = &chosen;
+    if let Some(s) = &selection {
+        timings.push(("select".to_string(), s.seconds));
+    }
+    if material.height.is_none() {
+        skipped.push("height stage: the input has no height map (flat geometry)".to_string());
+    }
+    if material.anisotropy.is_some() || material.anisotropy_angle.is_some() {
+        skipped.push("anisotropy maps: upsampled bilinearly, not learned".to_string());
+    }
+    let lights = config.lights.build();
+    let ctx = Context {
+        config,
+        model,
+        upsampler,
+        lights,
+        border: Border::for_tiling(tileable),
+        options,
+        progress,
+    };
+
+    let mut levels = Vec::new();
+    let mut current = material.clone();
+    let mut single_filter: Option<TrainedFilter> = None;
+    for (level, &scale) in config.levels().iter().enumerate() {
+        let reuse = config.chain == Chain::Single && level > 0;
+        let (next, report, filter) = if reuse {
+            let trained = single_filter.as_ref().expect("level 1 trained a filter");
+            let next = timed(&mut timings, format!("level {}: infer", level + 1), || {
+                let base = residual_base(
+                    &current,
+                    &config.filter,
+                    ctx.upsampler.as_ref(),
+                    scale,
+                    ctx.border,
+                )?;
+                infer_material(
+                    &current,
+                    trained.filter.as_ref(),
+                    trained.fixed,
+                    &base,
+                    scale,
+                    &ctx,
+                )
+            })?;
+            let report = LevelReport {
+                scale,
+                input_size: [current.width(), current.height_px()],
+                output_size: [next.width(), next.height_px()],
+                lights_used: 0,
+                constant_features: Vec::new(),
+                training: TrainStats::default(),
+            };
+            (next, report, None)
+        } else {
+            let (next, report, filter) =
+                run_level(&current, scale, level, &ctx, &mut timings, &mut skipped)?;
+            (next, report, Some(filter))
+        };
+        if let Some(f) = filter {
+            single_filter = Some(f);
+        }
+        let with_height = match (&current.height, &next.height) {
+            (Some(lr_height), None) => {
+                let h = timed(&mut timings, format!("level {}: height", level + 1), || {
+                    Ok(reconstruct_height(
+                        lr_height,
+                        &current.normal,
+                        &next.normal,
+                        scale,
+                        tileable,
+                    ))
+                })?;
+                Material {
+                    height: Some(h),
+                    ..next
+                }
+            }
+            _ => next,
+        };
+        levels.push(report);
+        current = with_height;
+    }
+    current.origin = material.origin.clone();
+
+    let final_loss = levels
+        .iter()
+        .rev()
+        .find_map(|l| l.training.epoch_losses.last().copied());
+    let report = RunReport {
+        matup_version: env!("CARGO_PKG_VERSION"),
+        input_folder: material.origin.as_ref().map(|o| o.folder.clone()),
+        input_size: [material.width(), material.height_px()],
+        output_size: [current.width(), current.height_px()],
+        config: config.clone(),
+        upsampler_used,
+        tileable,
+        seam_ratio: seam,
+        selection,
+        levels,
+        timings,
+        total_seconds: start.elapsed().as_secs_f64(),
+        final_loss,
+        skipped,
+        peak_memory_mib: peak_memory_mib(),
+        threads: rayon::current_num_threads(),
+        settings_fingerprint: None,
+    };
+    Ok((current, report))
+}
+
+/// The settings to run: `config` itself, or with `select = "auto"` the best of its candidates
+/// validated one scale down (not for the oracle, whose targets are the truth's).
+fn choose_settings(
+    material: &Material,
+    config: &Config,
+    options: &RunOptions,
+    tileable: bool,
+    progress: &dyn Progress,
+) -> Result<(Config, Option<SelectionReport>)> {
+    if config.select == Selection::Off || options.oracle.is_some() {
+        return Ok((config.clone(), None));
+    }
+    let scale = config.levels()[0];
+    if let Some(why) = select::too_small(material, scale) {
+        progress.note(&format!(
+            "select: settings as configured; no validation one scale down ({why})"
+        ));
+        return Ok((config.clone(), None));
+    }
+    let candidates = select::candidates(config);
+    let run = |m: &Material, c: &Config, p: &dyn Progress| {
+        upscale(m, c, &RunOptions::default(), p).map(|(result, _)| result)
+    };
+    let (best, report) = select::select(material, &candidates, scale, tileable, &run, progress)?;
+    progress.note(&format!(
+        "select: {} (validated at {}×{})",
+        report.chosen, report.validation_size[0], report.validation_size[1]
+    ));
+    Ok((candidates[best].config.clone(), Some(report)))
+}
+
+/// The configured upsampler, or for `auto` the first of [`AUTO_UPSAMPLERS`] that loads and
+/// supports every level's scale.
+pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
+    let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
+        let spec: PluginSpec = spec.parse()?;
+        let up = upsampler(&spec)?;
+        for &s in &config.levels() {
+            check_scale(&spec.name, up.as_ref(), s)?;
+        }
+        Ok(up)
+    };
+    if config.upsampler != "auto" {
+        return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
+    }
+    let mut last = None;
+    for spec in AUTO_UPSAMPLERS {
+        match fits(spec) {
+            Ok(up) => return Ok((spec.to_string(), up)),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.expect("AUTO_UPSAMPLERS is not empty"))
+}
+
+/// A digest of what a level's training depends on, so a checkpoint is resumed only for the
+/// same input and settings.
+fn fingerprint(material_features: &Map, config: &Config, level: usize) -> String {
+    let mut h = DefaultHasher::new();
+    config.to_toml().hash(&mut h);
+    level.hash(&mut h);
+    (material_features.width(), material_features.height()).hash(&mut h);
+    for v in material_features.data() {
+        v.to_bits().hash(&mut h);
+    }
+    format!("{:016x}", h.finish())
+}
+
+/// A trained filter (none where nothing was learned) and the features it holds constant.
+struct TrainedFilter {
+    filter: Option<Filter>,
+    fixed: [Option<f32>; FEATURES],
+}
+
+/// The anti-aliased LR renders under the lights that light something (all of them with
+/// skipping off).
+fn render_lr(lr: &Material, ctx: &Context) -> Result<(Vec<Light>, Vec<Map>)> {
+    let renders = render(
+        lr,
+        ctx.model.as_ref(),
+        &ctx.lights,
+        RenderOptions {
+            supersample: true,
+            border: ctx.border,
+        },
+    );
+    let (lights, renders): (Vec<Light>, Vec<Map>) = ctx
+        .lights
+        .iter()
+        .zip(renders)
+        .filter(|(_, r)| !ctx.config.skip || r.data().iter().any(|&v| v >= 0.5 / 255.0))
+        .map(|(l, r)| (*l, r))
+        .unzip();
+    if lights.is_empty() {
+        return Err(Error::Invalid(
+            "no light lights the material: every render is black".into(),
+        ));
+    }
+    Ok((lights, renders))
+}
+
+/// One ×`scale` level: residual base, then (unless there is nothing to learn) LR renders,
+/// targets and training, then inference.
+fn run_level(
+    lr: &Material,
+    scale: usize,
+    level: usize,
+    ctx: &Context,
+    timings: &mut Vec<(String, f64)>,
+    skipped: &mut Vec<String>,
+) -> Result<(Material, LevelReport, TrainedFilter)> {
+    let config = ctx.config;
+    let tag = |stage: &str| format!("level {}: {stage}", level + 1);
+    let lr_features = features(lr);
+
+    // Constant features are kept, not learned; they are no input either.
+    let fixed = constant_features(&lr_features, config.skip);
+    let constant_features: Vec<&'static str> = (0..FEATURES)
+        .filter(|&k| fixed[k].is_some())
+        .map(|k| FEATURE_NAMES[k])
+        .collect();
+    if !constant_features.is_empty() {
+        skipped.push(format!(
+            "level {}: constant features kept, not learned: {}",
+            level + 1,
+            constant_features.join(", ")
+        ));
+    }
+
+    // What the filter's answers are added to.
+    ctx.progress.stage(&tag("residual base"), 1);
+    // Shared with the training examples: at 4K output it is 470 MB.
+    let base = Arc::new(timed(timings, tag("residual base"), || {
+        residual_base(
+            lr,
+            &config.filter,
+            ctx.upsampler.as_ref(),
+            scale,
+            ctx.border,
+        )
+    })?);
+    ctx.progress.advance(1, None);
+
+    let (filter, lights_used, training) = if fixed.iter().all(Option::is_some) {
+        skipped.push(format!(
+            "level {}: training: every feature is constant",
+            level + 1
+        ));
+        (None, 0, TrainStats::default())
+    } else if config.train.epochs == 0 {
+        skipped.push(format!(
+            "level {}: training: 0 epochs, the residual base is the result",
+            level + 1
+        ));
+        (None, 0, TrainStats::default())
+    } else {
+        let (filter, lights, stats) = fit_filter(
+            lr,
+            &lr_features,
+            &base,
+            fixed,
+            scale,
+            level,
+            ctx,
+            timings,
+            skipped,
+        )?;
+        (Some(filter), lights, stats)
+    };
+
+    let hr = timed(timings, tag("infer"), || {
+        infer_material(lr, filter.as_ref(), fixed, &base, scale, ctx)
+    })?;
+    let report = LevelReport {
+        scale,
+        input_size: [lr.width(), lr.height_px()],
+        output_size: [hr.width(), hr.height_px()],
+        lights_used,
+        constant_features,
+        training,
+    };
+    Ok((hr, report, TrainedFilter { filter, fixed }))
+}
+
+/// Trains a level's filter on the residual base `base`: LR renders, targets, training.
+/// Returns the filter, the number of lights it was trained under and the training's stats.
+#[allow(clippy::too_many_arguments)]
+fn fit_filter(
+    lr: &Material,
+    lr_features: &Map,
+    base: &Arc<Map>,
+    fixed: [Option<f32>; FEATURES],
+    scale: usize,
+    level: usize,
+    ctx: &Context,
+    timings: &mut Vec<(String, f64)>,
+    skipped: &mut Vec<String>,
+) -> Result<(Filter, usize, TrainStats)> {
+    let config = ctx.config;
+    let tag = |stage: &str| format!("level {}: {stage}", level + 1);
+    let input_channels: Vec<usize> = (0..FEATURES).filter(|&k| fixed[k].is_none()).collect();
+
+    // LR renders (anti-aliased), dropping lights that light nothing.
+    ctx.progress
+        .stage(&tag("render LR"), ctx.lights.len() as u64);
+    let (lights, renders) = timed(timings, tag("render LR"), || render_lr(lr, ctx))?;
+    ctx.progress.advance(ctx.lights.len() as u64, None);
+    if lights.len() < ctx.lights.len() {
+        skipped.push(format!(
+            "level {}: {} of {} lights light nothing; their renders were not upsampled",
+            level + 1,
+            ctx.lights.len() - lights.len(),
+            ctx.lights.len()
+        ));
+    }
+
+    // The targets, stored compactly.
+    ctx.progress.stage(&tag("targets"), renders.len() as u64);
+    let (w, h) = (lr.width() * scale, lr.height_px() * scale);
+    let heights = (lr.height.as_ref()).map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+    let targets = timed(timings, tag("targets"), || match &ctx.options.oracle {
+        Some(truth) => oracle_targets(
+            truth,
+            w,
+            h,
+            &lights,
+            ctx.model.as_ref(),
+            ctx.border,
+            ctx.progress,
+        ),
+        None => upsampled_targets(
+            config.train.targets,
+            &LrRenders {
+                renders: &renders,
+                lights: &lights,
+                model: ctx.model.as_ref(),
+                scale,
+                border: ctx.border,
+            },
+            ctx.upsampler.as_ref(),
+            &DetailBase {
+                features: base,
+                fixed: &fixed,
+                heights: heights.as_ref(),
+                kernel: match config.filter.residual_base {
+                    ResidualBase::Kernel(k) => Some(k),
+                    ResidualBase::Upsampler => None,
+                },
+            },
+            ctx.progress,
+        ),
+    })?;
+
+    let filter = Filter::new(
+        &config.filter,
+        scale,
+        input_channels,
+        config.seed.wrapping_add(level as u64),
+    )?;
+    let main = Arc::new(Examples::new(
+        lr_features,
+        Arc::clone(base),
+        heights,
+        targets,
+        &filter,
+        ctx.border,
+    ));
+
+    // Cross-scale self-supervision: the LR material one scale down is the input, the LR
+    // material the answer, its exact renders the targets.
+    let cross = if config.train.cross_scale > 0.0 {
+        if lr.width() % scale == 0 && lr.height_px() % scale == 0 {
+            let lower = lr.box_downsample(scale);
+            let lower_base = residual_base(
+                &lower,
+                &config.filter,
+                ctx.upsampler.as_ref(),
+                scale,
+                ctx.border,
+            )?;
+            Some(Arc::new(Examples::new(
+                &features(&lower),
+                Arc::new(lower_base),
+                lr.height.clone(),
+                Targets::from_renders(&renders),
+                &filter,
+                ctx.border,
+            )))
+        } else {
+            skipped.push(format!(
+                "level {}: cross-scale term: {}×{} is not divisible by {scale}",
+                level + 1,
+                lr.width(),
+                lr.height_px()
+            ));
+            None
+        }
+    } else {
+        None
+    };
+    drop(renders);
+
+    let shading = Shading {
+        model: ctx.model.clone(),
+        lights: lights.clone().into(),
+        norm: config.train.loss,
+    };
+    let checkpoint = ctx
+        .options
+        .checkpoint_folder
+        .as_ref()
+        .map(|folder| Checkpoint {
+            folder: folder.join(format!("level{}", level + 1)),
+            resume: ctx.options.resume,
+            fingerprint: fingerprint(lr_features, config, level),
+        });
+    let stats = timed(timings, tag("train"), || {
+        train(
+            &filter,
+            &main,
+            cross.as_ref().map(|c| (c, config.train.cross_scale)),
+            &shading,
+            fixed,
+            &config.train,
+            config.seed.wrapping_add(level as u64),
+            checkpoint.as_ref(),
+            ctx.progress,
+        )
+    })?;
+    Ok((filter, lights.len(), stats))
+}
+
+/// Runs the trained filter (none: no residual) over every output texel of `lr` upsampled by
+/// `scale`, adding its answers to `residual_base` (the output-size features).
+fn infer_material(
+    lr: &Material,
+    filter: Option<&Filter>,
+    fixed: [Option<f32>; FEATURES],
+    residual_base: &Map,
+    scale: usize,
+    ctx: &Context,
+) -> Result<Material> {
+    let lr_features = features(lr);
+    let (w, h) = (lr.width() * scale, lr.height_px() * scale);
+    let n = w * h;
+    ctx.progress.stage("infer", n as u64);
+    let folded = filter.map(Filter::folded_weights).transpose()?;
+    let mut hr = Material::uniform(1, [0.0; 3], 0.5, 0.0);
+    hr.base_color = Map::filled(w, h, 3, 0.0);
+    hr.normal = Map::filled(w, h, 3, 0.0);
+    hr.roughness = Map::filled(w, h, 1, 0.0);
+    hr.metallic = Map::filled(w, h, 1, 0.0);
+    let all: Vec<usize> = (0..n).collect();
+    for chunk in all.chunks(16384) {
+        let raw = match (filter, &folded) {
+            (Some(filter), Some(folded)) => {
+                let (windows, phases) = filter.lr_windows(&lr_features, ctx.border, chunk);
+                filter.infer(folded, &windows, &phases)?
+            }
+            _ => vec![0.0; chunk.len() * FEATURES],
+        };
+        let decoded: Vec<_> = chunk
+            .par_iter()
+            .zip(raw.par_chunks(FEATURES))
+            .map(|(&t, r)| {
+                let base: [f32; FEATURES] = residual_base.texel(t);
+                decode(r, &base, &fixed).params
+            })
+            .collect();
+        for (&t, p) in chunk.iter().zip(&decoded) {
+            for c in 0..3 {
+                hr.base_color.plane_mut(c)[t] = p.base_color[c];
+                hr.normal.plane_mut(c)[t] = p.normal[c];
+            }
+            hr.metallic.data_mut()[t] = p.metallic;
+            hr.roughness.data_mut()[t] = p.alpha.sqrt();
+        }
+        ctx.progress.advance(chunk.len() as u64, None);
+    }
+    hr.anisotropy = lr
+        .anisotropy
+        .as_ref()
+        .map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+    hr.anisotropy_angle = lr
+        .anisotropy_angle
+        .as_ref()
+        .map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+    hr.restore_invariants();
+    Ok(hr)
+}
+
+/// `input` upsampled bilinearly to `output`'s size: what the preview and the viewer compare
+/// matup's result with.
+pub fn bilinear_baseline(input: &Material, output: &Material, tileable: bool) -> Material {
+    let scale = (output.width() / input.width().max(1)).max(1);
+    input.upsample(scale, Kernel::Bilinear, Border::for_tiling(tileable))
+}
+
+/// `preview.png`: the bilinearly upsampled input (left) and the result (right), rendered
+/// under two training lights (rows), labelled. Large outputs show their central 512² texels.
+pub fn preview(
+    input: &Material,
+    output: &Material,
+    config: &Config,
+    tileable: bool,
+) -> Result<Map> {
+    let border = Border::for_tiling(tileable);
+    let baseline = bilinear_baseline(input, output, tileable);
+    let crop = |m: &Material| {
+        let side = 512.min(m.width()).min(m.height_px());
+        let (x0, y0) = ((m.width() - side) / 2, (m.height_px() - side) / 2);
+        if side == m.width() && side == m.height_px() {
+            m.clone()
+        } else {
+            m.crop(x0, y0, side, side)
+        }
+    };
+    let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
+    let lights = config.lights.build();
+    // A high light and a low one: shading detail shows at grazing angles.
+    let by_height = |a: &&Light, b: &&Light| a.position[2].total_cmp(&b.position[2]);
+    let high = *lights.iter().max_by(by_height).unwrap();
+    let low = *lights
+        .iter()
+        .filter(|l| l.position[2] > 0.3 * config.lights.distance)
+        .min_by(by_height)
+        .unwrap_or(&high);
+    let options = RenderOptions {
+        supersample: false,
+        border,
+    };
+    let mut tiles = Vec::new();
+    let mut captions = Vec::new();
+    for light in [high, low] {
+        for m in [&baseline, output] {
+            tiles.extend(render(&crop(m), model.as_ref(), &[light], options));
+        }
+        let [x, y, z] = light.position;
+        captions.push(format!(
+            "light at {:.0}° elevation, {:.0}° azimuth",
+            z.atan2(x.hypot(y)).to_degrees(),
+            y.atan2(x).to_degrees().rem_euclid(360.0)
+        ));
+    }
+    let scale = output.width() / input.width().max(1);
+    let columns = [format!("bilinear ×{scale}"), "matup".to_string()];
+    Ok(labelled_sheet(&tiles, 2, 4, &columns, &captions))
+}
