@@ -218,7 +218,9 @@ pub fn upscale(
         }
         let with_height = match (&current.height, &next.height) {
             (Some(lr_height), None) => {
-                let h = timed(&mut timings, format!("level {}: height", level + 1), || {
+                let stage = format!("level {}: height", level + 1);
+                progress.stage(&stage, 1);
+                let h = timed(&mut timings, stage, || {
                     Ok(reconstruct_height(
                         lr_height,
                         &current.normal,
@@ -227,6 +229,7 @@ pub fn upscale(
                         tileable,
                     ))
                 })?;
+                progress.advance(1, None);
                 Material {
                     height: Some(h),
                     ..next
