@@ -41,19 +41,19 @@ pub fn residual_base(
 /// their ranges.
 pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
     for _ in 0..BACK_PROJECTIONS {
-        let mut mismatch = lr.clone();
         let seen = box_downsample(hr, scale);
-        for (m, s) in mismatch.data_mut().iter_mut().zip(seen.data()) {
-            *m -= s;
-        }
-        let correction = upsample(&mismatch, scale, Kernel::Bilinear, border);
-        let n = hr.texels();
-        let planes = hr.data_mut().chunks_mut(n).zip(correction.data().chunks(n));
-        for (c, (plane, fix)) in planes.enumerate() {
+        // One feature at a time: the correction of all of them at once, at the output size,
+        // was this stage's largest buffer.
+        for c in 0..hr.channels() {
+            let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
+                .map(|(l, s)| l - s)
+                .collect();
+            let mismatch = Map::from_planar(lr.width(), lr.height(), 1, mismatch);
+            let correction = upsample(&mismatch, scale, Kernel::Bilinear, border);
             let (lo, hi) = feature_range(c);
-            plane
+            hr.plane_mut(c)
                 .par_iter_mut()
-                .zip(fix)
+                .zip(correction.data())
                 .for_each(|(v, f)| *v = (*v + f).clamp(lo, hi));
         }
     }
