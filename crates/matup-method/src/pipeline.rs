@@ -666,6 +666,57 @@ pub fn bilinear_baseline(input: &Material, output: &Material, tileable: bool) ->
     input.upsample(scale, Kernel::Bilinear, Border::for_tiling(tileable))
 }
 
+/// The side of the square the preview shows (the whole of a smaller output).
+const PREVIEW_SIDE: usize = 512;
+
+/// The central `side` × `side` texels of `m`.
+fn centre(m: &Material, side: usize) -> Material {
+    if side == m.width() && side == m.height_px() {
+        return m.clone();
+    }
+    m.crop(
+        (m.width() - side) / 2,
+        (m.height_px() - side) / 2,
+        side,
+        side,
+    )
+}
+
+/// `centre(bilinear_baseline(input, output, tileable), side)`, upsampled from a window of the
+/// input with two texels of context (bilinear taps reach one) instead of the whole input: a
+/// 2K² input's preview would otherwise upsample all of it to 8K² (2 GB) for 512² texels.
+/// Windows that reach the input's edges take the whole, whose borders wrap or mirror.
+fn bilinear_centre(input: &Material, output: &Material, side: usize, tileable: bool) -> Material {
+    let scale = (output.width() / input.width().max(1)).max(1);
+    let (x0, y0) = ((output.width() - side) / 2, (output.height_px() - side) / 2);
+    let window = |start: usize, len: usize| {
+        let first = (start / scale).saturating_sub(2);
+        let end = (start + side).div_ceil(scale) + 2;
+        (first > 0 && end < len).then_some((first, end - first))
+    };
+    match (window(x0, input.width()), window(y0, input.height_px())) {
+        (Some((wx, ww)), Some((wy, wh))) => {
+            // The maps as they are: `Material::crop` would renormalise the input's normals,
+            // which the whole upsample reads unrenormalised.
+            let crop = |m: &Map| m.crop(wx, wy, ww, wh);
+            let window = Material {
+                base_color: crop(&input.base_color),
+                normal: crop(&input.normal),
+                roughness: crop(&input.roughness),
+                metallic: crop(&input.metallic),
+                height: input.height.as_ref().map(crop),
+                anisotropy: input.anisotropy.as_ref().map(crop),
+                anisotropy_angle: input.anisotropy_angle.as_ref().map(crop),
+                origin: None,
+            };
+            window
+                .upsample(scale, Kernel::Bilinear, Border::for_tiling(tileable))
+                .crop(x0 - wx * scale, y0 - wy * scale, side, side)
+        }
+        _ => centre(&bilinear_baseline(input, output, tileable), side),
+    }
+}
+
 /// `preview.png`: the bilinearly upsampled input (left) and the result (right), rendered
 /// under two training lights (rows), labelled. Large outputs show their central 512² texels.
 pub fn preview(
@@ -675,16 +726,9 @@ pub fn preview(
     tileable: bool,
 ) -> Result<Map> {
     let border = Border::for_tiling(tileable);
-    let baseline = bilinear_baseline(input, output, tileable);
-    let crop = |m: &Material| {
-        let side = 512.min(m.width()).min(m.height_px());
-        let (x0, y0) = ((m.width() - side) / 2, (m.height_px() - side) / 2);
-        if side == m.width() && side == m.height_px() {
-            m.clone()
-        } else {
-            m.crop(x0, y0, side, side)
-        }
-    };
+    let side = PREVIEW_SIDE.min(output.width()).min(output.height_px());
+    let baseline = bilinear_centre(input, output, side, tileable);
+    let output = &centre(output, side);
     let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
     let lights = config.lights.build();
     // A high light and a low one: shading detail shows at grazing angles.
@@ -703,7 +747,7 @@ pub fn preview(
     let mut captions = Vec::new();
     for light in [high, low] {
         for m in [&baseline, output] {
-            tiles.extend(render(&crop(m), model.as_ref(), &[light], options));
+            tiles.extend(render(m, model.as_ref(), &[light], options));
         }
         let [x, y, z] = light.position;
         captions.push(format!(
@@ -715,4 +759,28 @@ pub fn preview(
     let scale = output.width() / input.width().max(1);
     let columns = [format!("bilinear ×{scale}"), "matup".to_string()];
     Ok(labelled_sheet(&tiles, 2, 4, &columns, &captions))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use matup_core::io::{load_material, LoadOptions};
+    use matup_core::material::MapKind;
+
+    #[test]
+    fn the_preview_upsamples_a_window_equal_to_the_whole() {
+        let sample =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../samples/victorian_wood");
+        let input = load_material(Some(&sample), &LoadOptions::default()).unwrap();
+        let output = input.upsample(4, Kernel::Bilinear, Border::Wrap); // its size is what counts
+        for tileable in [true, false] {
+            let whole = centre(&bilinear_baseline(&input, &output, tileable), 64);
+            let window = bilinear_centre(&input, &output, 64, tileable);
+            for kind in MapKind::ALL {
+                // Not assert_eq: a failure would print every value.
+                let same = whole.map(kind).map(Map::data) == window.map(kind).map(Map::data);
+                assert!(same, "{kind:?}, tileable {tileable}");
+            }
+        }
+    }
 }
