@@ -260,13 +260,18 @@ impl Material {
     /// Applies a map-wise operation to every map, then restores the invariants (unit
     /// normals, value ranges).
     fn map_every(&self, f: impl Fn(&Map) -> Map) -> Material {
-        let mut out = self.clone();
-        for kind in MapKind::ALL {
-            if let Some(m) = out.map_mut(kind) {
-                *m = f(m);
-            }
-        }
-        out.origin = self.origin.clone();
+        // Built map by map, not over a clone: cropping 512² out of an 8K² material would
+        // first copy all of it.
+        let mut out = Material {
+            base_color: f(&self.base_color),
+            normal: f(&self.normal),
+            roughness: f(&self.roughness),
+            metallic: f(&self.metallic),
+            height: self.height.as_ref().map(&f),
+            anisotropy: self.anisotropy.as_ref().map(&f),
+            anisotropy_angle: self.anisotropy_angle.as_ref().map(&f),
+            origin: self.origin.clone(),
+        };
         out.restore_invariants();
         out
     }
@@ -309,16 +314,29 @@ impl Material {
 
     /// Clamps values to their valid ranges and renormalises normals.
     pub fn restore_invariants(&mut self) {
-        for v in self.base_color.data_mut() {
-            *v = v.clamp(0.0, 1.0);
+        for kind in [
+            MapKind::BaseColor,
+            MapKind::Metallic,
+            MapKind::Roughness,
+            MapKind::Normal,
+        ] {
+            restore_map_invariants(kind, self.map_mut(kind).expect("always present"));
         }
-        for v in self.metallic.data_mut() {
-            *v = v.clamp(0.0, 1.0);
-        }
-        for v in self.roughness.data_mut() {
-            *v = v.clamp(MIN_ROUGHNESS, 1.0);
-        }
-        normalize_normals(&mut self.normal);
+    }
+}
+
+/// What [`Material::restore_invariants`] does to a map of `kind`: base colour and metallic
+/// clamped to [0, 1], roughness to [`MIN_ROUGHNESS`, 1], normals renormalised; other maps
+/// are left as they are.
+pub fn restore_map_invariants(kind: MapKind, map: &mut Map) {
+    let range = match kind {
+        MapKind::BaseColor | MapKind::Metallic => 0.0..=1.0,
+        MapKind::Roughness => MIN_ROUGHNESS..=1.0,
+        MapKind::Normal => return normalize_normals(map),
+        _ => return,
+    };
+    for v in map.data_mut() {
+        *v = v.clamp(*range.start(), *range.end());
     }
 }
 

@@ -5,32 +5,50 @@ use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::io::{decode_normals, encode_normals};
 use matup_core::map::Dihedral;
 use matup_core::map::Map;
-use matup_core::material::{MapKind, Material, NormalConvention};
+use matup_core::material::{restore_map_invariants, MapKind, Material, NormalConvention};
 use matup_core::resample::Border;
 use matup_core::upsample::RgbUpsampler;
-use matup_core::Result;
+use matup_core::{Error, Result};
 
 /// Upsamples each map of `material` by `scale` with `upsampler`, as the map's file would be:
-/// base colour sRGB-encoded, normals as `(n + 1) / 2` colours (io's own encoding), grey maps as grey RGB images
-/// (the three results averaged back). Normals are renormalised and values clamped after.
+/// base colour sRGB-encoded, normals as `(n + 1) / 2` colours (io's own encoding), grey maps
+/// as grey RGB images (the three results averaged back). Normals are renormalised and values
+/// clamped after.
 pub fn upscale_per_map(
     material: &Material,
     upsampler: &dyn RgbUpsampler,
     scale: usize,
     border: Border,
 ) -> Result<Material> {
-    let kinds: Vec<MapKind> = MapKind::ALL
-        .into_iter()
-        .filter(|&k| material.map(k).is_some())
-        .collect();
-    let images: Vec<Map> = kinds
-        .iter()
-        .map(|&k| encode_for_upsampler(k, material.map(k).expect("filtered to present maps")))
-        .collect();
-    let upsampled = upsampler.upsample(&images, scale, border)?;
     let mut out = material.clone();
-    for (&k, up) in kinds.iter().zip(upsampled) {
-        let decoded = match k {
+    upscale_each_map(material, upsampler, scale, border, |kind, map| {
+        *out.map_mut(kind).expect("present in the clone") = map;
+        Ok(())
+    })?;
+    Ok(out)
+}
+
+/// [`upscale_per_map`] a map at a time: each map of `material` is upsampled, decoded and
+/// handed to `each` before the next is upsampled, so a caller that packs them elsewhere never
+/// holds all of them at the output size (at 8K² each map is 0.25–0.75 GB).
+pub fn upscale_each_map(
+    material: &Material,
+    upsampler: &dyn RgbUpsampler,
+    scale: usize,
+    border: Border,
+    mut each: impl FnMut(MapKind, Map) -> Result<()>,
+) -> Result<()> {
+    for kind in MapKind::ALL {
+        let Some(map) = material.map(kind) else {
+            continue;
+        };
+        let image = encode_for_upsampler(kind, map);
+        let up = (upsampler
+            .upsample(&[image], scale, border)?
+            .into_iter()
+            .next())
+        .ok_or_else(|| Error::Invalid(format!("the upsampler returned no image for {kind:?}")))?;
+        let mut decoded = match kind {
             MapKind::BaseColor => up.map_values(|v| srgb_to_linear(v.clamp(0.0, 1.0))),
             MapKind::Normal => {
                 let mut normals = up;
@@ -44,10 +62,10 @@ pub fn upscale_per_map(
                 })
             }
         };
-        *out.map_mut(k).expect("present in the clone") = decoded;
+        restore_map_invariants(kind, &mut decoded);
+        each(kind, decoded)?;
     }
-    out.restore_invariants();
-    Ok(out)
+    Ok(())
 }
 
 /// [`upscale_per_map`] under each of the eight symmetries of the square, turned back and

@@ -3,7 +3,7 @@
 //! materials into them here.
 
 use matup_core::map::Map;
-use matup_core::material::{alpha_from_roughness, Material};
+use matup_core::material::{alpha_from_roughness, MapKind, Material};
 
 /// The features the filter reads and answers, per texel: linear base colour (3), metallic,
 /// normal x and y, alpha.
@@ -14,9 +14,46 @@ pub const FEATURE_NAMES: [&str; FEATURES] = [
 
 /// The 7 filter features of a material: linear base colour, metallic, normal x and y, alpha.
 pub fn features(material: &Material) -> Map {
-    let alpha = material.roughness.clone().map_values(alpha_from_roughness);
-    let normal_xy = material.normal.select_channels(&[0, 1]);
-    Map::stack(&[&material.base_color, &material.metallic, &normal_xy, &alpha])
+    let (w, h) = (material.width(), material.height_px());
+    let mut features = Map::filled(w, h, FEATURES, 0.0);
+    for kind in FEATURE_MAPS {
+        pack_features(
+            &mut features,
+            kind,
+            material.map(kind).expect("always present"),
+        );
+    }
+    features
+}
+
+/// The maps the features come from.
+pub const FEATURE_MAPS: [MapKind; 4] = [
+    MapKind::BaseColor,
+    MapKind::Metallic,
+    MapKind::Normal,
+    MapKind::Roughness,
+];
+
+/// Writes the features that come from `map`, a map of `kind`, into `features`: base colour
+/// into 0–2, metallic into 3, normal x and y into 4 and 5, roughness as alpha into 6; maps of
+/// other kinds hold no feature.
+pub fn pack_features(features: &mut Map, kind: MapKind, map: &Map) {
+    let planes: &[(usize, usize)] = match kind {
+        MapKind::BaseColor => &[(0, 0), (1, 1), (2, 2)],
+        MapKind::Metallic => &[(0, 3)],
+        MapKind::Normal => &[(0, 4), (1, 5)],
+        MapKind::Roughness => {
+            let alpha = features.plane_mut(6);
+            for (a, &r) in alpha.iter_mut().zip(map.data()) {
+                *a = alpha_from_roughness(r);
+            }
+            return;
+        }
+        _ => &[],
+    };
+    for &(from, to) in planes {
+        features.plane_mut(to).copy_from_slice(map.plane(from));
+    }
 }
 
 /// The features of `lr_features` that are constant, with their value (kept, not learned, and

@@ -620,8 +620,8 @@ fn infer_material(
     hr.normal = Map::filled(w, h, 3, 0.0);
     hr.roughness = Map::filled(w, h, 1, 0.0);
     hr.metallic = Map::filled(w, h, 1, 0.0);
-    let all: Vec<usize> = (0..n).collect();
-    for chunk in all.chunks(16384) {
+    for start in (0..n).step_by(16384) {
+        let chunk: &[usize] = &(start..n.min(start + 16384)).collect::<Vec<_>>();
         let raw = match (filter, &folded) {
             (Some(filter), Some(folded)) => {
                 let (windows, phases) = filter.lr_windows(&lr_features, ctx.border, chunk);
@@ -728,7 +728,7 @@ pub fn preview(
     let border = Border::for_tiling(tileable);
     let side = PREVIEW_SIDE.min(output.width()).min(output.height_px());
     let baseline = bilinear_centre(input, output, side, tileable);
-    let output = &centre(output, side);
+    let result = centre(output, side);
     let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
     let lights = config.lights.build();
     // A high light and a low one: shading detail shows at grazing angles.
@@ -746,7 +746,7 @@ pub fn preview(
     let mut tiles = Vec::new();
     let mut captions = Vec::new();
     for light in [high, low] {
-        for m in [&baseline, output] {
+        for m in [&baseline, &result] {
             tiles.extend(render(m, model.as_ref(), &[light], options));
         }
         let [x, y, z] = light.position;

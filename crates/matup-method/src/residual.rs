@@ -6,14 +6,14 @@
 use rayon::prelude::*;
 
 use crate::config::{FilterConfig, ResidualBase};
-use crate::features::features;
 use crate::features::FEATURES;
+use crate::features::{features, pack_features};
 use matup_core::map::Map;
 use matup_core::material::{Material, MIN_ALPHA};
 use matup_core::resample::{box_downsample, upsample, Border, Kernel};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
-use matup_eval::baseline::{upscale_per_map, upscale_per_map_ensemble};
+use matup_eval::baseline::{upscale_each_map, upscale_per_map_ensemble};
 
 /// Rounds of back-projection: each removes most of the mismatch that remains (a bilinear
 /// spread does not invert the box filter in one round), so three leave little.
@@ -79,22 +79,35 @@ fn upsampled_base(
 ) -> Result<Map> {
     Ok(match config.residual_base {
         ResidualBase::Kernel(kernel) => upsample(&features(lr), scale, kernel, border),
+        ResidualBase::Upsampler if config.self_ensemble => features(&upscale_per_map_ensemble(
+            &feature_maps(lr),
+            upsampler,
+            scale,
+            border,
+        )?),
         ResidualBase::Upsampler => {
-            // Height is no filter feature: leave it out of the upsampler's batch.
-            let maps = Material {
-                height: None,
-                anisotropy: None,
-                anisotropy_angle: None,
-                ..lr.clone()
-            };
-            let up = if config.self_ensemble {
-                upscale_per_map_ensemble(&maps, upsampler, scale, border)?
-            } else {
-                upscale_per_map(&maps, upsampler, scale, border)?
-            };
-            features(&up)
+            // Each map packed as soon as it is upsampled: the maps and their features at the
+            // output size at once were this stage's peak.
+            let (w, h) = (lr.width() * scale, lr.height_px() * scale);
+            let mut base = Map::filled(w, h, FEATURES, 0.0);
+            upscale_each_map(&feature_maps(lr), upsampler, scale, border, |kind, map| {
+                pack_features(&mut base, kind, &map);
+                Ok(())
+            })?;
+            base
         }
     })
+}
+
+/// The maps of `lr` the features come from: height and anisotropy are no filter features,
+/// so the upsampler is spared them.
+fn feature_maps(lr: &Material) -> Material {
+    Material {
+        height: None,
+        anisotropy: None,
+        anisotropy_angle: None,
+        ..lr.clone()
+    }
 }
 
 #[cfg(test)]
