@@ -1,6 +1,7 @@
 //! Height from normals (METHOD.md): integrate the slope field with a Poisson solve, keep its
 //! high-pass part, scale it to the height map's units, and add it to the upsampled LR height.
 
+use rustdct::DctPlanner;
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
 
@@ -21,18 +22,9 @@ pub fn integrate_normals(normal: &Map, tileable: bool) -> Map {
         (slope(0) * dx, slope(1) * dy)
     };
     let height = if tileable {
-        solve_periodic(slopes, w, h, w, h)
+        solve_periodic(slopes, w, h)
     } else {
-        // Even extension of the height: gx is odd across vertical mirrors, gy across
-        // horizontal ones.
-        let (w2, h2) = (2 * w, 2 * h);
-        let mirrored = |x: usize, y: usize| {
-            let (sx, fx) = if x < w { (x, 1.0) } else { (w2 - 1 - x, -1.0) };
-            let (sy, fy) = if y < h { (y, 1.0) } else { (h2 - 1 - y, -1.0) };
-            let (gx, gy) = slopes(sx, sy);
-            (fx * gx, fy * gy)
-        };
-        solve_periodic(mirrored, w2, h2, w, h)
+        solve_neumann(slopes, w, h)
     };
     let mean = height.iter().sum::<f64>() / height.len() as f64;
     Map::from_planar(w, h, 1, height.iter().map(|v| (v - mean) as f32).collect())
@@ -40,20 +32,12 @@ pub fn integrate_normals(normal: &Map, tileable: bool) -> Map {
 
 /// Least-squares integration of periodic slopes `slopes(x, y) = (gx, gy)` on a `w × h` grid
 /// (centred differences, which the half-texel averaging of forward differences reduces to):
-/// `ĥ = −i(sin ωx Ĝx + sin ωy Ĝy) / (4 sin²(ωx/2) + 4 sin²(ωy/2))`. Returns the height's
-/// top-left `keep_w × keep_h` texels.
+/// `ĥ = −i(sin ωx Ĝx + sin ωy Ĝy) / (4 sin²(ωx/2) + 4 sin²(ωy/2))`.
 ///
 /// Both slope fields are real, so one complex transform carries them: with `z = gx + i·gy`,
 /// `Ĝx(k) = (Ẑ(k) + conj Ẑ(−k)) / 2` and `Ĝy(k) = (Ẑ(k) − conj Ẑ(−k)) / 2i`, and the solution
-/// is written over `Ẑ` a pair of frequencies (k, −k) at a time. One buffer instead of three:
-/// the mirrored solve of an 8K² map held 13 GB of them.
-fn solve_periodic(
-    slopes: impl Fn(usize, usize) -> (f64, f64),
-    w: usize,
-    h: usize,
-    keep_w: usize,
-    keep_h: usize,
-) -> Vec<f64> {
+/// is written over `Ẑ` a pair of frequencies (k, −k) at a time: one buffer instead of three.
+fn solve_periodic(slopes: impl Fn(usize, usize) -> (f64, f64), w: usize, h: usize) -> Vec<f64> {
     let mut planner = FftPlanner::<f64>::new();
     let mut z: Vec<Complex<f64>> = (0..w * h)
         .map(|i| {
@@ -89,9 +73,69 @@ fn solve_periodic(
     }
     fft2(&mut planner, &mut z, w, h, true);
     let norm = 1.0 / (w * h) as f64; // rustfft does not normalise
-    (0..keep_h)
-        .flat_map(|y| z[y * w..y * w + keep_w].iter().map(move |c| c.re * norm))
-        .collect()
+    z.iter().map(|c| c.re * norm).collect()
+}
+
+/// The same least-squares integration with Neumann borders: the periodic solve of the even
+/// (half-sample) mirror of the height over a `2w × 2h` grid, where `gx` is odd across vertical
+/// mirrors and `gy` across horizontal ones, done with real transforms on the `w × h` grid
+/// alone. Mirrored sequences have spectra of cosines (even) and sines (odd), so with `Gx` the
+/// DST-II along x and DCT-II along y of `gx`, `Gy` the DCT-II along x and DST-II along y of
+/// `gy`, the height's 2-D DCT-II is `H(k, l) = −(sin(πk/w) Gx(k, l) + sin(πl/h) Gy(k, l)) /
+/// (4 sin²(πk/2w) + 4 sin²(πl/2h))`, inverted by DCT-III. Two real buffers the size of the map,
+/// where solving the mirror itself took a complex one of four times its area: at 8K², 1.1 GB
+/// instead of 4.3 GB.
+fn solve_neumann(slopes: impl Fn(usize, usize) -> (f64, f64), w: usize, h: usize) -> Vec<f64> {
+    let mut planner = DctPlanner::<f64>::new();
+    let (along_x, along_y) = (planner.plan_dct2(w), planner.plan_dct2(h));
+    let (mut gx, mut gy) = (vec![0f64; w * h], vec![0f64; w * h]);
+    for i in 0..w * h {
+        (gx[i], gy[i]) = slopes(i % w, i / w);
+    }
+    gx.chunks_mut(w).for_each(|row| along_x.process_dst2(row));
+    gy.chunks_mut(w).for_each(|row| along_x.process_dct2(row));
+    for_each_column(&mut gx, w, h, |column| along_y.process_dct2(column));
+    for_each_column(&mut gy, w, h, |column| along_y.process_dst2(column));
+    // DST-II's output k holds frequency k + 1. H is written over Gx from the highest k down,
+    // so each Gx(k − 1) is read before it is overwritten.
+    let pi = std::f64::consts::PI;
+    for l in 0..h {
+        for k in (0..w).rev() {
+            let denom = 4.0
+                * ((pi * k as f64 / (2 * w) as f64).sin().powi(2)
+                    + (pi * l as f64 / (2 * h) as f64).sin().powi(2));
+            let across = if k > 0 { gx[l * w + k - 1] } else { 0.0 };
+            let down = if l > 0 { gy[(l - 1) * w + k] } else { 0.0 };
+            let num =
+                (pi * k as f64 / w as f64).sin() * across + (pi * l as f64 / h as f64).sin() * down;
+            gx[l * w + k] = if denom < 1e-12 { 0.0 } else { -num / denom }; // the mean is free
+        }
+    }
+    drop(gy);
+    gx.chunks_mut(w).for_each(|row| along_x.process_dct3(row));
+    for_each_column(&mut gx, w, h, |column| along_y.process_dct3(column));
+    let norm = 4.0 / (w * h) as f64; // DCT-III inverts DCT-II up to 2/n along each axis
+    gx.iter_mut().for_each(|v| *v *= norm);
+    gx
+}
+
+/// Runs `f` on each column of a row-major `w × h` grid, through a buffer.
+fn for_each_column<T: Copy + Default>(
+    data: &mut [T],
+    w: usize,
+    h: usize,
+    mut f: impl FnMut(&mut [T]),
+) {
+    let mut buffer = vec![T::default(); h];
+    for x in 0..w {
+        for y in 0..h {
+            buffer[y] = data[y * w + x];
+        }
+        f(&mut buffer);
+        for y in 0..h {
+            data[y * w + x] = buffer[y];
+        }
+    }
 }
 
 fn fft2(
@@ -114,16 +158,7 @@ fn fft2(
     } else {
         planner.plan_fft_forward(h)
     };
-    let mut buffer = vec![Complex::new(0.0, 0.0); h];
-    for x in 0..w {
-        for y in 0..h {
-            buffer[y] = data[y * w + x];
-        }
-        col.process(&mut buffer);
-        for y in 0..h {
-            data[y * w + x] = buffer[y];
-        }
-    }
+    for_each_column(data, w, h, |column| col.process(column));
 }
 
 /// The detail of a 1-channel map above a Gaussian blur of width `sigma`.
@@ -256,7 +291,7 @@ mod tests {
                 let k = (x * 31 + y * 17) as f64;
                 ((k * 0.37).sin(), (k * 0.91).cos())
             };
-            let height = solve_periodic(g, w, h, w, h);
+            let height = solve_periodic(g, w, h);
             let at = |x: isize, y: isize| {
                 height[y.rem_euclid(h as isize) as usize * w + x.rem_euclid(w as isize) as usize]
             };
@@ -265,6 +300,46 @@ mod tests {
                     x.rem_euclid(w as isize) as usize,
                     y.rem_euclid(h as isize) as usize,
                 )
+            };
+            for i in 0..w * h {
+                let (x, y) = ((i % w) as isize, (i / w) as isize);
+                let laplacian =
+                    at(x + 1, y) + at(x - 1, y) + at(x, y + 1) + at(x, y - 1) - 4.0 * at(x, y);
+                let divergence = (slope(x + 1, y).0 - slope(x - 1, y).0) / 2.0
+                    + (slope(x, y + 1).1 - slope(x, y - 1).1) / 2.0;
+                assert!(
+                    (laplacian - divergence).abs() < 1e-9,
+                    "{w}×{h} at ({x}, {y}): {laplacian} against {divergence}"
+                );
+            }
+        }
+    }
+    #[test]
+    fn the_neumann_solve_satisfies_its_equations_on_the_mirror() {
+        // The same equations as the periodic solve's, on the half-sample mirror: a neighbour
+        // beyond an edge is the texel at the edge, gx changes sign across vertical edges and
+        // gy across horizontal ones.
+        for (w, h) in [(7, 6), (8, 5), (6, 6)] {
+            let g = |x: usize, y: usize| {
+                let k = (x * 31 + y * 17) as f64;
+                ((k * 0.37).sin(), (k * 0.91).cos())
+            };
+            let height = solve_neumann(g, w, h);
+            let mirror = |i: isize, n: usize| {
+                if i < 0 {
+                    (-1 - i) as usize
+                } else if i >= n as isize {
+                    2 * n - 1 - i as usize
+                } else {
+                    i as usize
+                }
+            };
+            let at = |x: isize, y: isize| height[mirror(y, h) * w + mirror(x, w)];
+            let slope = |x: isize, y: isize| {
+                let (gx, gy) = g(mirror(x, w), mirror(y, h));
+                let outside = |i: isize, n: usize| i < 0 || i >= n as isize;
+                let sign = |flip: bool| if flip { -1.0 } else { 1.0 };
+                (gx * sign(outside(x, w)), gy * sign(outside(y, h)))
             };
             for i in 0..w * h {
                 let (x, y) = ((i % w) as isize, (i / w) as isize);
