@@ -108,16 +108,7 @@ fn tiled(material: &Material, n: usize) -> Material {
         let (w, h) = (m.width(), m.height());
         Map::from_fn(w * n, h * n, m.channels(), |c, y, x| m.get(c, y % h, x % w))
     };
-    Material {
-        base_color: repeat(&material.base_color),
-        normal: repeat(&material.normal),
-        roughness: repeat(&material.roughness),
-        metallic: repeat(&material.metallic),
-        height: material.height.as_ref().map(repeat),
-        anisotropy: material.anisotropy.as_ref().map(repeat),
-        anisotropy_angle: material.anisotropy_angle.as_ref().map(repeat),
-        origin: None,
-    }
+    material.map_maps(repeat)
 }
 
 fn main() {

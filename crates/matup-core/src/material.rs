@@ -260,9 +260,16 @@ impl Material {
     /// Applies a map-wise operation to every map, then restores the invariants (unit
     /// normals, value ranges).
     fn map_every(&self, f: impl Fn(&Map) -> Map) -> Material {
-        // Built map by map, not over a clone: cropping 512² out of an 8K² material would
-        // first copy all of it.
-        let mut out = Material {
+        let mut out = self.map_maps(f);
+        out.restore_invariants();
+        out
+    }
+
+    /// Every map through `f`, as it comes out (no invariants restored; the origin kept).
+    /// Built map by map, not over a clone: cropping 512² out of an 8K² material would first
+    /// copy all of it.
+    pub fn map_maps(&self, f: impl Fn(&Map) -> Map) -> Material {
+        Material {
             base_color: f(&self.base_color),
             normal: f(&self.normal),
             roughness: f(&self.roughness),
@@ -271,9 +278,7 @@ impl Material {
             anisotropy: self.anisotropy.as_ref().map(&f),
             anisotropy_angle: self.anisotropy_angle.as_ref().map(&f),
             origin: self.origin.clone(),
-        };
-        out.restore_invariants();
-        out
+        }
     }
 
     /// Upsamples every map by `scale` with `kernel` (normals renormalised, values clamped

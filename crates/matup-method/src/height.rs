@@ -282,75 +282,53 @@ mod tests {
         assert!(rms_error_after_mean(&integrate_normals(&n, true), z) > 5.0 * err);
     }
     #[test]
-    fn the_periodic_solve_satisfies_its_equations() {
-        // The solution of ĥ = −i(sin ωx Ĝx + sin ωy Ĝy) / (4 sin²(ωx/2) + 4 sin²(ωy/2)) is,
-        // in texel space, the 5-point Laplacian of h equal to the centred divergence of g,
-        // for any slopes, integrable or not; odd and even sizes pair frequencies differently.
-        for (w, h) in [(7, 6), (8, 5), (6, 6)] {
-            let g = |x: usize, y: usize| {
-                let k = (x * 31 + y * 17) as f64;
-                ((k * 0.37).sin(), (k * 0.91).cos())
-            };
-            let height = solve_periodic(g, w, h);
-            let at = |x: isize, y: isize| {
-                height[y.rem_euclid(h as isize) as usize * w + x.rem_euclid(w as isize) as usize]
-            };
-            let slope = |x: isize, y: isize| {
-                g(
-                    x.rem_euclid(w as isize) as usize,
-                    y.rem_euclid(h as isize) as usize,
-                )
-            };
-            for i in 0..w * h {
-                let (x, y) = ((i % w) as isize, (i / w) as isize);
-                let laplacian =
-                    at(x + 1, y) + at(x - 1, y) + at(x, y + 1) + at(x, y - 1) - 4.0 * at(x, y);
-                let divergence = (slope(x + 1, y).0 - slope(x - 1, y).0) / 2.0
-                    + (slope(x, y + 1).1 - slope(x, y - 1).1) / 2.0;
-                assert!(
-                    (laplacian - divergence).abs() < 1e-9,
-                    "{w}×{h} at ({x}, {y}): {laplacian} against {divergence}"
-                );
-            }
-        }
-    }
-    #[test]
-    fn the_neumann_solve_satisfies_its_equations_on_the_mirror() {
-        // The same equations as the periodic solve's, on the half-sample mirror: a neighbour
-        // beyond an edge is the texel at the edge, gx changes sign across vertical edges and
-        // gy across horizontal ones.
-        for (w, h) in [(7, 6), (8, 5), (6, 6)] {
-            let g = |x: usize, y: usize| {
-                let k = (x * 31 + y * 17) as f64;
-                ((k * 0.37).sin(), (k * 0.91).cos())
-            };
-            let height = solve_neumann(g, w, h);
-            let mirror = |i: isize, n: usize| {
-                if i < 0 {
-                    (-1 - i) as usize
-                } else if i >= n as isize {
-                    2 * n - 1 - i as usize
+    fn both_solves_satisfy_their_equations() {
+        // ĥ = −i(sin ωx Ĝx + sin ωy Ĝy) / (4 sin²(ωx/2) + 4 sin²(ωy/2)) is, in texel space,
+        // the 5-point Laplacian of h equal to the centred divergence of g, for any slopes,
+        // integrable or not. Periodic: neighbours wrap. Neumann: on the half-sample mirror, a
+        // neighbour beyond an edge is the texel at the edge, and gx changes sign across
+        // vertical edges, gy across horizontal ones. Odd and even sizes pair frequencies
+        // differently.
+        let g = |x: usize, y: usize| {
+            let k = (x * 31 + y * 17) as f64;
+            ((k * 0.37).sin(), (k * 0.91).cos())
+        };
+        for mirrored in [false, true] {
+            for (w, h) in [(7, 6), (8, 5), (6, 6)] {
+                let height = if mirrored {
+                    solve_neumann(g, w, h)
                 } else {
-                    i as usize
+                    solve_periodic(g, w, h)
+                };
+                // The texel a neighbour index reads, and whether it lies beyond an edge.
+                let texel = |i: isize, n: usize| {
+                    let outside = i < 0 || i >= n as isize;
+                    let index = match (mirrored, i < 0) {
+                        (false, _) => i.rem_euclid(n as isize) as usize,
+                        (true, true) => (-1 - i) as usize,
+                        (true, false) if outside => 2 * n - 1 - i as usize,
+                        (true, false) => i as usize,
+                    };
+                    (index, outside && mirrored)
+                };
+                let at = |x: isize, y: isize| height[texel(y, h).0 * w + texel(x, w).0];
+                let slope = |x: isize, y: isize| {
+                    let ((tx, flip_x), (ty, flip_y)) = (texel(x, w), texel(y, h));
+                    let (gx, gy) = g(tx, ty);
+                    let sign = |flip: bool| if flip { -1.0 } else { 1.0 };
+                    (gx * sign(flip_x), gy * sign(flip_y))
+                };
+                for i in 0..w * h {
+                    let (x, y) = ((i % w) as isize, (i / w) as isize);
+                    let laplacian =
+                        at(x + 1, y) + at(x - 1, y) + at(x, y + 1) + at(x, y - 1) - 4.0 * at(x, y);
+                    let divergence = (slope(x + 1, y).0 - slope(x - 1, y).0) / 2.0
+                        + (slope(x, y + 1).1 - slope(x, y - 1).1) / 2.0;
+                    assert!(
+                        (laplacian - divergence).abs() < 1e-9,
+                        "mirrored {mirrored}, {w}×{h} at ({x}, {y}): {laplacian} against {divergence}"
+                    );
                 }
-            };
-            let at = |x: isize, y: isize| height[mirror(y, h) * w + mirror(x, w)];
-            let slope = |x: isize, y: isize| {
-                let (gx, gy) = g(mirror(x, w), mirror(y, h));
-                let outside = |i: isize, n: usize| i < 0 || i >= n as isize;
-                let sign = |flip: bool| if flip { -1.0 } else { 1.0 };
-                (gx * sign(outside(x, w)), gy * sign(outside(y, h)))
-            };
-            for i in 0..w * h {
-                let (x, y) = ((i % w) as isize, (i / w) as isize);
-                let laplacian =
-                    at(x + 1, y) + at(x - 1, y) + at(x, y + 1) + at(x, y - 1) - 4.0 * at(x, y);
-                let divergence = (slope(x + 1, y).0 - slope(x - 1, y).0) / 2.0
-                    + (slope(x, y + 1).1 - slope(x, y - 1).1) / 2.0;
-                assert!(
-                    (laplacian - divergence).abs() < 1e-9,
-                    "{w}×{h} at ({x}, {y}): {laplacian} against {divergence}"
-                );
             }
         }
     }

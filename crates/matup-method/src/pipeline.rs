@@ -698,17 +698,7 @@ fn bilinear_centre(input: &Material, output: &Material, side: usize, tileable: b
         (Some((wx, ww)), Some((wy, wh))) => {
             // The maps as they are: `Material::crop` would renormalise the input's normals,
             // which the whole upsample reads unrenormalised.
-            let crop = |m: &Map| m.crop(wx, wy, ww, wh);
-            let window = Material {
-                base_color: crop(&input.base_color),
-                normal: crop(&input.normal),
-                roughness: crop(&input.roughness),
-                metallic: crop(&input.metallic),
-                height: input.height.as_ref().map(crop),
-                anisotropy: input.anisotropy.as_ref().map(crop),
-                anisotropy_angle: input.anisotropy_angle.as_ref().map(crop),
-                origin: None,
-            };
+            let window = input.map_maps(|m| m.crop(wx, wy, ww, wh));
             window
                 .upsample(scale, Kernel::Bilinear, Border::for_tiling(tileable))
                 .crop(x0 - wx * scale, y0 - wy * scale, side, side)
