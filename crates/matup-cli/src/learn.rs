@@ -26,12 +26,21 @@ pub struct LearnArgs {
     /// No progress bars.
     #[arg(short, long)]
     pub quiet: bool,
+    /// Train nothing: write OUTPUT/blend-ALPHA.onnx, every weight (1 − ALPHA) · the base
+    /// model's + ALPHA · OUTPUT/best.onnx's (weight-space interpolation, WiSE-FT).
+    #[arg(long, value_name = "ALPHA")]
+    pub blend: Option<f64>,
 }
 
 pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
     let mut config = LearnConfig::load(&args.config)?;
     if let Some(n) = args.iterations {
         config.iterations = n;
+    }
+    if let Some(alpha) = args.blend {
+        let path = matup_learn::export::blend(&config, &args.output, alpha)?;
+        eprintln!("wrote {}", path.display());
+        return Ok(());
     }
     let device = parse_device(&args.device)?;
     // The network's matrix products are large: candle may split them over every core

@@ -17,28 +17,84 @@ pub fn export(
     config: &LearnConfig,
     iteration: usize,
 ) -> Result<()> {
+    let description = format!(
+        "{} fine-tuned by `matup learn` for {iteration} steps on {} materials, box-filtered \
+         ×{}, with a {} render loss through back-projection (normal weight {})",
+        base_name(config),
+        config.train.len(),
+        config.scale,
+        config.loss,
+        config.normal_weight
+    );
+    export_described(net, path, config, &description)
+}
+
+/// The base model's file name.
+fn base_name(config: &LearnConfig) -> String {
+    config
+        .base_model
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Weight-space interpolation between the base model and a run's best export (WiSE-FT,
+/// Wortsman et al. 2022): every weight `(1 − alpha) · base + alpha · best`, written as
+/// `DIR/blend-ALPHA.onnx` with its sidecar. Fine-tuned networks often keep most of their gain
+/// on data like their training set and lose less on data unlike it when pulled part of the way
+/// back to where they started. Returns the path written.
+pub fn blend(config: &LearnConfig, dir: &Path, alpha: f64) -> Result<std::path::PathBuf> {
+    if !(0.0..=1.0).contains(&alpha) {
+        return Err(Error::Invalid(format!(
+            "--blend {alpha}: a weight in [0, 1]"
+        )));
+    }
+    let device = candle_core::Device::Cpu;
+    let best = dir.join("best.onnx");
+    if !best.is_file() {
+        return Err(Error::file(&best, "no best export: train the run first"));
+    }
+    let base = TrainableNet::load(&config.base_model, &device)?;
+    let tuned = TrainableNet::load(&best, &device)?;
+    let (base_vars, tuned_vars) = (base.vars(), tuned.vars());
+    if base_vars.len() != tuned_vars.len() {
+        return Err(Error::file(
+            &best,
+            "a different graph from the configuration's base_model",
+        ));
+    }
+    for (b, t) in base_vars.iter().zip(&tuned_vars) {
+        let mix = || b.set(&((b.as_tensor() * (1.0 - alpha))? + (t.as_tensor() * alpha)?)?);
+        mix().map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
+    }
+    let path = dir.join(format!("blend-{alpha:.2}.onnx"));
+    let description = format!(
+        "{} with every weight (1 − {alpha}) · its own + {alpha} · {}'s (fine-tuned by `matup \
+         learn` on {} materials, box-filtered ×{}, {} render loss)",
+        base_name(config),
+        best.display(),
+        config.train.len(),
+        config.scale,
+        config.loss
+    );
+    export_described(&base, &path, config, &description)?;
+    Ok(path)
+}
+
+/// [`export`] with the sidecar's description given.
+fn export_described(
+    net: &TrainableNet,
+    path: &Path,
+    config: &LearnConfig,
+    description: &str,
+) -> Result<()> {
     let base_sidecar = config.base_model.with_extension("toml");
     let text = std::fs::read_to_string(&base_sidecar)
         .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
     let mut sidecar: toml::Table = toml::from_str(&text)
         .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
-    let base_name = config
-        .base_model
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    sidecar.insert(
-        "description".into(),
-        format!(
-            "{base_name} fine-tuned by `matup learn` for {iteration} steps on {} materials, \
-             box-filtered ×{}, with a {} render loss through back-projection (normal weight {})",
-            config.train.len(),
-            config.scale,
-            config.loss,
-            config.normal_weight
-        )
-        .into(),
-    );
+    let base_name = base_name(config);
+    sidecar.insert("description".into(), description.into());
     let source = sidecar
         .get("source")
         .and_then(|s| s.as_str())

@@ -353,6 +353,38 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
         "training changed nothing"
     );
     assert!(whole.join("best.onnx").is_file() && whole.join("best.toml").is_file());
+
+    // Blends: at 0 the stock network, at 1 the best export, at 0.5 every weight halfway.
+    let blend = |alpha: f64| matup_learn::export::blend(&config, &whole, alpha).unwrap();
+    let best = whole.join("best.onnx");
+    // Not assert_eq: a failure would print every value.
+    assert!(
+        executor(&blend(0.0)).data() == stock.data(),
+        "blend 0 is not stock"
+    );
+    assert!(
+        executor(&blend(1.0)).data() == executor(&best).data(),
+        "blend 1 is not best"
+    );
+    let weights = |path: &Path| -> Vec<Vec<f32>> {
+        let net = TrainableNet::load(path, &device).unwrap();
+        net.vars()
+            .iter()
+            .map(|v| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap())
+            .collect()
+    };
+    let (stock_w, best_w, half_w) = (
+        weights(&config.base_model),
+        weights(&best),
+        weights(&blend(0.5)),
+    );
+    for ((s, b), h) in stock_w.iter().zip(&best_w).zip(&half_w) {
+        let halfway: Vec<f32> = s.iter().zip(b).map(|(s, b)| 0.5 * s + 0.5 * b).collect();
+        assert!(max_difference(h, &halfway) <= 1e-6);
+    }
+    assert!(whole.join("blend-0.50.toml").is_file());
+    assert!(matup_learn::export::blend(&config, &whole, 1.5).is_err());
+
     let val = std::fs::read_to_string(whole.join("val.csv")).unwrap();
     // Validations at steps 0, 3, 6 and 8, each a material row and a mean row.
     assert_eq!(
