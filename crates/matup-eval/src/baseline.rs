@@ -48,6 +48,20 @@ pub fn upscale_each_map(
             .into_iter()
             .next())
         .ok_or_else(|| Error::Invalid(format!("the upsampler returned no image for {kind:?}")))?;
+        let want = (map.width() * scale, map.height() * scale);
+        if (up.width(), up.height()) != want || up.channels() < 3 {
+            return Err(Error::Invalid(format!(
+                "the upsampler returned a {}×{}×{} image for the {}×{} {kind:?} map at ×{scale} \
+                 (expected {}×{}×3)",
+                up.width(),
+                up.height(),
+                up.channels(),
+                map.width(),
+                map.height(),
+                want.0,
+                want.1
+            )));
+        }
         let mut decoded = match kind {
             MapKind::BaseColor => up.map_values(|v| srgb_to_linear(v.clamp(0.0, 1.0))),
             MapKind::Normal => {
@@ -155,5 +169,22 @@ mod tests {
             assert!((up.base_color.mean(c) - want).abs() < 1e-5);
         }
         assert!((up.normal.mean(2) - 1.0).abs() < 1e-6);
+    }
+    #[test]
+    fn an_upsampler_that_answers_the_wrong_size_is_an_error() {
+        struct Twice;
+        impl RgbUpsampler for Twice {
+            fn upsample(&self, images: &[Map], _: usize, border: Border) -> Result<Vec<Map>> {
+                Bilinear.upsample(images, 2, border)
+            }
+        }
+        let m = Material::uniform(8, [0.2, 0.4, 0.6], 0.5, 0.0);
+        let message = upscale_per_map(&m, &Twice, 4, Border::Wrap)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("16×16×3") && message.contains("expected 32×32×3"),
+            "{message}"
+        );
     }
 }
