@@ -93,7 +93,7 @@ fn export_described(
         .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
     let mut sidecar: toml::Table = toml::from_str(&text)
         .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
-    let base_name = base_name(config);
+    let base = base_name(config);
     sidecar.insert("description".into(), description.into());
     let source = sidecar
         .get("source")
@@ -102,7 +102,7 @@ fn export_described(
         .to_string();
     sidecar.insert(
         "source".into(),
-        format!("weights trained by matup learn from {base_name} ({source})").into(),
+        format!("weights trained by matup learn from {base} ({source})").into(),
     );
     write_atomic(path, &net.to_onnx()?)?;
     write_atomic(

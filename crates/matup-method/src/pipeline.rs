@@ -662,8 +662,16 @@ fn infer_material(
 /// `input` upsampled bilinearly to `output`'s size: what the preview and the viewer compare
 /// matup's result with.
 pub fn bilinear_baseline(input: &Material, output: &Material, tileable: bool) -> Material {
-    let scale = (output.width() / input.width().max(1)).max(1);
-    input.upsample(scale, Kernel::Bilinear, Border::for_tiling(tileable))
+    input.upsample(
+        scale_between(input, output),
+        Kernel::Bilinear,
+        Border::for_tiling(tileable),
+    )
+}
+
+/// How many times wider `output` is than `input` (at least 1).
+fn scale_between(input: &Material, output: &Material) -> usize {
+    (output.width() / input.width().max(1)).max(1)
 }
 
 /// The side of the square the preview shows (the whole of a smaller output).
@@ -674,12 +682,13 @@ fn centre(m: &Material, side: usize) -> Material {
     if side == m.width() && side == m.height_px() {
         return m.clone();
     }
-    m.crop(
-        (m.width() - side) / 2,
-        (m.height_px() - side) / 2,
-        side,
-        side,
-    )
+    let (x0, y0) = centre_origin(m, side);
+    m.crop(x0, y0, side, side)
+}
+
+/// The top-left texel of [`centre`]'s square.
+fn centre_origin(m: &Material, side: usize) -> (usize, usize) {
+    ((m.width() - side) / 2, (m.height_px() - side) / 2)
 }
 
 /// `centre(bilinear_baseline(input, output, tileable), side)`, upsampled from a window of the
@@ -687,8 +696,8 @@ fn centre(m: &Material, side: usize) -> Material {
 /// 2K² input's preview would otherwise upsample all of it to 8K² (2 GB) for 512² texels.
 /// Windows that reach the input's edges take the whole, whose borders wrap or mirror.
 fn bilinear_centre(input: &Material, output: &Material, side: usize, tileable: bool) -> Material {
-    let scale = (output.width() / input.width().max(1)).max(1);
-    let (x0, y0) = ((output.width() - side) / 2, (output.height_px() - side) / 2);
+    let scale = scale_between(input, output);
+    let (x0, y0) = centre_origin(output, side);
     let window = |start: usize, len: usize| {
         let first = (start / scale).saturating_sub(2);
         let end = (start + side).div_ceil(scale) + 2;
@@ -746,7 +755,7 @@ pub fn preview(
             y.atan2(x).to_degrees().rem_euclid(360.0)
         ));
     }
-    let scale = output.width() / input.width().max(1);
+    let scale = scale_between(input, output);
     let columns = [format!("bilinear ×{scale}"), "matup".to_string()];
     Ok(labelled_sheet(&tiles, 2, 4, &columns, &captions))
 }
