@@ -3,8 +3,12 @@
 //! `matup upscale` runs them (pipeline, maps saved, preview), once as tileable and once not;
 //! a counting allocator records the heap's peak within each stage and what stays live after it.
 //!
-//! `cargo bench --bench memory` runs N = 1 (1K² → 4K²); `MATUP_MEMORY_TILES=1,2` adds
-//! 2K² → 8K², `MATUP_MEMORY_MATERIAL=folder` picks another material.
+//! `cargo bench --bench memory` runs N = 1 (1K² → 4K²); `MATUP_MEMORY_TILES=1,2,4` adds
+//! 2K² → 8K² and 4K² → 16K², `MATUP_MEMORY_MATERIAL=folder` picks another material,
+//! `MATUP_MEMORY_LIMIT=MiB` (or `none`) sets `--memory-limit` (default: matup's), and
+//! `MATUP_MEMORY_COMPARE=1` also runs each banded size whole and reports how far apart the
+//! maps' files are, `MATUP_MEMORY_TILEABLE=yes` or `no` runs only that case, and
+//! `MATUP_MEMORY_PLOT=file.png` draws heap peak and time per texel against the output's size.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::PathBuf;
@@ -12,11 +16,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
-use matup::io::save_png;
+use matup::bands::default_memory_limit;
+use matup::folder::upscale_to_folder;
 use matup::material::Material;
-use matup::pipeline::{peak_memory_mib, preview};
+use matup::pipeline::peak_memory_mib;
 use matup::progress::Progress;
-use matup::{load_material, save_material, Config, LoadOptions, Map, RunOptions, SaveOptions};
+use matup::{load_material, Config, LoadOptions, Map, SaveOptions};
 
 /// The system allocator, counting the bytes live and the most live since the last reset.
 struct Counting;
@@ -111,6 +116,23 @@ fn tiled(material: &Material, n: usize) -> Material {
     material.map_maps(repeat)
 }
 
+/// The 8-bit maps of two output folders, the largest difference in levels (PNG files).
+fn max_level_difference(a: &std::path::Path, b: &std::path::Path) -> u8 {
+    let mut worst = 0;
+    for entry in std::fs::read_dir(a).expect("the output folder") {
+        let path = entry.expect("a file").path();
+        let name = path.file_name().unwrap().to_owned();
+        if path.extension().is_none_or(|e| e != "png") || name == "preview.png" {
+            continue;
+        }
+        let read = |p: &std::path::Path| image::open(p).expect("a PNG").into_rgb8().into_raw();
+        let (x, y) = (read(&path), read(&b.join(&name)));
+        assert_eq!(x.len(), y.len(), "{}", name.to_string_lossy());
+        worst = (x.iter().zip(&y)).fold(worst, |w, (p, q)| w.max(p.abs_diff(*q)));
+    }
+    worst
+}
+
 fn main() {
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let folder = std::env::var("MATUP_MEMORY_MATERIAL")
@@ -125,19 +147,34 @@ fn main() {
                 .expect("MATUP_MEMORY_TILES: a list of integers")
         })
         .collect();
+    // MiB, or "none" for whole levels; default: matup's (an eighth of the machine).
+    let limit = match std::env::var("MATUP_MEMORY_LIMIT").as_deref() {
+        Ok("none") => None,
+        Ok(mib) => Some(mib.parse::<u64>().expect("MATUP_MEMORY_LIMIT: MiB or none") << 20),
+        Err(_) => Some(default_memory_limit()),
+    };
+    // Also run each size whole (no limit) and compare the maps' files.
+    let compare = std::env::var("MATUP_MEMORY_COMPARE").is_ok_and(|v| v == "1");
     let source = load_material(Some(&folder), &LoadOptions::default())
         .unwrap_or_else(|e| panic!("{}: {e}", folder.display()));
     let out = tempfile::tempdir().expect("a temporary folder");
     println!(
-        "{} tiled N×N, defaults ×4, {} threads; heap in MiB (peak within the stage, live after it)\n",
+        "{} tiled N×N, defaults ×4 as `matup upscale` runs them (maps, preview, run.json), memory \
+         limit {}, {} threads; heap in MiB (peak within the stage, live after it)\n",
         folder.display(),
+        limit.map_or("none".into(), |l| format!("{} MiB", l >> 20)),
         rayon::current_num_threads()
     );
     println!("| run | stage | seconds | heap peak | heap live after |");
     println!("|---|---|---|---|---|");
     let mut summary = Vec::new();
+    let tilings: &[bool] = match std::env::var("MATUP_MEMORY_TILEABLE").as_deref() {
+        Ok("yes") => &[true],
+        Ok("no") => &[false],
+        _ => &[true, false],
+    };
     for &n in &tiles {
-        for tileable in [true, false] {
+        for &tileable in tilings {
             let input = tiled(&source, n);
             let config = Config {
                 tileable: Some(tileable),
@@ -149,35 +186,135 @@ fn main() {
                 4 * input.width(),
                 if tileable { "tileable" } else { "not tileable" }
             );
-            let stages = Stages::new();
-            let start = Instant::now();
-            stages.begin("start");
-            let (result, _) = matup::upscale(&input, &config, &RunOptions::default(), &stages)
+            let texels = (16 * input.width() * input.height_px()) as f64;
+            let one = |limit: Option<u64>, tag: &str| {
+                let stages = Stages::new();
+                let start = Instant::now();
+                stages.begin("start");
+                let folder = out.path().join(format!("{n}-{tileable}-{tag}"));
+                let run = upscale_to_folder(
+                    &input,
+                    &config,
+                    &folder,
+                    &SaveOptions::default(),
+                    false,
+                    limit,
+                    None,
+                    &stages,
+                )
                 .expect("the upscale runs");
-            stages.begin("save maps");
-            let folder = out.path().join(format!("{n}-{tileable}"));
-            save_material(&result, &folder, &SaveOptions::default()).expect("the maps save");
-            stages.begin("preview");
-            let sheet = preview(&input, &result, &config, tileable).expect("the preview draws");
-            save_png(&folder.join("preview.png"), &sheet).expect("the preview saves");
-            stages.end();
-            let total = start.elapsed().as_secs_f64();
-            drop((result, sheet));
-            std::fs::remove_dir_all(&folder).ok();
-            let rows = stages.rows.into_inner().unwrap();
+                stages.end();
+                let total = start.elapsed().as_secs_f64();
+                let rows = stages.rows.into_inner().unwrap();
+                let bands = run.report.levels.last().map_or(1, |l| l.bands);
+                (folder, rows, total, bands)
+            };
+            let (folder, rows, total, bands) = one(limit, "limited");
             let peak = rows.iter().map(|r| r.2).fold(0.0, f64::max);
             for (stage, seconds, peak, live) in &rows {
                 println!("| {run} | {stage} | {seconds:.1} | {peak:.0} | {live:.0} |");
             }
-            summary.push((run, total, peak));
+            let difference = (compare && bands > 1).then(|| {
+                let (whole, ..) = one(None, "whole");
+                let d = max_level_difference(&whole, &folder);
+                std::fs::remove_dir_all(&whole).ok();
+                d
+            });
+            std::fs::remove_dir_all(&folder).ok();
+            summary.push((run, bands, total, total / texels * 1e6, peak, difference));
         }
     }
-    println!("\n| run | seconds | heap peak MiB |");
-    println!("|---|---|---|");
-    for (run, seconds, peak) in summary {
-        println!("| {run} | {seconds:.1} | {peak:.0} |");
+    if std::env::var("MATUP_MEMORY_PLOT").is_ok_and(|p| !p.is_empty()) {
+        let path = PathBuf::from(std::env::var("MATUP_MEMORY_PLOT").unwrap());
+        let points: Vec<(f64, f64, f64)> = (tiles.iter().zip(summary.chunks(tilings.len())))
+            .map(|(&n, rows)| {
+                let mtexels = (16 * n * n * source.width() * source.height_px()) as f64 / 1e6;
+                let peak = rows.iter().map(|r| r.4).fold(0.0, f64::max);
+                let per = rows.iter().map(|r| r.3).fold(0.0, f64::max);
+                (mtexels, peak, per)
+            })
+            .collect();
+        plot_growth(&points, limit, &path).expect("the plot draws");
+        println!("plot: {}", path.display());
+    }
+    println!(
+        "\n| run | bands | seconds | seconds per output Mtexel | heap peak MiB | maps vs whole \
+         (8-bit levels) |"
+    );
+    println!("|---|---|---|---|---|---|");
+    for (run, bands, seconds, per_mtexel, peak, difference) in &summary {
+        let difference = difference.map_or("-".into(), |d| d.to_string());
+        println!("| {run} | {bands} | {seconds:.1} | {per_mtexel:.2} | {peak:.0} | {difference} |");
     }
     if let Some(rss) = peak_memory_mib() {
         println!("\nprocess peak resident memory over all runs: {rss:.0} MiB");
     }
+}
+
+/// Heap peak and seconds per output Mtexel against the output's size (Mtexels, log scale),
+/// one point per size (the worst of its runs), with the memory limit drawn across.
+fn plot_growth(
+    points: &[(f64, f64, f64)],
+    limit: Option<u64>,
+    path: &std::path::Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use plotters::prelude::*;
+    let _ = plotters::style::register_font(
+        "sans-serif",
+        plotters::style::FontStyle::Normal,
+        matup::text::FONT,
+    );
+    let root = BitMapBackend::new(path, (1200, 500)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (left, right) = root.split_horizontally(600);
+    let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max) * 2.0;
+    let x_range = (1.0..x_max).log_scale();
+    let limit_mib = limit.map(|l| (l >> 20) as f64);
+    let heap_max = points
+        .iter()
+        .map(|p| p.1)
+        .chain(limit_mib)
+        .fold(1.0, f64::max)
+        * 1.2;
+    let mut chart = ChartBuilder::on(&left)
+        .caption("heap peak (MiB) against output size", ("sans-serif", 20))
+        .margin(20)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x_range.clone(), 0.0..heap_max)?;
+    chart.configure_mesh().x_desc("output Mtexels").draw()?;
+    chart.draw_series(LineSeries::new(points.iter().map(|p| (p.0, p.1)), &BLUE))?;
+    chart.draw_series(
+        points
+            .iter()
+            .map(|p| Circle::new((p.0, p.1), 4, BLUE.filled())),
+    )?;
+    if let Some(l) = limit_mib {
+        chart
+            .draw_series(LineSeries::new([(1.0, l), (x_max, l)], &RED))?
+            .label(format!("--memory-limit {l:.0} MiB"))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()?;
+    }
+    let per_max = points.iter().map(|p| p.2).fold(0.1, f64::max) * 1.3;
+    let mut chart = ChartBuilder::on(&right)
+        .caption("seconds per output Mtexel", ("sans-serif", 20))
+        .margin(20)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x_range, 0.0..per_max)?;
+    chart.configure_mesh().x_desc("output Mtexels").draw()?;
+    chart.draw_series(LineSeries::new(points.iter().map(|p| (p.0, p.2)), &BLUE))?;
+    chart.draw_series(
+        points
+            .iter()
+            .map(|p| Circle::new((p.0, p.2), 4, BLUE.filled())),
+    )?;
+    root.present()?;
+    Ok(())
 }

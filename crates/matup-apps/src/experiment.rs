@@ -592,6 +592,7 @@ fn run_one(
                 checkpoint_folder: Some(checkpoints.to_path_buf()),
                 resume: true,
                 oracle: matches!(run.method, Method::Oracle(_)).then(|| pair.truth.clone()),
+                memory_limit: None,
             };
             let (m, report) = upscale(&pair.lr, config, &options, progress)?;
             let facts = RunFacts {

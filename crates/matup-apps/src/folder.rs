@@ -4,11 +4,14 @@
 
 use std::path::{Path, PathBuf};
 
-use matup_core::io::{check_output_folder, save_material, save_png, write_atomic, SaveOptions};
+use matup_core::io::{check_output_folder, save_png, write_atomic, MaterialWriter, SaveOptions};
 use matup_core::material::Material;
 use matup_core::progress::Progress;
 use matup_core::{Error, Result};
-use matup_method::pipeline::{preview, upscale, RunOptions, RunReport};
+use matup_method::pipeline::{
+    output_size, peak_memory_mib, preview_of_centre, upscale_streamed, PreviewWindow, RunOptions,
+    RunReport,
+};
 use matup_method::Config;
 
 /// The checkpoint folder of a run inside its output folder (removed once the run finishes).
@@ -22,15 +25,18 @@ pub struct FolderRun {
 }
 
 /// Upscales `material` into `out` (created; never the input folder): the maps in `save`'s
-/// formats, `preview.png` and `run.json` (carrying `fingerprint`, when given, as
+/// formats, written band by band as the pipeline finishes them (within `memory_limit` bytes
+/// of heap, when given), `preview.png` and `run.json` (carrying `fingerprint`, when given, as
 /// `settings_fingerprint`). Training checkpoints go to `out/.matup-checkpoint`; with `resume`
 /// a run continues from them.
+#[allow(clippy::too_many_arguments)]
 pub fn upscale_to_folder(
     material: &Material,
     config: &Config,
     out: &Path,
     save: &SaveOptions,
     resume: bool,
+    memory_limit: Option<u64>,
     fingerprint: Option<String>,
     progress: &dyn Progress,
 ) -> Result<FolderRun> {
@@ -44,15 +50,25 @@ pub fn upscale_to_folder(
         checkpoint_folder: Some(checkpoints.clone()),
         resume,
         oracle: None,
+        memory_limit,
     };
-    let (result, mut report) = upscale(material, config, &options, progress)?;
+    let size = output_size(material, config);
+    let mut maps = MaterialWriter::new(out, size, material.origin.as_ref(), save)?;
+    let mut centre = PreviewWindow::new(size);
+    let mut report = upscale_streamed(material, config, &options, progress, &mut |first, band| {
+        centre.add(first, band);
+        maps.write_rows(band)
+    })?;
     report.settings_fingerprint = fingerprint;
 
-    let mut written = save_material(&result, out, save)?;
-    let sheet = preview(material, &result, config, report.tileable)?;
+    let mut written = maps.finish()?;
+    let centre = centre.finish().expect("a run makes at least one band");
+    let sheet = preview_of_centre(material, &centre, size, config, report.tileable)?;
     let preview_path = out.join("preview.png");
     save_png(&preview_path, &sheet)?;
     written.push(preview_path);
+    // The peak after the maps and the preview, not only the pipeline's.
+    report.peak_memory_mib = peak_memory_mib();
     let json = serde_json::to_string_pretty(&report)
         .map_err(|e| Error::Invalid(format!("run.json: {e}")))?;
     let run_json = out.join("run.json");

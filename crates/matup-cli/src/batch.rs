@@ -70,6 +70,7 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
         shard,
         claims: ClaimTiming::with_timeout(Duration::from_secs(args.claim_timeout)),
         view: args.view,
+        memory_limit: Some(args.settings.memory_limit()),
     };
     let bars = BatchBars::new(args.quiet || args.json);
     if let Some(s) = shard {

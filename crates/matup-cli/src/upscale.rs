@@ -7,6 +7,7 @@ use clap::Args;
 use matup_apps::folder::{upscale_to_folder, FolderRun};
 use matup_apps::view::write_run_view;
 use matup_core::{FileFormat, LossNorm, SaveOptions};
+use matup_method::bands::default_memory_limit;
 use matup_method::config::{
     Activation, Backend, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
 };
@@ -163,6 +164,42 @@ pub struct SettingsArgs {
     /// Output format of every map (png, png16, jpg, exr-half, exr-float); default: the input's.
     #[arg(long)]
     pub format: Option<FileFormat>,
+    /// Heap the output is made within, e.g. 4G or 512M (binary units; a bare number is MiB).
+    /// Larger outputs are made in bands of rows and written as they finish. Default: an
+    /// eighth of the machine's memory, between 1G and 16G.
+    #[arg(long, value_parser = parse_memory)]
+    pub memory_limit: Option<u64>,
+}
+
+/// `4G`, `512M`, `1.5G` or `2048` (MiB) as bytes.
+fn parse_memory(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let (number, unit) = match t.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
+        Some((i, _)) => (&t[..i], t[i..].to_ascii_lowercase()),
+        None => (t, "m".to_string()),
+    };
+    let shift = match unit.trim_end_matches("ib").trim_end_matches('b') {
+        "k" => 10,
+        "m" => 20,
+        "g" => 30,
+        "t" => 40,
+        _ => return Err(format!("unknown unit in {text:?}: use K, M, G or T")),
+    };
+    let value: f64 = number
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a size such as 4G or 512M"))?;
+    if !(value > 0.0 && value.is_finite()) {
+        return Err(format!("{text:?}: the limit must be positive"));
+    }
+    Ok((value * (1u64 << shift) as f64) as u64)
+}
+
+impl SettingsArgs {
+    /// The memory limit given, or the default share of this machine.
+    pub fn memory_limit(&self) -> u64 {
+        self.memory_limit.unwrap_or_else(default_memory_limit)
+    }
 }
 
 impl SettingsArgs {
@@ -253,6 +290,7 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         &args.output,
         &save,
         args.resume,
+        Some(args.settings.memory_limit()),
         None,
         &bars,
     )?;

@@ -159,6 +159,42 @@ impl Map {
         })
     }
 
+    /// Rows `first..first + count` of every plane (a band of a streamed output).
+    pub fn rows(&self, first: usize, count: usize) -> Map {
+        assert!(first + count <= self.height);
+        let (w, n) = (self.width, self.texels());
+        let mut data = Vec::with_capacity(w * count * self.channels);
+        for c in 0..self.channels {
+            data.extend_from_slice(&self.data[c * n + first * w..c * n + (first + count) * w]);
+        }
+        Map::from_planar(w, count, self.channels, data)
+    }
+
+    /// The rows `source(0), source(1), …, source(count − 1)` of every plane: the rows a band
+    /// reads, its context included (indices already wrapped or clamped by the caller).
+    pub fn gather_rows(&self, count: usize, source: impl Fn(usize) -> usize) -> Map {
+        let (w, n) = (self.width, self.texels());
+        let mut data = Vec::with_capacity(w * count * self.channels);
+        for c in 0..self.channels {
+            for y in 0..count {
+                let from = c * n + source(y) * w;
+                data.extend_from_slice(&self.data[from..from + w]);
+            }
+        }
+        Map::from_planar(w, count, self.channels, data)
+    }
+
+    /// Copies `band` (as wide, as many channels) over rows `first..` of every plane.
+    pub fn paste_rows(&mut self, first: usize, band: &Map) {
+        assert!(band.width == self.width && band.channels == self.channels);
+        assert!(first + band.height <= self.height);
+        let (w, n, m) = (self.width, self.texels(), band.texels());
+        for c in 0..self.channels {
+            self.data[c * n + first * w..c * n + first * w + m]
+                .copy_from_slice(&band.data[c * m..(c + 1) * m]);
+        }
+    }
+
     /// A copy of the rectangle starting at (`x0`, `y0`).
     pub fn crop(&self, x0: usize, y0: usize, width: usize, height: usize) -> Map {
         assert!(x0 + width <= self.width && y0 + height <= self.height);

@@ -14,6 +14,14 @@ pub trait RgbUpsampler: Send + Sync {
         None
     }
 
+    /// How many input texels beyond a region still change its output (the network's
+    /// receptive field as far as it matters, a kernel's radius). Streamed runs read this much
+    /// context around each band of rows; the default is generous for a plugin that does not
+    /// say.
+    fn context(&self) -> usize {
+        16
+    }
+
     /// Upsamples each image by `scale`. `border` says what lies beyond the edges:
     /// [`Border::Wrap`] for tileable materials, whose output must tile too.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>>;

@@ -12,8 +12,13 @@ use matup_core::resample::{gaussian_blur, upsample, Border, Kernel};
 /// the material's square ([−1, 1]² spans the map), least-squares, mean zero. Periodic for
 /// tileable maps; otherwise Neumann, by solving on the mirrored (even) extension.
 pub fn integrate_normals(normal: &Map, tileable: bool) -> Map {
+    integrate_over(normal, tileable, [normal.width(), normal.height()])
+}
+
+/// [`integrate_normals`] for a part of a map of `size` texels, in that map's units.
+fn integrate_over(normal: &Map, tileable: bool, size: [usize; 2]) -> Map {
     let (w, h) = (normal.width(), normal.height());
-    let (dx, dy) = (2.0 / w as f64, 2.0 / h as f64);
+    let (dx, dy) = (2.0 / size[0] as f64, 2.0 / size[1] as f64);
     // Surface slopes ∂z/∂x = −nx/nz, ∂z/∂y = −ny/nz, in height per texel.
     let slopes = |x: usize, y: usize| {
         let i = y * w + x;
@@ -170,8 +175,7 @@ fn high_pass(map: &Map, sigma: f32, border: Border) -> Map {
 }
 
 /// The HR height: the upsampled LR height plus the high-pass detail of the integrated HR
-/// normals, scaled to the height map's units by a least-squares fit of the LR height's own
-/// high-pass against its LR normals' integral (0 when they do not agree).
+/// normals, scaled to the height map's units by [`detail_scale`].
 pub fn reconstruct_height(
     lr_height: &Map,
     lr_normal: &Map,
@@ -179,8 +183,15 @@ pub fn reconstruct_height(
     scale: usize,
     tileable: bool,
 ) -> Map {
+    let k = detail_scale(lr_height, lr_normal, tileable);
+    rebuild_height(lr_height, hr_normal, k, scale, tileable, None)
+}
+
+/// The factor `k` that brings integrated normals to the height map's units: a least-squares
+/// fit of the LR height's own high-pass against its LR normals' integral, `HP(h_LR) ≈ k ·
+/// HP(∫ n_LR)`, at LR where both bands exist (0 when they do not agree).
+pub fn detail_scale(lr_height: &Map, lr_normal: &Map, tileable: bool) -> f32 {
     let border = Border::for_tiling(tileable);
-    // Units: fit k with HP(h_LR) ≈ k · HP(∫ n_LR) at LR, where both bands exist.
     let lr_detail = high_pass(&integrate_normals(lr_normal, tileable), 2.0, border);
     let lr_reference = high_pass(lr_height, 2.0, border);
     let (num, den) = lr_detail
@@ -190,17 +201,50 @@ pub fn reconstruct_height(
         .fold((0.0f64, 0.0f64), |(n, d), (a, b)| {
             (n + (*a as f64) * (*b as f64), d + (*a as f64).powi(2))
         });
-    let k = if den > 1e-20 {
+    if den > 1e-20 {
         (num / den).max(0.0) as f32
     } else {
         0.0
-    };
+    }
+}
+
+/// HR texels of context a band of rows needs around the rows it keeps for its height: the
+/// integral of a band differs from the whole's by a harmonic function, which the high-pass
+/// (a radially symmetric blur subtracted) removes but for what its edges leave, and those
+/// fade over a few blur widths. 16 blur widths (σ = scale / 2) leave under 1/2¹⁶ of the
+/// height's range (the band test in `tests/bands.rs`).
+pub fn band_margin(scale: usize) -> usize {
+    8 * scale
+}
+
+/// [`reconstruct_height`] with `k` given, for the whole map (`band: None`) or for a band of
+/// rows of an output of `band = Some(size)`, read with [`band_margin`] rows of context (LR
+/// height and HR normals, the band's rows alone). A band is integrated with Neumann borders;
+/// a tileable band first gets `band_margin` columns wrapped around on each side, so its left
+/// and right edges are as far from the kept texels as its top and bottom.
+pub fn rebuild_height(
+    lr_height: &Map,
+    hr_normal: &Map,
+    k: f32,
+    scale: usize,
+    tileable: bool,
+    band: Option<[usize; 2]>,
+) -> Map {
+    let border = Border::for_tiling(tileable);
     // Detail above the LR band: subtract a blur about as wide as the upsampling factor.
-    let hr_detail = high_pass(
-        &integrate_normals(hr_normal, tileable),
-        scale as f32 / 2.0,
-        border,
-    );
+    let sigma = scale as f32 / 2.0;
+    let hr_detail = match band {
+        None => high_pass(&integrate_normals(hr_normal, tileable), sigma, border),
+        Some(size) if tileable => {
+            let (w, m) = (hr_normal.width(), band_margin(scale).min(hr_normal.width()));
+            let padded = Map::from_fn(w + 2 * m, hr_normal.height(), 3, |c, y, x| {
+                hr_normal.get(c, y, (x + w - m) % w)
+            });
+            let integral = integrate_over(&padded, false, size);
+            high_pass(&integral, sigma, Border::Mirror).crop(m, 0, w, hr_normal.height())
+        }
+        Some(size) => high_pass(&integrate_over(hr_normal, false, size), sigma, border),
+    };
     let base = upsample(lr_height, scale, Kernel::Bilinear, border);
     Map::from_fn(base.width(), base.height(), 1, |_, y, x| {
         base.get(0, y, x) + k * hr_detail.get(0, y, x)

@@ -3,6 +3,7 @@
 //! filter and its training backends, height reconstruction, and self-validation among
 //! candidates (`select`). Built on `matup-core` and `matup-eval`.
 
+pub mod bands;
 pub mod config;
 pub mod features;
 pub mod filter;
@@ -15,4 +16,4 @@ pub mod targets;
 pub mod train;
 
 pub use config::Config;
-pub use pipeline::{upscale, RunOptions, RunReport};
+pub use pipeline::{upscale, upscale_streamed, RunOptions, RunReport};

@@ -10,18 +10,19 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::bands::{plan_bands, Assembler};
 use crate::config::{Chain, Config, ResidualBase, Selection, AUTO_UPSAMPLERS};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
-use crate::height::reconstruct_height;
-use crate::residual::residual_base;
+use crate::height::{band_margin, detail_scale, rebuild_height};
+use crate::residual::{self, residual_base};
 use crate::select::{self, SelectionReport};
 use crate::targets::{oracle_targets, upsampled_targets, DetailBase, LrRenders, Targets};
 use crate::train::{train, Checkpoint, Examples, Shading, TrainStats};
 use matup_core::lights::Light;
 use matup_core::map::Map;
 use matup_core::material::Material;
-use matup_core::progress::Progress;
+use matup_core::progress::{Progress, Silent};
 use matup_core::render::{labelled_sheet, render, RenderOptions};
 use matup_core::resample::{upsample, Border, Kernel};
 use matup_core::shading::{shading_model, ShadingModel};
@@ -55,6 +56,9 @@ pub struct RunReport {
     pub final_loss: Option<f64>,
     /// Work skipped because the material could not use it.
     pub skipped: Vec<String>,
+    /// The heap the output's bands were planned within (`--memory-limit`), in MiB; none: one
+    /// band per level.
+    pub memory_limit_mib: Option<f64>,
     /// Peak resident memory of the process (Linux), in MiB.
     pub peak_memory_mib: Option<f64>,
     pub threads: usize,
@@ -74,6 +78,8 @@ pub struct LevelReport {
     /// Features held constant instead of learned.
     pub constant_features: Vec<&'static str>,
     pub training: TrainStats,
+    /// The bands of rows the output was made in (1: whole).
+    pub bands: usize,
 }
 
 /// Where a run may keep checkpoints, and whether to continue from them.
@@ -85,6 +91,9 @@ pub struct RunOptions {
     /// upsampled ones as targets, which measures the method's ceiling (what the RGB upsampler
     /// costs).
     pub oracle: Option<Material>,
+    /// Bytes of heap the output's bands are planned within (none: whole levels). Levels that
+    /// train hold their residual base whole whatever the limit.
+    pub memory_limit: Option<u64>,
 }
 
 fn timed<T>(
@@ -94,7 +103,12 @@ fn timed<T>(
 ) -> Result<T> {
     let start = Instant::now();
     let out = f()?;
-    timings.push((name, start.elapsed().as_secs_f64()));
+    let seconds = start.elapsed().as_secs_f64();
+    // A stage run once per band adds up under one name.
+    match timings.iter_mut().find(|(n, _)| *n == name) {
+        Some((_, total)) => *total += seconds,
+        None => timings.push((name, seconds)),
+    }
     Ok(out)
 }
 
@@ -118,13 +132,41 @@ struct Context<'a> {
 }
 
 /// Upsamples `material` as `config` says. Returns the HR material (height included when the
-/// input has one) and what the run did.
+/// input has one) and what the run did. Holds the whole output; [`upscale_streamed`] hands it
+/// over in bands instead.
 pub fn upscale(
     material: &Material,
     config: &Config,
     options: &RunOptions,
     progress: &dyn Progress,
 ) -> Result<(Material, RunReport)> {
+    let mut assembler = Assembler::new(output_size(material, config)[1]);
+    let report = upscale_streamed(material, config, options, progress, &mut |first, band| {
+        assembler.add(first, band);
+        Ok(())
+    })?;
+    let mut result = assembler.finish().expect("a run makes at least one band");
+    result.origin = material.origin.clone();
+    Ok((result, report))
+}
+
+/// The size `config` upsamples `material` to: [width, height].
+pub fn output_size(material: &Material, config: &Config) -> [usize; 2] {
+    let scale: usize = config.levels().iter().product();
+    [material.width() * scale, material.height_px() * scale]
+}
+
+/// [`upscale`], handing the output to `sink` in bands of whole rows, top to bottom, as they
+/// are finished: `sink(first_row, band)`, the band holding every map of the output's rows
+/// from `first_row` on. Within [`RunOptions::memory_limit`] the last level works a band at a
+/// time (levels before it are held whole: they are the next level's input).
+pub fn upscale_streamed(
+    material: &Material,
+    config: &Config,
+    options: &RunOptions,
+    progress: &dyn Progress,
+    sink: &mut dyn FnMut(usize, &Material) -> Result<()>,
+) -> Result<RunReport> {
     config.validate()?;
     let start = Instant::now();
     let mut timings = Vec::new();
@@ -175,82 +217,47 @@ pub fn upscale(
         progress,
     };
 
+    let scales = config.levels();
     let mut levels = Vec::new();
     let mut current = material.clone();
     let mut single_filter: Option<TrainedFilter> = None;
-    for (level, &scale) in config.levels().iter().enumerate() {
-        let reuse = config.chain == Chain::Single && level > 0;
-        let (next, report, filter) = if reuse {
-            let trained = single_filter.as_ref().expect("level 1 trained a filter");
-            let next = timed(&mut timings, format!("level {}: infer", level + 1), || {
-                let base = residual_base(
-                    &current,
-                    &config.filter,
-                    ctx.upsampler.as_ref(),
-                    scale,
-                    ctx.border,
-                )?;
-                infer_material(
-                    &current,
-                    trained.filter.as_ref(),
-                    trained.fixed,
-                    &base,
-                    scale,
-                    &ctx,
-                )
-            })?;
-            let report = LevelReport {
-                scale,
-                input_size: [current.width(), current.height_px()],
-                output_size: [next.width(), next.height_px()],
-                lights_used: 0,
-                constant_features: Vec::new(),
-                training: TrainStats::default(),
-            };
-            (next, report, None)
-        } else {
-            let (next, report, filter) =
-                run_level(&current, scale, level, &ctx, &mut timings, &mut skipped)?;
-            (next, report, Some(filter))
-        };
-        if let Some(f) = filter {
-            single_filter = Some(f);
-        }
-        let with_height = match (&current.height, &next.height) {
-            (Some(lr_height), None) => {
-                let stage = format!("level {}: height", level + 1);
-                progress.stage(&stage, 1);
-                let h = timed(&mut timings, stage, || {
-                    Ok(reconstruct_height(
-                        lr_height,
-                        &current.normal,
-                        &next.normal,
-                        scale,
-                        tileable,
-                    ))
-                })?;
-                progress.advance(1, None);
-                Material {
-                    height: Some(h),
-                    ..next
-                }
+    for (level, &scale) in scales.iter().enumerate() {
+        let last = level + 1 == scales.len();
+        // Levels before the last are the next one's input: assembled whole.
+        let mut assembler = (!last).then(|| Assembler::new(current.height_px() * scale));
+        let mut emit = |first: usize, band: &Material| match assembler.as_mut() {
+            Some(a) => {
+                a.add(first, band);
+                Ok(())
             }
-            _ => next,
+            None => sink(first, band),
         };
+        let report = run_level(
+            &current,
+            scale,
+            level,
+            &ctx,
+            &mut single_filter,
+            &mut timings,
+            &mut skipped,
+            &mut emit,
+        )?;
         levels.push(report);
-        current = with_height;
+        if let Some(a) = assembler {
+            current = a.finish().expect("a level makes at least one band");
+        }
     }
-    current.origin = material.origin.clone();
 
     let final_loss = levels
         .iter()
         .rev()
         .find_map(|l| l.training.epoch_losses.last().copied());
-    let report = RunReport {
+    let [w, h] = output_size(material, config);
+    Ok(RunReport {
         matup_version: env!("CARGO_PKG_VERSION"),
         input_folder: material.origin.as_ref().map(|o| o.folder.clone()),
         input_size: [material.width(), material.height_px()],
-        output_size: [current.width(), current.height_px()],
+        output_size: [w, h],
         config: config.clone(),
         upsampler_used,
         tileable,
@@ -261,11 +268,11 @@ pub fn upscale(
         total_seconds: start.elapsed().as_secs_f64(),
         final_loss,
         skipped,
+        memory_limit_mib: options.memory_limit.map(|b| b as f64 / (1024.0 * 1024.0)),
         peak_memory_mib: peak_memory_mib(),
         threads: rayon::current_num_threads(),
         settings_fingerprint: None,
-    };
-    Ok((current, report))
+    })
 }
 
 /// The settings to run: `config` itself, or with `select = "auto"` the best of its candidates
@@ -369,37 +376,189 @@ fn render_lr(lr: &Material, ctx: &Context) -> Result<(Vec<Light>, Vec<Map>)> {
     Ok((lights, renders))
 }
 
-/// One ×`scale` level: residual base, then (unless there is nothing to learn) LR renders,
-/// targets and training, then inference.
+/// One ×`scale` level: unless there is nothing to learn (or `chain = "single"` reuses level
+/// 1's filter), the residual base, LR renders, targets and training; then the output, band by
+/// band within the memory limit: residual base, inference, height. Hands each band's kept rows
+/// to `emit` and keeps the filter it trained in `single_filter`.
+#[allow(clippy::too_many_arguments)]
 fn run_level(
     lr: &Material,
     scale: usize,
     level: usize,
     ctx: &Context,
+    single_filter: &mut Option<TrainedFilter>,
     timings: &mut Vec<(String, f64)>,
     skipped: &mut Vec<String>,
-) -> Result<(Material, LevelReport, TrainedFilter)> {
+    emit: &mut dyn FnMut(usize, &Material) -> Result<()>,
+) -> Result<LevelReport> {
+    let config = ctx.config;
+    let tag = |stage: &str| format!("level {}: {stage}", level + 1);
+    let reuse = config.chain == Chain::Single && level > 0 && single_filter.is_some();
+    let mut report = LevelReport {
+        scale,
+        input_size: [lr.width(), lr.height_px()],
+        output_size: [lr.width() * scale, lr.height_px() * scale],
+        lights_used: 0,
+        constant_features: Vec::new(),
+        training: TrainStats::default(),
+        bands: 1,
+    };
+    let (trained, trained_base) = if reuse {
+        (None, None)
+    } else {
+        let (trained, base) = learn_level(lr, scale, level, ctx, &mut report, timings, skipped)?;
+        (Some(trained), base)
+    };
+    let filter = match &trained {
+        Some(t) => t,
+        None => single_filter.as_ref().expect("level 1 trained a filter"),
+    };
+
+    let context = residual::context(&config.filter, ctx.upsampler.as_ref())
+        + band_margin(scale).div_ceil(scale)
+        + if filter.filter.is_some() {
+            config.filter.window.div_ceil(2 * scale) + 2
+        } else {
+            0
+        };
+    let plan = plan_bands(
+        lr.width(),
+        lr.height_px(),
+        scale,
+        context,
+        ctx.border,
+        ctx.options.memory_limit,
+    )?;
+    report.bands = plan.count();
+    let whole = plan.is_whole();
+    let tileable = ctx.border == Border::Wrap;
+    let detail_scale = (lr.height.as_ref()).map(|h| detail_scale(h, &lr.normal, tileable));
+    // In bands the stages repeat: one bar counts the bands, the stages report nothing.
+    let inner: &dyn Progress = if whole { ctx.progress } else { &Silent };
+    if !whole {
+        ctx.progress.note(&format!(
+            "level {}: {} bands of {} rows (memory limit {} MiB)",
+            level + 1,
+            plan.count(),
+            plan.rows * scale,
+            ctx.options.memory_limit.unwrap_or(0) >> 20
+        ));
+        ctx.progress.stage(&tag("bands"), plan.count() as u64);
+    }
+    let mut trained_base = trained_base;
+    for band in plan.bands() {
+        let read = (!whole).then(|| band.read_material(lr));
+        let lr_band = read.as_ref().unwrap_or(lr);
+        let base = match trained_base.take() {
+            Some(base) if whole => base,
+            _ => {
+                inner.stage(&tag("residual base"), 1);
+                let base = timed(timings, tag("residual base"), || {
+                    residual_base(
+                        lr_band,
+                        &config.filter,
+                        ctx.upsampler.as_ref(),
+                        scale,
+                        ctx.border,
+                    )
+                })?;
+                inner.advance(1, None);
+                Arc::new(base)
+            }
+        };
+        let mut hr = timed(timings, tag("infer"), || {
+            infer_material(
+                lr_band,
+                filter.filter.as_ref(),
+                filter.fixed,
+                &base,
+                scale,
+                ctx.border,
+                inner,
+            )
+        })?;
+        drop(base);
+        if let (Some(lr_height), Some(k)) = (&lr_band.height, detail_scale) {
+            inner.stage(&tag("height"), 1);
+            hr.height = Some(timed(timings, tag("height"), || {
+                let band = (!whole).then_some(report.output_size);
+                Ok(rebuild_height(
+                    lr_height, &hr.normal, k, scale, tileable, band,
+                ))
+            })?);
+            inner.advance(1, None);
+        }
+        let kept = if whole { hr } else { band.keep(&hr, scale) };
+        emit(band.first * scale, &kept)?;
+        if !whole {
+            ctx.progress.advance(1, None);
+        }
+    }
+    if let Some(t) = trained {
+        *single_filter = Some(t);
+    }
+    Ok(report)
+}
+
+/// A level's learning: the features it holds constant, and unless every feature is constant
+/// or training is off, the residual base (returned for reuse), LR renders, targets and the
+/// trained filter. Fills in `report`'s training fields.
+fn learn_level(
+    lr: &Material,
+    scale: usize,
+    level: usize,
+    ctx: &Context,
+    report: &mut LevelReport,
+    timings: &mut Vec<(String, f64)>,
+    skipped: &mut Vec<String>,
+) -> Result<(TrainedFilter, Option<Arc<Map>>)> {
     let config = ctx.config;
     let tag = |stage: &str| format!("level {}: {stage}", level + 1);
     let lr_features = features(lr);
 
     // Constant features are kept, not learned; they are no input either.
     let fixed = constant_features(&lr_features, config.skip);
-    let constant_features: Vec<&'static str> = (0..FEATURES)
+    report.constant_features = (0..FEATURES)
         .filter(|&k| fixed[k].is_some())
         .map(|k| FEATURE_NAMES[k])
         .collect();
-    if !constant_features.is_empty() {
+    if !report.constant_features.is_empty() {
         skipped.push(format!(
             "level {}: constant features kept, not learned: {}",
             level + 1,
-            constant_features.join(", ")
+            report.constant_features.join(", ")
+        ));
+    }
+    if fixed.iter().all(Option::is_some) {
+        skipped.push(format!(
+            "level {}: training: every feature is constant",
+            level + 1
+        ));
+        return Ok((
+            TrainedFilter {
+                filter: None,
+                fixed,
+            },
+            None,
+        ));
+    }
+    if config.train.epochs == 0 {
+        skipped.push(format!(
+            "level {}: training: 0 epochs, the residual base is the result",
+            level + 1
+        ));
+        return Ok((
+            TrainedFilter {
+                filter: None,
+                fixed,
+            },
+            None,
         ));
     }
 
-    // What the filter's answers are added to.
+    // What the filter's answers are added to; training reads all of it (so a trained level
+    // holds it whole, whatever the memory limit).
     ctx.progress.stage(&tag("residual base"), 1);
-    // Shared with the training examples: at 4K output it is 470 MB.
     let base = Arc::new(timed(timings, tag("residual base"), || {
         residual_base(
             lr,
@@ -410,46 +569,26 @@ fn run_level(
         )
     })?);
     ctx.progress.advance(1, None);
-
-    let (filter, lights_used, training) = if fixed.iter().all(Option::is_some) {
-        skipped.push(format!(
-            "level {}: training: every feature is constant",
-            level + 1
-        ));
-        (None, 0, TrainStats::default())
-    } else if config.train.epochs == 0 {
-        skipped.push(format!(
-            "level {}: training: 0 epochs, the residual base is the result",
-            level + 1
-        ));
-        (None, 0, TrainStats::default())
-    } else {
-        let (filter, lights, stats) = fit_filter(
-            lr,
-            &lr_features,
-            &base,
-            fixed,
-            scale,
-            level,
-            ctx,
-            timings,
-            skipped,
-        )?;
-        (Some(filter), lights, stats)
-    };
-
-    let hr = timed(timings, tag("infer"), || {
-        infer_material(lr, filter.as_ref(), fixed, &base, scale, ctx)
-    })?;
-    let report = LevelReport {
+    let (filter, lights, stats) = fit_filter(
+        lr,
+        &lr_features,
+        &base,
+        fixed,
         scale,
-        input_size: [lr.width(), lr.height_px()],
-        output_size: [hr.width(), hr.height_px()],
-        lights_used,
-        constant_features,
-        training,
-    };
-    Ok((hr, report, TrainedFilter { filter, fixed }))
+        level,
+        ctx,
+        timings,
+        skipped,
+    )?;
+    report.lights_used = lights;
+    report.training = stats;
+    Ok((
+        TrainedFilter {
+            filter: Some(filter),
+            fixed,
+        },
+        Some(base),
+    ))
 }
 
 /// Trains a level's filter on the residual base `base`: LR renders, targets, training.
@@ -608,12 +747,13 @@ fn infer_material(
     fixed: [Option<f32>; FEATURES],
     residual_base: &Map,
     scale: usize,
-    ctx: &Context,
+    border: Border,
+    progress: &dyn Progress,
 ) -> Result<Material> {
     let lr_features = features(lr);
     let (w, h) = (lr.width() * scale, lr.height_px() * scale);
     let n = w * h;
-    ctx.progress.stage("infer", n as u64);
+    progress.stage("infer", n as u64);
     let folded = filter.map(Filter::folded_weights).transpose()?;
     let mut hr = Material::uniform(1, [0.0; 3], 0.5, 0.0);
     hr.base_color = Map::filled(w, h, 3, 0.0);
@@ -624,7 +764,7 @@ fn infer_material(
         let chunk: &[usize] = &(start..n.min(start + 16384)).collect::<Vec<_>>();
         let raw = match (filter, &folded) {
             (Some(filter), Some(folded)) => {
-                let (windows, phases) = filter.lr_windows(&lr_features, ctx.border, chunk);
+                let (windows, phases) = filter.lr_windows(&lr_features, border, chunk);
                 filter.infer(folded, &windows, &phases)?
             }
             _ => vec![0.0; chunk.len() * FEATURES],
@@ -645,16 +785,16 @@ fn infer_material(
             hr.metallic.data_mut()[t] = p.metallic;
             hr.roughness.data_mut()[t] = p.alpha.sqrt();
         }
-        ctx.progress.advance(chunk.len() as u64, None);
+        progress.advance(chunk.len() as u64, None);
     }
     hr.anisotropy = lr
         .anisotropy
         .as_ref()
-        .map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+        .map(|m| upsample(m, scale, Kernel::Bilinear, border));
     hr.anisotropy_angle = lr
         .anisotropy_angle
         .as_ref()
-        .map(|m| upsample(m, scale, Kernel::Bilinear, ctx.border));
+        .map(|m| upsample(m, scale, Kernel::Bilinear, border));
     hr.restore_invariants();
     Ok(hr)
 }
@@ -663,41 +803,89 @@ fn infer_material(
 /// matup's result with.
 pub fn bilinear_baseline(input: &Material, output: &Material, tileable: bool) -> Material {
     input.upsample(
-        scale_between(input, output),
+        scale_between(input, output.width()),
         Kernel::Bilinear,
         Border::for_tiling(tileable),
     )
 }
 
-/// How many times wider `output` is than `input` (at least 1).
-fn scale_between(input: &Material, output: &Material) -> usize {
-    (output.width() / input.width().max(1)).max(1)
+/// How many times wider an output `output_width` wide is than `input` (at least 1).
+fn scale_between(input: &Material, output_width: usize) -> usize {
+    (output_width / input.width().max(1)).max(1)
 }
 
 /// The side of the square the preview shows (the whole of a smaller output).
 const PREVIEW_SIDE: usize = 512;
+
+/// The side of the preview's square for an output of `size`.
+fn preview_side(size: [usize; 2]) -> usize {
+    PREVIEW_SIDE.min(size[0]).min(size[1])
+}
+
+/// The top-left texel of the central `side` × `side` square of an output of `size`.
+fn centre_origin(size: [usize; 2], side: usize) -> (usize, usize) {
+    ((size[0] - side) / 2, (size[1] - side) / 2)
+}
+
+/// The central square of an output that the preview shows, collected from the output's
+/// bands as they pass (a streamed output is never whole).
+pub struct PreviewWindow {
+    side: usize,
+    origin: (usize, usize),
+    rows: Assembler,
+}
+
+impl PreviewWindow {
+    /// For an output of `size` ([width, height]).
+    pub fn new(size: [usize; 2]) -> PreviewWindow {
+        let side = preview_side(size);
+        PreviewWindow {
+            side,
+            origin: centre_origin(size, side),
+            rows: Assembler::new(side),
+        }
+    }
+
+    /// Keeps what of `band`, the output's rows from `first` on, lies in the square.
+    pub fn add(&mut self, first: usize, band: &Material) {
+        let (x0, y0) = self.origin;
+        let top = first.max(y0);
+        let bottom = (first + band.height_px()).min(y0 + self.side);
+        if top < bottom {
+            let piece = band.map_maps(|m| m.crop(x0, top - first, self.side, bottom - top));
+            self.rows.add(top - y0, &piece);
+        }
+    }
+
+    /// The square (`None` before any band).
+    pub fn finish(self) -> Option<Material> {
+        self.rows.finish()
+    }
+}
 
 /// The central `side` × `side` texels of `m`.
 fn centre(m: &Material, side: usize) -> Material {
     if side == m.width() && side == m.height_px() {
         return m.clone();
     }
-    let (x0, y0) = centre_origin(m, side);
-    m.crop(x0, y0, side, side)
+    let (x0, y0) = centre_origin([m.width(), m.height_px()], side);
+    // The maps as they are, as [`PreviewWindow`] keeps them from bands.
+    m.map_maps(|map| map.crop(x0, y0, side, side))
 }
 
-/// The top-left texel of [`centre`]'s square.
-fn centre_origin(m: &Material, side: usize) -> (usize, usize) {
-    ((m.width() - side) / 2, (m.height_px() - side) / 2)
-}
-
-/// `centre(bilinear_baseline(input, output, tileable), side)`, upsampled from a window of the
-/// input with two texels of context (bilinear taps reach one) instead of the whole input: a
-/// 2K² input's preview would otherwise upsample all of it to 8K² (2 GB) for 512² texels.
+/// `centre` of `input` upsampled bilinearly to `output_size`, from a window of the input
+/// with two texels of context (bilinear taps reach one) instead of the whole input: a 2K²
+/// input's preview would otherwise upsample all of it to 8K² (2 GB) for 512² texels.
 /// Windows that reach the input's edges take the whole, whose borders wrap or mirror.
-fn bilinear_centre(input: &Material, output: &Material, side: usize, tileable: bool) -> Material {
-    let scale = scale_between(input, output);
-    let (x0, y0) = centre_origin(output, side);
+fn bilinear_centre(
+    input: &Material,
+    output_size: [usize; 2],
+    side: usize,
+    tileable: bool,
+) -> Material {
+    let scale = scale_between(input, output_size[0]);
+    let border = Border::for_tiling(tileable);
+    let (x0, y0) = centre_origin(output_size, side);
     let window = |start: usize, len: usize| {
         let first = (start / scale).saturating_sub(2);
         let end = (start + side).div_ceil(scale) + 2;
@@ -708,11 +896,10 @@ fn bilinear_centre(input: &Material, output: &Material, side: usize, tileable: b
             // The maps as they are: `Material::crop` would renormalise the input's normals,
             // which the whole upsample reads unrenormalised.
             let window = input.map_maps(|m| m.crop(wx, wy, ww, wh));
-            window
-                .upsample(scale, Kernel::Bilinear, Border::for_tiling(tileable))
-                .crop(x0 - wx * scale, y0 - wy * scale, side, side)
+            let up = window.upsample(scale, Kernel::Bilinear, border);
+            up.map_maps(|m| m.crop(x0 - wx * scale, y0 - wy * scale, side, side))
         }
-        _ => centre(&bilinear_baseline(input, output, tileable), side),
+        _ => centre(&input.upsample(scale, Kernel::Bilinear, border), side),
     }
 }
 
@@ -724,10 +911,28 @@ pub fn preview(
     config: &Config,
     tileable: bool,
 ) -> Result<Map> {
+    let size = [output.width(), output.height_px()];
+    preview_of_centre(
+        input,
+        &centre(output, preview_side(size)),
+        size,
+        config,
+        tileable,
+    )
+}
+
+/// [`preview`] from the output's central square alone (what [`PreviewWindow`] kept of an
+/// output of `output_size`).
+pub fn preview_of_centre(
+    input: &Material,
+    result: &Material,
+    output_size: [usize; 2],
+    config: &Config,
+    tileable: bool,
+) -> Result<Map> {
     let border = Border::for_tiling(tileable);
-    let side = PREVIEW_SIDE.min(output.width()).min(output.height_px());
-    let baseline = bilinear_centre(input, output, side, tileable);
-    let result = centre(output, side);
+    let side = preview_side(output_size);
+    let baseline = bilinear_centre(input, output_size, side, tileable);
     let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
     let lights = config.lights.build();
     // A high light and a low one: shading detail shows at grazing angles.
@@ -745,7 +950,7 @@ pub fn preview(
     let mut tiles = Vec::new();
     let mut captions = Vec::new();
     for light in [high, low] {
-        for m in [&baseline, &result] {
+        for m in [&baseline, result] {
             tiles.extend(render(m, model.as_ref(), &[light], options));
         }
         let [x, y, z] = light.position;
@@ -755,7 +960,7 @@ pub fn preview(
             y.atan2(x).to_degrees().rem_euclid(360.0)
         ));
     }
-    let scale = scale_between(input, output);
+    let scale = scale_between(input, output_size[0]);
     let columns = [format!("bilinear ×{scale}"), "matup".to_string()];
     Ok(labelled_sheet(&tiles, 2, 4, &columns, &captions))
 }
@@ -767,6 +972,20 @@ mod tests {
     use matup_core::material::MapKind;
 
     #[test]
+    fn the_preview_window_keeps_the_centre_of_the_bands() {
+        let output = Material::uniform(1, [0.0; 3], 0.5, 0.0)
+            .map_maps(|_| Map::from_fn(1100, 900, 1, |_, y, x| (y * 1100 + x) as f32));
+        let mut window = PreviewWindow::new([1100, 900]);
+        for first in (0..900).step_by(130) {
+            let rows = 130.min(900 - first);
+            window.add(first, &output.map_maps(|m| m.rows(first, rows)));
+        }
+        let kept = window.finish().unwrap();
+        assert!(kept == centre(&output, 512));
+        assert_eq!(kept.roughness.get(0, 0, 0), (194 * 1100 + 294) as f32);
+    }
+
+    #[test]
     fn the_preview_upsamples_a_window_equal_to_the_whole() {
         let sample =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../samples/victorian_wood");
@@ -774,7 +993,8 @@ mod tests {
         let output = input.upsample(4, Kernel::Bilinear, Border::Wrap); // its size is what counts
         for tileable in [true, false] {
             let whole = centre(&bilinear_baseline(&input, &output, tileable), 64);
-            let window = bilinear_centre(&input, &output, 64, tileable);
+            let size = [output.width(), output.height_px()];
+            let window = bilinear_centre(&input, size, 64, tileable);
             for kind in MapKind::ALL {
                 // Not assert_eq: a failure would print every value.
                 let same = whole.map(kind).map(Map::data) == window.map(kind).map(Map::data);

@@ -35,6 +35,22 @@ pub fn residual_base(
     Ok(base)
 }
 
+/// LR texels of context around a region that change its residual base: the upsampler's (or
+/// the kernel's) own, and two per round of back-projection (a box cell, then a bilinear
+/// spread over the neighbouring cells).
+pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
+    let upsampled = match config.residual_base {
+        ResidualBase::Kernel(kernel) => kernel.radius().ceil() as usize,
+        ResidualBase::Upsampler => upsampler.context(),
+    };
+    upsampled
+        + if config.back_project {
+            2 * BACK_PROJECTIONS
+        } else {
+            0
+        }
+}
+
 /// Iterative back-projection (Irani & Peleg 1991): corrects output-size features `hr` so that
 /// their box-downsample, what a capture at the LR size would see, comes back to `lr`: the
 /// mismatch is spread back over the output texels bilinearly, a few times. Values are kept in

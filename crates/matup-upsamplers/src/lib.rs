@@ -16,6 +16,10 @@ pub struct KernelUpsampler {
 }
 
 impl RgbUpsampler for KernelUpsampler {
+    fn context(&self) -> usize {
+        self.kernel.radius().ceil() as usize
+    }
+
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         Ok(images
             .iter()

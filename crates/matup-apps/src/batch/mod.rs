@@ -42,6 +42,8 @@ pub struct BatchOptions {
     pub claims: ClaimTiming,
     /// Also write each material's `view.html` (linked from `index.html`).
     pub view: bool,
+    /// Heap each material's output is made within (none: whole).
+    pub memory_limit: Option<u64>,
 }
 
 /// What this worker did with one material.
@@ -258,6 +260,7 @@ fn handle_material(
             output,
             &options.save,
             true,
+            options.memory_limit,
             Some(fingerprint.to_string()),
             &watch,
         )?;

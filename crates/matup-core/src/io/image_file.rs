@@ -214,100 +214,30 @@ fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
     })
 }
 
-/// Encodes a 1- or 3-channel map (values already in the file's encoding: [0, 1] for
-/// integer formats) and writes it atomically: to a temporary file beside `path`, then renamed.
+/// Writes a 1- or 3-channel map (values already in the file's encoding: [0, 1] for integer
+/// formats) atomically, as one band of [`super::stream::ImageWriter`].
 pub(crate) fn write_image(path: &Path, map: &Map, format: FileFormat) -> Result<()> {
-    let bytes = encode(map, format).map_err(|message| Error::file(path, message))?;
-    write_atomic(path, &bytes)
+    super::stream::write_whole(path, map, format)
 }
 
-/// `map` (values in [0, 1], grey or RGB) as the bytes of an 8-bit PNG file.
+/// `map` (values in [0, 1], grey or RGB) as the bytes of an 8-bit PNG file (in memory, for
+/// pages that embed images).
 pub fn encode_png8(map: &Map) -> std::result::Result<Vec<u8>, String> {
-    encode(map, FileFormat::Png8)
-}
-
-fn encode(map: &Map, format: FileFormat) -> std::result::Result<Vec<u8>, String> {
     let (w, h, ch) = (map.width(), map.height(), map.channels());
     assert!(ch == 1 || ch == 3, "only grey and RGB maps are written");
-    let interleaved = |c_y_x: &dyn Fn(usize, usize, usize) -> f32| -> Vec<f32> {
-        let mut v = Vec::with_capacity(w * h * ch);
-        for y in 0..h {
-            for x in 0..w {
-                for c in 0..ch {
-                    v.push(c_y_x(c, y, x));
-                }
-            }
-        }
-        v
+    let n = map.texels();
+    let raw: Vec<u8> = (0..n)
+        .flat_map(|i| (0..ch).map(move |c| to_u8(map.data()[c * n + i])))
+        .collect();
+    let image = if ch == 1 {
+        DynamicImage::ImageLuma8(image::GrayImage::from_raw(w as u32, h as u32, raw).unwrap())
+    } else {
+        DynamicImage::ImageRgb8(image::RgbImage::from_raw(w as u32, h as u32, raw).unwrap())
     };
-    let values = interleaved(&|c, y, x| map.get(c, y, x));
     let mut out = Cursor::new(Vec::new());
-    match format {
-        FileFormat::Png8 | FileFormat::Jpeg => {
-            let raw: Vec<u8> = values.iter().map(|&v| to_u8(v)).collect();
-            let image = if ch == 1 {
-                DynamicImage::ImageLuma8(
-                    image::GrayImage::from_raw(w as u32, h as u32, raw).unwrap(),
-                )
-            } else {
-                DynamicImage::ImageRgb8(image::RgbImage::from_raw(w as u32, h as u32, raw).unwrap())
-            };
-            if format == FileFormat::Jpeg {
-                let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95);
-                image
-                    .write_with_encoder(encoder)
-                    .map_err(|e| e.to_string())?;
-            } else {
-                image
-                    .write_to(&mut out, ImageFormat::Png)
-                    .map_err(|e| e.to_string())?;
-            }
-        }
-        FileFormat::Png16 => {
-            let raw: Vec<u16> = values
-                .iter()
-                .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
-                .collect();
-            let image = if ch == 1 {
-                DynamicImage::ImageLuma16(
-                    image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap(),
-                )
-            } else {
-                DynamicImage::ImageRgb16(
-                    image::ImageBuffer::from_raw(w as u32, h as u32, raw).unwrap(),
-                )
-            };
-            image
-                .write_to(&mut out, ImageFormat::Png)
-                .map_err(|e| e.to_string())?;
-        }
-        FileFormat::ExrHalf | FileFormat::ExrFloat => {
-            let names: &[&str] = if ch == 1 { &["Y"] } else { &["R", "G", "B"] };
-            let list: ex::SmallVec<[ex::AnyChannel<ex::FlatSamples>; 4]> = names
-                .iter()
-                .enumerate()
-                .map(|(c, name)| {
-                    let plane = map.plane(c);
-                    let samples = if format == FileFormat::ExrHalf {
-                        ex::FlatSamples::F16(plane.iter().map(|&v| ex::f16::from_f32(v)).collect())
-                    } else {
-                        ex::FlatSamples::F32(plane.to_vec())
-                    };
-                    ex::AnyChannel::new(*name, samples)
-                })
-                .collect();
-            let layer = ex::Layer::new(
-                (w, h),
-                ex::LayerAttributes::default(),
-                ex::Encoding::SMALL_LOSSLESS,
-                ex::AnyChannels::sort(list),
-            );
-            ex::Image::from_layer(layer)
-                .write()
-                .to_buffered(&mut out)
-                .map_err(|e| e.to_string())?;
-        }
-    }
+    image
+        .write_to(&mut out, ImageFormat::Png)
+        .map_err(|e| e.to_string())?;
     Ok(out.into_inner())
 }
 
@@ -315,25 +245,7 @@ fn encode(map: &Map, format: FileFormat) -> std::result::Result<Vec<u8>, String>
 /// part: a temporary file in the same folder, synced, then renamed over `path`.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".matup-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| Error::io(path, e))?;
+    let mut tmp = super::stream::temporary_beside(path)?;
     tmp.write_all(bytes).map_err(|e| Error::io(path, e))?;
-    // Temporary files are private (0600); an output is an ordinary file.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        tmp.as_file()
-            .set_permissions(std::fs::Permissions::from_mode(0o644))
-            .map_err(|e| Error::io(path, e))?;
-    }
-    tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+    super::stream::persist(tmp, path)
 }

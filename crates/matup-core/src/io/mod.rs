@@ -3,12 +3,14 @@
 
 mod discover;
 mod image_file;
+mod stream;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 pub use discover::{discover, Discovered, Role};
 pub use image_file::{is_image_file, write_atomic, IMAGE_EXTENSIONS};
+pub use stream::ImageWriter;
 
 use crate::color::{linear_to_srgb, srgb_to_linear};
 use crate::map::Map;
@@ -362,39 +364,144 @@ pub fn save_material(
     out_dir: &Path,
     options: &SaveOptions,
 ) -> Result<Vec<PathBuf>> {
-    check_output_folder(out_dir, material.origin.as_ref())?;
-    std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
-    let origin = material.origin.as_ref();
-    let convention = options
-        .normal_convention
-        .or(origin.map(|o| o.normal_convention))
-        .unwrap_or_default();
-    let mut written = Vec::new();
-    for kind in MapKind::ALL {
-        let Some(map) = material.map(kind) else {
-            continue;
-        };
-        let had_source = origin.is_some_and(|o| o.files.contains_key(&kind));
-        if kind == MapKind::Metallic && !had_source && map.data().iter().all(|&v| v == 0.0) {
-            continue;
-        }
-        let format = options
-            .format
-            .or(origin.and_then(|o| o.files.get(&kind).map(|f| f.1)))
-            .unwrap_or(FileFormat::Png8);
-        let encoded = match kind {
-            MapKind::BaseColor if !format.is_float() => map.clone().map_values(linear_to_srgb),
-            MapKind::Normal => encode_normals(map, convention),
-            MapKind::AnisotropyAngle => map
-                .clone()
-                .map_values(|a| (a / std::f32::consts::TAU).rem_euclid(1.0)),
-            _ => map.clone(),
-        };
-        let path = out_dir.join(format!("{}.{}", kind.file_stem(), format.extension()));
-        write_image(&path, &encoded, format)?;
-        written.push(path);
+    let mut writer = MaterialWriter::new(
+        out_dir,
+        [material.width(), material.height_px()],
+        material.origin.as_ref(),
+        options,
+    )?;
+    writer.write_rows(material)?;
+    writer.finish()
+}
+
+/// Writes a material's maps a band of rows at a time, top to bottom, as [`save_material`]
+/// writes a whole one (which is one band): the same files, formats and encodings, for outputs
+/// that are never whole in memory. The files appear when [`MaterialWriter::finish`] completes
+/// them; dropped before, it leaves none.
+pub struct MaterialWriter {
+    out_dir: PathBuf,
+    size: [usize; 2],
+    origin: Option<MaterialOrigin>,
+    format: Option<FileFormat>,
+    convention: NormalConvention,
+    /// Opened with the first band, which says what maps there are.
+    maps: Vec<MapWriter>,
+}
+
+struct MapWriter {
+    kind: MapKind,
+    file: ImageWriter,
+    /// A metallic map the input did not have is written only if it is not all zero.
+    only_if_nonzero: bool,
+    all_zero: bool,
+}
+
+impl MaterialWriter {
+    /// For a material of `size` ([width, height]) from `origin` (whose formats and normal
+    /// convention it keeps unless `options` say otherwise) into `out_dir` (created; never the
+    /// input folder).
+    pub fn new(
+        out_dir: &Path,
+        size: [usize; 2],
+        origin: Option<&MaterialOrigin>,
+        options: &SaveOptions,
+    ) -> Result<MaterialWriter> {
+        check_output_folder(out_dir, origin)?;
+        std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+        let convention = options
+            .normal_convention
+            .or(origin.map(|o| o.normal_convention))
+            .unwrap_or_default();
+        Ok(MaterialWriter {
+            out_dir: out_dir.to_path_buf(),
+            size,
+            origin: origin.cloned(),
+            format: options.format,
+            convention,
+            maps: Vec::new(),
+        })
     }
-    Ok(written)
+
+    /// Appends `band`'s rows (every map, as wide as the material) below those written so far.
+    pub fn write_rows(&mut self, band: &Material) -> Result<()> {
+        if self.maps.is_empty() {
+            self.open(band)?;
+        }
+        let formats: Vec<FileFormat> = self.maps.iter().map(|m| self.format_of(m.kind)).collect();
+        for (map, format) in self.maps.iter_mut().zip(formats) {
+            let rows = band.map(map.kind).ok_or_else(|| {
+                Error::Invalid(format!("a band of the output lacks its {} map", map.kind))
+            })?;
+            if map.only_if_nonzero && map.all_zero {
+                map.all_zero = rows.data().iter().all(|&v| v == 0.0);
+            }
+            map.file.write_rows(&encode_map(
+                map.kind,
+                rows,
+                format.is_float(),
+                self.convention,
+            ))?;
+        }
+        Ok(())
+    }
+
+    /// Completes every file; returns their paths.
+    pub fn finish(self) -> Result<Vec<PathBuf>> {
+        let mut written = Vec::new();
+        for map in self.maps {
+            if map.only_if_nonzero && map.all_zero {
+                continue; // dropped: its temporary file goes with it
+            }
+            written.push(map.file.finish()?);
+        }
+        Ok(written)
+    }
+
+    fn format_of(&self, kind: MapKind) -> FileFormat {
+        self.format
+            .or(self
+                .origin
+                .as_ref()
+                .and_then(|o| o.files.get(&kind).map(|f| f.1)))
+            .unwrap_or(FileFormat::Png8)
+    }
+
+    fn open(&mut self, band: &Material) -> Result<()> {
+        let [w, h] = self.size;
+        for kind in MapKind::ALL {
+            let Some(map) = band.map(kind) else {
+                continue;
+            };
+            let format = self.format_of(kind);
+            let path = self
+                .out_dir
+                .join(format!("{}.{}", kind.file_stem(), format.extension()));
+            let had_source = self
+                .origin
+                .as_ref()
+                .is_some_and(|o| o.files.contains_key(&kind));
+            self.maps.push(MapWriter {
+                kind,
+                file: ImageWriter::create(&path, w, h, map.channels(), format)?,
+                only_if_nonzero: kind == MapKind::Metallic && !had_source,
+                all_zero: true,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A map's values as its file stores them: sRGB base colour in integer formats, normals as
+/// colours in `convention`, anisotropy directions as turns.
+fn encode_map(kind: MapKind, map: &Map, float: bool, convention: NormalConvention) -> Map {
+    match kind {
+        MapKind::BaseColor if !float => map.clone().map_values(linear_to_srgb),
+        MapKind::Normal => encode_normals(map, convention),
+        MapKind::AnisotropyAngle => map
+            .clone()
+            .map_values(|a| (a / std::f32::consts::TAU).rem_euclid(1.0)),
+        _ => map.clone(),
+    }
 }
 
 /// Unit normals → [0, 1] encoding in `convention`.

@@ -579,6 +579,11 @@ impl RgbUpsampler for OnnxUpsampler {
         Some(self.info.scale)
     }
 
+    /// The sidecar's overlap: the context each tile is run with.
+    fn context(&self) -> usize {
+        self.info.overlap
+    }
+
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         let s = self.info.scale;
         if scale != s {

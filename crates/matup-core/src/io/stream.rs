@@ -1,0 +1,479 @@
+//! Image files written in bands of rows, top to bottom, so an output never has to be whole in
+//! memory: PNG through the `png` crate's stream writer, EXR block by block through `exr`'s
+//! block writer (on a thread of its own, because `exr` pulls the blocks from a closure while
+//! matup pushes bands). JPEG has no row-wise encoder among the chosen crates: its 8-bit
+//! samples are gathered (3 bytes per texel) and encoded at the end. Every file goes to a
+//! temporary file beside its path, renamed over it once complete.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, SyncSender};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use exr::block::writer::ChunksWriter;
+use exr::prelude as ex;
+use image::DynamicImage;
+use tempfile::NamedTempFile;
+
+use crate::color::to_u8;
+use crate::map::Map;
+use crate::material::FileFormat;
+use crate::{Error, Result};
+
+/// Writes one image file (grey or RGB, values in the file's encoding: [0, 1] for integer
+/// formats) band by band: [`ImageWriter::write_rows`] with every row once, in order, then
+/// [`ImageWriter::finish`]. Dropped unfinished, it leaves nothing at `path`.
+pub struct ImageWriter {
+    path: PathBuf,
+    width: usize,
+    height: usize,
+    channels: usize,
+    rows_written: usize,
+    temporary: NamedTempFile,
+    encoder: Encoder,
+}
+
+enum Encoder {
+    Png {
+        stream: Option<Box<png::StreamWriter<'static, Recording>>>,
+        sixteen_bits: bool,
+        error: Arc<Mutex<Option<std::io::Error>>>,
+    },
+    Jpeg(Vec<u8>),
+    Exr {
+        bands: Option<SyncSender<Map>>,
+        thread: Option<JoinHandle<std::result::Result<(), String>>>,
+    },
+}
+
+/// The temporary file as the PNG encoder's output, keeping the first I/O error: the encoder
+/// writes its last chunk when dropped, where it cannot report one.
+struct Recording {
+    file: File,
+    error: Arc<Mutex<Option<std::io::Error>>>,
+}
+
+impl Write for Recording {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        self.file.write(bytes).inspect_err(|e| self.record(e))
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush().inspect_err(|e| self.record(e))
+    }
+}
+
+impl Recording {
+    fn record(&self, e: &std::io::Error) {
+        let mut slot = self.error.lock().unwrap();
+        if slot.is_none() {
+            *slot = Some(std::io::Error::new(e.kind(), e.to_string()));
+        }
+    }
+}
+
+impl ImageWriter {
+    /// Starts `path`, `width × height` texels of `channels` (1 or 3) in `format`.
+    pub fn create(
+        path: &Path,
+        width: usize,
+        height: usize,
+        channels: usize,
+        format: FileFormat,
+    ) -> Result<ImageWriter> {
+        assert!(
+            channels == 1 || channels == 3,
+            "only grey and RGB are written"
+        );
+        let temporary = temporary_beside(path)?;
+        let file = || {
+            temporary
+                .as_file()
+                .try_clone()
+                .map_err(|e| Error::io(path, e))
+        };
+        let encoder = match format {
+            FileFormat::Png8 | FileFormat::Png16 => {
+                let error = Arc::new(Mutex::new(None));
+                let output = Recording {
+                    file: file()?,
+                    error: error.clone(),
+                };
+                let mut encoder = png::Encoder::new(output, width as u32, height as u32);
+                encoder.set_color(if channels == 1 {
+                    png::ColorType::Grayscale
+                } else {
+                    png::ColorType::Rgb
+                });
+                let sixteen_bits = format == FileFormat::Png16;
+                encoder.set_depth(if sixteen_bits {
+                    png::BitDepth::Sixteen
+                } else {
+                    png::BitDepth::Eight
+                });
+                // As the image crate writes PNG: fast deflate, adaptive filters.
+                encoder.set_compression(png::Compression::Fast);
+                encoder.set_filter(png::Filter::Adaptive);
+                let stream = encoder
+                    .write_header()
+                    .and_then(|w| w.into_stream_writer_with_size(1 << 20))
+                    .map_err(|e| Error::file(path, e.to_string()))?;
+                Encoder::Png {
+                    stream: Some(Box::new(stream)),
+                    sixteen_bits,
+                    error,
+                }
+            }
+            FileFormat::Jpeg => Encoder::Jpeg(Vec::with_capacity(width * height * channels)),
+            FileFormat::ExrHalf | FileFormat::ExrFloat => {
+                let (bands, receive) = sync_channel::<Map>(1);
+                let output = BufWriter::new(file()?);
+                let half = format == FileFormat::ExrHalf;
+                let thread = std::thread::spawn(move || {
+                    write_exr(output, width, height, channels, half, receive)
+                });
+                Encoder::Exr {
+                    bands: Some(bands),
+                    thread: Some(thread),
+                }
+            }
+        };
+        Ok(ImageWriter {
+            path: path.to_path_buf(),
+            width,
+            height,
+            channels,
+            rows_written: 0,
+            temporary,
+            encoder,
+        })
+    }
+
+    /// Appends `rows` (as wide as the image, as many channels) below the rows written so far.
+    pub fn write_rows(&mut self, rows: &Map) -> Result<()> {
+        assert!(rows.width() == self.width && rows.channels() == self.channels);
+        assert!(
+            self.rows_written + rows.height() <= self.height,
+            "rows past the end"
+        );
+        self.rows_written += rows.height();
+        let interleaved = || {
+            let n = rows.texels();
+            (0..n).flat_map(move |i| (0..rows.channels()).map(move |c| rows.data()[c * n + i]))
+        };
+        match &mut self.encoder {
+            Encoder::Png {
+                stream,
+                sixteen_bits,
+                ..
+            } => {
+                let bytes: Vec<u8> = if *sixteen_bits {
+                    interleaved()
+                        .flat_map(|v| to_u16(v).to_be_bytes())
+                        .collect()
+                } else {
+                    interleaved().map(to_u8).collect()
+                };
+                let stream = stream.as_mut().expect("open until finished");
+                stream
+                    .write_all(&bytes)
+                    .map_err(|e| Error::io(&self.path, e))
+            }
+            Encoder::Jpeg(samples) => {
+                samples.extend(interleaved().map(to_u8));
+                Ok(())
+            }
+            Encoder::Exr { bands, .. } => {
+                let sent = bands
+                    .as_ref()
+                    .expect("open until finished")
+                    .send(rows.clone());
+                // The writer thread stopped early: its error comes with `finish`.
+                if sent.is_err() {
+                    return self.exr_error();
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Completes the file (every row must have been written) and moves it to its path.
+    pub fn finish(mut self) -> Result<PathBuf> {
+        if self.rows_written != self.height {
+            return Err(Error::file(
+                &self.path,
+                format!(
+                    "{} of {} rows were written; the file is incomplete",
+                    self.rows_written, self.height
+                ),
+            ));
+        }
+        match &mut self.encoder {
+            Encoder::Png { stream, error, .. } => {
+                let stream = stream.take().expect("open until finished");
+                stream
+                    .finish()
+                    .map_err(|e| Error::file(&self.path, e.to_string()))?;
+                // The end chunk was written as the encoder dropped: any failure was recorded.
+                if let Some(e) = error.lock().unwrap().take() {
+                    return Err(Error::io(&self.path, e));
+                }
+            }
+            Encoder::Jpeg(samples) => {
+                let (w, h) = (self.width as u32, self.height as u32);
+                let raw = std::mem::take(samples);
+                let image = if self.channels == 1 {
+                    DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap())
+                } else {
+                    DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, raw).unwrap())
+                };
+                let mut out = std::io::BufWriter::new(
+                    self.temporary
+                        .as_file()
+                        .try_clone()
+                        .map_err(|e| Error::io(&self.path, e))?,
+                );
+                let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95);
+                image
+                    .write_with_encoder(encoder)
+                    .map_err(|e| Error::file(&self.path, e.to_string()))?;
+                out.flush().map_err(|e| Error::io(&self.path, e))?;
+            }
+            Encoder::Exr { bands, .. } => {
+                drop(bands.take());
+                self.exr_error()?;
+            }
+        }
+        let (path, temporary) = (self.path.clone(), self.temporary);
+        persist(temporary, &path)?;
+        Ok(path)
+    }
+
+    /// Joins the EXR thread and returns what it failed with.
+    fn exr_error(&mut self) -> Result<()> {
+        if let Encoder::Exr { bands, thread } = &mut self.encoder {
+            drop(bands.take());
+            if let Some(thread) = thread.take() {
+                let outcome = thread
+                    .join()
+                    .unwrap_or_else(|_| Err("the EXR writer panicked".into()));
+                outcome.map_err(|message| Error::file(&self.path, message))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The EXR writer thread: a scan-line file (ZIP, 16 lines per block, increasing order, as
+/// `exr`'s SMALL_LOSSLESS), each block built from the bands as they arrive.
+fn write_exr(
+    output: BufWriter<File>,
+    width: usize,
+    height: usize,
+    channels: usize,
+    half: bool,
+    bands: std::sync::mpsc::Receiver<Map>,
+) -> std::result::Result<(), String> {
+    let names: &[&str] = if channels == 1 {
+        &["Y"]
+    } else {
+        &["B", "G", "R"]
+    };
+    // The file's channels are sorted by name; `plane[i]` is the map's channel for the i-th.
+    let plane: Vec<usize> = if channels == 1 {
+        vec![0]
+    } else {
+        vec![2, 1, 0]
+    };
+    let sample_type = if half {
+        ex::SampleType::F16
+    } else {
+        ex::SampleType::F32
+    };
+    let list: ex::SmallVec<[ex::ChannelDescription; 5]> = names
+        .iter()
+        .map(|n| ex::ChannelDescription::named(*n, sample_type))
+        .collect();
+    let header = exr::meta::header::Header::new("".into(), (width, height), list).with_encoding(
+        ex::Compression::ZIP16,
+        exr::meta::BlockDescription::ScanLines,
+        ex::LineOrder::Increasing,
+    );
+    let mut header = header;
+    header.own_attributes.layer_name = None; // one layer: no name, as exr writes one
+    let channel_list = header.channels.clone();
+    let mut band: Option<Map> = None;
+    let mut band_first = 0usize;
+    exr::block::write(
+        output,
+        ex::SmallVec::from_elem(header, 1),
+        true,
+        |meta, chunks| {
+            let mut compressor = chunks.sequential_blocks_compressor(&meta);
+            let blocks: Vec<_> = meta.enumerate_ordered_header_block_indices().collect();
+            for (index, block_index) in blocks {
+                let mut failed = None;
+                let block =
+                    exr::block::UncompressedBlock::from_lines(&channel_list, block_index, |line| {
+                        let y = line.location.position.y();
+                        // Bands arrive in order; a line below the current band needs the next.
+                        while band.as_ref().is_none_or(|b| y >= band_first + b.height()) {
+                            if let Some(b) = band.take() {
+                                band_first += b.height();
+                            }
+                            match bands.recv() {
+                                Ok(next) => band = Some(next),
+                                Err(_) => {
+                                    failed = Some("the rows ended before the image");
+                                    return;
+                                }
+                            }
+                        }
+                        let b = band.as_ref().unwrap();
+                        let x0 = line.location.position.x();
+                        let row = &b.plane(plane[line.location.channel])
+                            [(y - band_first) * width + x0..][..line.location.sample_count];
+                        let written = if half {
+                            line.write_samples(|i| ex::f16::from_f32(row[i]))
+                        } else {
+                            line.write_samples(|i| row[i])
+                        };
+                        if written.is_err() {
+                            failed = Some("a line could not be encoded");
+                        }
+                    });
+                if let Some(why) = failed {
+                    return Err(exr::error::Error::Invalid(why.into()));
+                }
+                compressor.compress_block(index, block)?;
+            }
+            Ok(())
+        },
+    )
+    .map_err(|e| e.to_string())
+}
+
+/// A temporary file in `path`'s folder (so the rename that completes it stays on one disk).
+pub(crate) fn temporary_beside(path: &Path) -> Result<NamedTempFile> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    tempfile::Builder::new()
+        .prefix(".matup-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(path, e))
+}
+
+/// Syncs the temporary file and renames it over `path` (readers see the old file or the
+/// whole new one); outputs get ordinary permissions, not a temporary file's 0600.
+pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        temporary
+            .as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644))
+            .map_err(|e| Error::io(path, e))?;
+    }
+    temporary
+        .as_file()
+        .sync_all()
+        .map_err(|e| Error::io(path, e))?;
+    temporary
+        .persist(path)
+        .map_err(|e| Error::io(path, e.error))?;
+    Ok(())
+}
+
+/// A [0, 1] value as a 16-bit sample (rounded, clamped).
+fn to_u16(v: f32) -> u16 {
+    (v.clamp(0.0, 1.0) * 65535.0).round() as u16
+}
+
+/// Writes a whole image: one band.
+pub(crate) fn write_whole(path: &Path, map: &Map, format: FileFormat) -> Result<()> {
+    let mut writer = ImageWriter::create(path, map.width(), map.height(), map.channels(), format)?;
+    writer.write_rows(map)?;
+    writer.finish()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::image_file::read_image;
+
+    /// An RGB or grey test image with values across [0, 1].
+    fn image(channels: usize) -> Map {
+        Map::from_fn(37, 23, channels, |c, y, x| {
+            ((x * 7 + y * 13 + c * 29) % 101) as f32 / 100.0
+        })
+    }
+
+    fn write_in_bands(path: &Path, map: &Map, format: FileFormat, bands: &[usize]) {
+        let mut writer =
+            ImageWriter::create(path, map.width(), map.height(), map.channels(), format).unwrap();
+        let mut first = 0;
+        for &rows in bands {
+            writer.write_rows(&map.rows(first, rows)).unwrap();
+            first += rows;
+        }
+        writer.finish().unwrap();
+    }
+
+    #[test]
+    fn files_written_in_bands_read_back_as_written_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        for format in [
+            FileFormat::Png8,
+            FileFormat::Png16,
+            FileFormat::Jpeg,
+            FileFormat::ExrHalf,
+            FileFormat::ExrFloat,
+        ] {
+            for channels in [1, 3] {
+                let map = image(channels);
+                let name = |how: &str| {
+                    dir.path()
+                        .join(format!("{how}{channels}.{}", format.extension()))
+                };
+                write_in_bands(&name("bands"), &map, format, &[10, 1, 9, 3]);
+                write_whole(&name("whole"), &map, format).unwrap();
+                let bands = read_image(&name("bands"), u64::MAX).unwrap().map;
+                let whole = read_image(&name("whole"), u64::MAX).unwrap().map;
+                assert!(bands == whole, "{format} ×{channels}");
+                // And what was written, to the format's precision (JPEG is lossy).
+                let tolerance = match format {
+                    FileFormat::Png8 => 0.5 / 255.0,
+                    FileFormat::Png16 => 0.5 / 65535.0,
+                    FileFormat::Jpeg => 0.1,
+                    FileFormat::ExrHalf => 1e-3,
+                    FileFormat::ExrFloat => 0.0,
+                };
+                let worst = (whole.data().iter().zip(map.data()))
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f32::max);
+                assert!(worst <= tolerance + 1e-6, "{format} ×{channels}: {worst}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_unfinished_file_is_an_error_and_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        for format in [FileFormat::Png8, FileFormat::ExrHalf] {
+            let path = dir.path().join(format!("short.{}", format.extension()));
+            let map = image(3);
+            let mut writer = ImageWriter::create(&path, 37, 23, 3, format).unwrap();
+            writer.write_rows(&map.rows(0, 20)).unwrap();
+            let error = writer.finish().unwrap_err().to_string();
+            assert!(error.contains("20 of 23 rows"), "{error}");
+            assert!(!path.exists());
+        }
+        // Nor any temporary file.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
