@@ -5,9 +5,10 @@
 //!
 //! `cargo bench --bench memory` runs N = 1 (1K² → 4K²); `MATUP_MEMORY_TILES=1,2,4` adds
 //! 2K² → 8K² and 4K² → 16K², `MATUP_MEMORY_MATERIAL=folder` picks another material,
-//! `MATUP_MEMORY_LIMIT=MiB` (or `none`) sets `--memory-limit` (default: matup's), and
-//! `MATUP_MEMORY_COMPARE=1` also runs each banded size whole and reports how far apart the
-//! maps' files are, `MATUP_MEMORY_TILEABLE=yes` or `no` runs only that case, and
+//! `MATUP_MEMORY_LIMIT=MiB` (or `none`; or one per size, `4096,4096,8192`) sets
+//! `--memory-limit` (default: matup's), and
+//! `MATUP_MEMORY_COMPARE=1,2` also runs those sizes whole (N = 1, 2) and reports how far
+//! apart the maps' files are, `MATUP_MEMORY_TILEABLE=yes` or `no` runs only that case, and
 //! `MATUP_MEMORY_PLOT=file.png` draws heap peak and time per texel against the output's size.
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -147,14 +148,24 @@ fn main() {
                 .expect("MATUP_MEMORY_TILES: a list of integers")
         })
         .collect();
-    // MiB, or "none" for whole levels; default: matup's (an eighth of the machine).
-    let limit = match std::env::var("MATUP_MEMORY_LIMIT").as_deref() {
-        Ok("none") => None,
-        Ok(mib) => Some(mib.parse::<u64>().expect("MATUP_MEMORY_LIMIT: MiB or none") << 20),
-        Err(_) => Some(default_memory_limit()),
+    // MiB, or "none" for whole levels, one for every size or one per size; default: matup's.
+    let limits: Vec<Option<u64>> = match std::env::var("MATUP_MEMORY_LIMIT") {
+        Ok(list) => list
+            .split(',')
+            .map(|l| match l.trim() {
+                "none" => None,
+                mib => Some(mib.parse::<u64>().expect("MATUP_MEMORY_LIMIT: MiB or none") << 20),
+            })
+            .collect(),
+        Err(_) => vec![Some(default_memory_limit())],
     };
-    // Also run each size whole (no limit) and compare the maps' files.
-    let compare = std::env::var("MATUP_MEMORY_COMPARE").is_ok_and(|v| v == "1");
+    let limit_of = |i: usize| limits[i.min(limits.len() - 1)];
+    // Also run these sizes (tile counts) whole, no limit, and compare the maps' files.
+    let compare: Vec<usize> = std::env::var("MATUP_MEMORY_COMPARE")
+        .unwrap_or_default()
+        .split(',')
+        .filter_map(|n| n.trim().parse().ok())
+        .collect();
     let source = load_material(Some(&folder), &LoadOptions::default())
         .unwrap_or_else(|e| panic!("{}: {e}", folder.display()));
     let out = tempfile::tempdir().expect("a temporary folder");
@@ -162,7 +173,10 @@ fn main() {
         "{} tiled N×N, defaults ×4 as `matup upscale` runs them (maps, preview, run.json), memory \
          limit {}, {} threads; heap in MiB (peak within the stage, live after it)\n",
         folder.display(),
-        limit.map_or("none".into(), |l| format!("{} MiB", l >> 20)),
+        (limits.iter())
+            .map(|l| l.map_or("none".into(), |l| format!("{} MiB", l >> 20)))
+            .collect::<Vec<_>>()
+            .join(", "),
         rayon::current_num_threads()
     );
     println!("| run | stage | seconds | heap peak | heap live after |");
@@ -173,7 +187,8 @@ fn main() {
         Ok("no") => &[false],
         _ => &[true, false],
     };
-    for &n in &tiles {
+    for (i, &n) in tiles.iter().enumerate() {
+        let limit = limit_of(i);
         for &tileable in tilings {
             let input = tiled(&source, n);
             let config = Config {
@@ -214,37 +229,65 @@ fn main() {
             for (stage, seconds, peak, live) in &rows {
                 println!("| {run} | {stage} | {seconds:.1} | {peak:.0} | {live:.0} |");
             }
-            let difference = (compare && bands > 1).then(|| {
-                let (whole, ..) = one(None, "whole");
+            let mut whole_run = None;
+            let difference = (compare.contains(&n) && bands > 1).then(|| {
+                let (whole, rows, total, _) = one(None, "whole");
                 let d = max_level_difference(&whole, &folder);
                 std::fs::remove_dir_all(&whole).ok();
+                let peak = rows.iter().map(|r| r.2).fold(0.0, f64::max);
+                whole_run = Some((total, peak));
                 d
             });
             std::fs::remove_dir_all(&folder).ok();
-            summary.push((run, bands, total, total / texels * 1e6, peak, difference));
+            let limit_mib = limit.map(|l| (l >> 20) as f64);
+            let per_mtexel = |seconds: f64| seconds / texels * 1e6;
+            if let Some((total, peak)) = whole_run {
+                let name = format!("{run}, whole");
+                summary.push((name, None, 1, total, per_mtexel(total), peak, None));
+            }
+            summary.push((
+                run,
+                limit_mib,
+                bands,
+                total,
+                per_mtexel(total),
+                peak,
+                difference,
+            ));
         }
     }
     if std::env::var("MATUP_MEMORY_PLOT").is_ok_and(|p| !p.is_empty()) {
         let path = PathBuf::from(std::env::var("MATUP_MEMORY_PLOT").unwrap());
-        let points: Vec<(f64, f64, f64)> = (tiles.iter().zip(summary.chunks(tilings.len())))
-            .map(|(&n, rows)| {
+        let points: Vec<_> = tiles
+            .iter()
+            .map(|&n| {
+                let side = n * source.width();
+                let prefix = format!("{side}² → ");
+                // This size's runs within its limit (not the whole runs beside them).
+                let rows: Vec<_> = (summary.iter())
+                    .filter(|r| r.0.starts_with(&prefix) && !r.0.ends_with("whole"))
+                    .collect();
                 let mtexels = (16 * n * n * source.width() * source.height_px()) as f64 / 1e6;
-                let peak = rows.iter().map(|r| r.4).fold(0.0, f64::max);
-                let per = rows.iter().map(|r| r.3).fold(0.0, f64::max);
-                (mtexels, peak, per)
+                let peak = rows.iter().map(|r| r.5).fold(0.0, f64::max);
+                let per = rows.iter().map(|r| r.4).fold(0.0, f64::max);
+                (mtexels, peak, per, rows[0].1)
             })
             .collect();
-        plot_growth(&points, limit, &path).expect("the plot draws");
+        plot_growth(&points, &path).expect("the plot draws");
         println!("plot: {}", path.display());
     }
     println!(
-        "\n| run | bands | seconds | seconds per output Mtexel | heap peak MiB | maps vs whole \
-         (8-bit levels) |"
+        "\n| run | memory limit MiB | bands | seconds | seconds per output Mtexel | heap peak \
+         MiB | maps vs whole (8-bit levels) |"
     );
-    println!("|---|---|---|---|---|---|");
-    for (run, bands, seconds, per_mtexel, peak, difference) in &summary {
+    println!("|---|---|---|---|---|---|---|");
+    for (run, limit, bands, seconds, per_mtexel, peak, difference) in &summary {
         let difference = difference.map_or("-".into(), |d| d.to_string());
-        println!("| {run} | {bands} | {seconds:.1} | {per_mtexel:.2} | {peak:.0} | {difference} |");
+        let limit = limit.map_or("none".into(), |l| format!("{l:.0}"));
+        println!(
+            "| {run} | {limit} | {bands} | {seconds:.1} | {per_mtexel:.2} | {peak:.0} | \
+             {difference} |"
+        );
     }
     if let Some(rss) = peak_memory_mib() {
         println!("\nprocess peak resident memory over all runs: {rss:.0} MiB");
@@ -252,10 +295,9 @@ fn main() {
 }
 
 /// Heap peak and seconds per output Mtexel against the output's size (Mtexels, log scale),
-/// one point per size (the worst of its runs), with the memory limit drawn across.
+/// one point per size (the worst of its runs), each size's memory limit a red cross.
 fn plot_growth(
-    points: &[(f64, f64, f64)],
-    limit: Option<u64>,
+    points: &[(f64, f64, f64, Option<f64>)],
     path: &std::path::Path,
 ) -> Result<(), Box<dyn std::error::Error>> {
     use plotters::prelude::*;
@@ -269,11 +311,10 @@ fn plot_growth(
     let (left, right) = root.split_horizontally(600);
     let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max) * 2.0;
     let x_range = (1.0..x_max).log_scale();
-    let limit_mib = limit.map(|l| (l >> 20) as f64);
     let heap_max = points
         .iter()
         .map(|p| p.1)
-        .chain(limit_mib)
+        .chain(points.iter().filter_map(|p| p.3))
         .fold(1.0, f64::max)
         * 1.2;
     let mut chart = ChartBuilder::on(&left)
@@ -289,11 +330,15 @@ fn plot_growth(
             .iter()
             .map(|p| Circle::new((p.0, p.1), 4, BLUE.filled())),
     )?;
-    if let Some(l) = limit_mib {
-        chart
-            .draw_series(LineSeries::new([(1.0, l), (x_max, l)], &RED))?
-            .label(format!("--memory-limit {l:.0} MiB"))
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+    chart
+        .draw_series(
+            points
+                .iter()
+                .filter_map(|p| p.3.map(|l| Cross::new((p.0, l), 6, RED.stroke_width(2)))),
+        )?
+        .label("--memory-limit")
+        .legend(|(x, y)| Cross::new((x + 10, y), 6, RED.stroke_width(2)));
+    {
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))

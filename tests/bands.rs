@@ -38,9 +38,9 @@ fn bands_equal_the_whole_image() {
                 ..Config::default()
             };
             let whole = upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
-            // 32 MiB: bands of about 100 output rows at 512 wide.
+            // 20 MiB: bands of about 100 output rows at 512 wide.
             let limited = RunOptions {
-                memory_limit: Some(32 << 20),
+                memory_limit: Some(20 << 20),
                 ..RunOptions::default()
             };
             let (banded, report) = upscale(&lr, &config, &limited, &Silent).unwrap();

@@ -165,8 +165,8 @@ pub struct SettingsArgs {
     #[arg(long)]
     pub format: Option<FileFormat>,
     /// Heap the output is made within, e.g. 4G or 512M (binary units; a bare number is MiB).
-    /// Larger outputs are made in bands of rows and written as they finish. Default: an
-    /// eighth of the machine's memory, between 1G and 16G.
+    /// Larger outputs are made in bands of rows and written as they finish. Default: a
+    /// quarter of the machine's memory, between 1G and 16G.
     #[arg(long, value_parser = parse_memory)]
     pub memory_limit: Option<u64>,
 }

@@ -170,6 +170,21 @@ impl Map {
         Map::from_planar(w, count, self.channels, data)
     }
 
+    /// Keeps rows `first..first + count` of every plane in place (no second buffer: a band
+    /// dropping its context rows).
+    pub fn keep_rows(&mut self, first: usize, count: usize) {
+        assert!(first + count <= self.height);
+        let (w, n) = (self.width, self.texels());
+        for c in 0..self.channels {
+            self.data.copy_within(
+                c * n + first * w..c * n + (first + count) * w,
+                c * count * w,
+            );
+        }
+        self.data.truncate(self.channels * count * w);
+        self.height = count;
+    }
+
     /// The rows `source(0), source(1), …, source(count − 1)` of every plane: the rows a band
     /// reads, its context included (indices already wrapped or clamped by the caller).
     pub fn gather_rows(&self, count: usize, source: impl Fn(usize) -> usize) -> Map {

@@ -22,6 +22,12 @@ pub trait RgbUpsampler: Send + Sync {
         16
     }
 
+    /// The side of the pieces it works in, if any (a network's tiles): streamed runs make
+    /// their bands a multiple of it tall, so no band ends in a mostly empty row of tiles.
+    fn tile(&self) -> Option<usize> {
+        None
+    }
+
     /// Upsamples each image by `scale`. `border` says what lies beyond the edges:
     /// [`Border::Wrap`] for tileable materials, whose output must tile too.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>>;

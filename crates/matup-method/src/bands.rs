@@ -13,13 +13,13 @@ use matup_core::{Error, Result};
 
 /// Heap bytes a band needs per output texel it makes, context rows included: the residual
 /// base's 7 features, an upsampled map and the upsampler's accumulators, the 8 decoded maps,
-/// and the height solve's two f64 buffers with its blurs (measured with `cargo bench --bench
-/// memory`, 2K² → 8K² in bands; README "Memory of large outputs").
-pub const BYTES_PER_BAND_TEXEL: u64 = 150;
+/// and the height solve's two f64 buffers with its blurs (89 measured with `cargo bench
+/// --bench memory`, 1K² → 4K² in 17 bands; README "Memory of large outputs").
+pub const BYTES_PER_BAND_TEXEL: u64 = 96;
 
-/// Heap bytes per output texel that do not shrink with the band: the level's LR input and its
-/// features, and the writers' buffers, per LR texel times `scale²` (see [`plan_bands`]).
-pub const BYTES_PER_LR_TEXEL: u64 = 200;
+/// Heap bytes per LR texel that do not shrink with the band: the level's input (36 bytes a
+/// texel with height), what the caller holds beside it, the writers' buffers.
+pub const BYTES_PER_LR_TEXEL: u64 = 100;
 
 /// The fewest LR rows a band keeps: narrower bands would spend most of their time on context.
 pub const MIN_BAND_ROWS: usize = 8;
@@ -48,10 +48,25 @@ impl Band {
         m.map_maps(|map| self.read(map))
     }
 
-    /// The rows of `out`, made from [`Band::read`]'s rows at `scale`, that this band keeps.
-    pub fn keep(&self, out: &Material, scale: usize) -> Material {
+    /// Cuts `out`, made from [`Band::read`]'s rows at `scale`, down to the rows this band
+    /// keeps, in place.
+    pub fn keep(&self, out: &mut Material, scale: usize) {
         let skip = (self.first as isize - self.read_first) as usize * scale;
-        out.map_maps(|m| m.rows(skip, self.rows * scale))
+        let rows = self.rows * scale;
+        out.base_color.keep_rows(skip, rows);
+        out.normal.keep_rows(skip, rows);
+        out.roughness.keep_rows(skip, rows);
+        out.metallic.keep_rows(skip, rows);
+        for map in [
+            &mut out.height,
+            &mut out.anisotropy,
+            &mut out.anisotropy_angle,
+        ]
+        .into_iter()
+        .flatten()
+        {
+            map.keep_rows(skip, rows);
+        }
     }
 }
 
@@ -111,13 +126,16 @@ impl BandPlan {
 }
 
 /// The bands for an LR input of `width × height` upsampled by `scale` within `limit` bytes
-/// of heap (none: one band), each reading `context` LR rows beyond what it keeps. One band
-/// when the whole fits; an error naming the limit when not even [`MIN_BAND_ROWS`] rows do.
+/// of heap (none: one band), each reading `context` LR rows beyond what it keeps, and as many
+/// rows as a multiple of `tile` where one fits (the upsampler's tiles: a band of 133 rows
+/// would run two rows of 128² tiles). One band when the whole fits; an error naming the limit
+/// when not even [`MIN_BAND_ROWS`] rows do.
 pub fn plan_bands(
     width: usize,
     height: usize,
     scale: usize,
     context: usize,
+    tile: Option<usize>,
     border: Border,
     limit: Option<u64>,
 ) -> Result<BandPlan> {
@@ -132,8 +150,12 @@ pub fn plan_bands(
     if rows_fitting >= height {
         return Ok(whole);
     }
-    let rows = rows_fitting.saturating_sub(2 * context);
-    if rows < MIN_BAND_ROWS {
+    let aligned = |read: usize| match tile {
+        Some(t) if t > 0 && read / t * t >= 2 * context + MIN_BAND_ROWS => read / t * t,
+        _ => read,
+    };
+    let most = aligned(rows_fitting).saturating_sub(2 * context);
+    if most < MIN_BAND_ROWS {
         let needed = fixed + per_lr_row * (MIN_BAND_ROWS + 2 * context) as u64;
         return Err(Error::Invalid(format!(
             "a memory limit of {} MiB is too low for {width}×{height} → {}×{}: bands of {} \
@@ -145,6 +167,15 @@ pub fn plan_bands(
             needed.div_ceil(1 << 20)
         )));
     }
+    // As few bands as fit, of even height (rounded up to whole tiles where that still fits):
+    // no more memory than they need.
+    let mut rows = height.div_ceil(height.div_ceil(most));
+    if let Some(t) = tile.filter(|&t| t > 0) {
+        let read = (rows + 2 * context).next_multiple_of(t);
+        if read - 2 * context <= most {
+            rows = read - 2 * context;
+        }
+    }
     Ok(BandPlan {
         height,
         rows,
@@ -153,9 +184,10 @@ pub fn plan_bands(
     })
 }
 
-/// The default memory limit: an eighth of the machine's memory (Linux's `MemTotal`; 16 GiB
-/// elsewhere), between 1 and 16 GiB. A share, not all: the machine runs other things, and
-/// bands cost little time (README "Memory of large outputs").
+/// The default memory limit: a quarter of the machine's memory (Linux's `MemTotal`; 16 GiB
+/// elsewhere), between 1 and 16 GiB. A share, not all: the machine runs other things; and
+/// not less, because narrow bands repeat their context's work (README "Memory of large
+/// outputs").
 pub fn default_memory_limit() -> u64 {
     const GIB: u64 = 1 << 30;
     let total = std::fs::read_to_string("/proc/meminfo")
@@ -165,8 +197,8 @@ pub fn default_memory_limit() -> u64 {
             let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
             Some(kib * 1024)
         })
-        .unwrap_or(16 * GIB * 8);
-    (total / 8).clamp(GIB, 16 * GIB)
+        .unwrap_or(16 * GIB * 4);
+    (total / 4).clamp(GIB, 16 * GIB)
 }
 
 /// Assembles a level's bands into one material (levels before the last, and
@@ -259,29 +291,37 @@ mod tests {
         // band's own.
         let mut material = Material::uniform(1, [0.0; 3], 0.5, 0.0);
         material = material.map_maps(|_| Map::from_fn(6, 16, 1, |_, y, _| y as f32));
-        let kept = band.keep(&material, 2);
-        assert_eq!(kept.roughness.height(), 8);
-        assert_eq!(kept.roughness.get(0, 0, 0), 4.0);
+        band.keep(&mut material, 2);
+        assert_eq!(material.roughness.height(), 8);
+        assert_eq!(material.roughness.get(0, 0, 0), 4.0);
+        assert_eq!(material.roughness.get(0, 7, 5), 11.0);
     }
 
     #[test]
     fn the_plan_fits_the_limit_or_says_why_not() {
         let mib = 1u64 << 20;
         // No limit, or a generous one: one band.
-        assert!(plan_bands(512, 512, 4, 30, Border::Wrap, None)
+        assert!(plan_bands(512, 512, 4, 30, None, Border::Wrap, None)
             .unwrap()
             .is_whole());
-        assert!(plan_bands(512, 512, 4, 30, Border::Wrap, Some(4096 * mib))
-            .unwrap()
-            .is_whole());
+        assert!(
+            plan_bands(512, 512, 4, 30, None, Border::Wrap, Some(4096 * mib))
+                .unwrap()
+                .is_whole()
+        );
         // 512 LR columns ×4: a row of bands costs 150 · 16 · 512 bytes = 1.17 MiB.
-        let p = plan_bands(512, 512, 4, 30, Border::Wrap, Some(200 * mib)).unwrap();
+        let p = plan_bands(512, 512, 4, 30, None, Border::Wrap, Some(200 * mib)).unwrap();
         assert!(!p.is_whole());
         let fixed = BYTES_PER_LR_TEXEL * 512 * 512;
         let band = BYTES_PER_BAND_TEXEL * 16 * 512 * (p.rows + 2 * p.context) as u64;
         assert!(fixed + band <= 200 * mib, "{p:?}");
-        let error = plan_bands(512, 512, 4, 30, Border::Wrap, Some(60 * mib)).unwrap_err();
-        assert!(error.to_string().contains("60 MiB"), "{error}");
+        // With 128-row tiles, the rows read are a multiple of them.
+        let tiled = plan_bands(512, 512, 4, 30, Some(128), Border::Wrap, Some(200 * mib));
+        let tiled = tiled.unwrap();
+        assert_eq!((tiled.rows + 2 * tiled.context) % 128, 0, "{tiled:?}");
+        assert!(tiled.rows <= p.rows);
+        let error = plan_bands(512, 512, 4, 30, None, Border::Wrap, Some(40 * mib)).unwrap_err();
+        assert!(error.to_string().contains("40 MiB"), "{error}");
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! The method end to end: one function over a [`Config`] that runs the stages in order and
 //! reports progress through a callback. It does not know which plugins exist.
 
+use std::borrow::Cow;
 use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
@@ -219,7 +220,8 @@ pub fn upscale_streamed(
 
     let scales = config.levels();
     let mut levels = Vec::new();
-    let mut current = material.clone();
+    // The input itself for level 1 (no copy: at 4K² it is 600 MB), then each level's output.
+    let mut current = Cow::Borrowed(material);
     let mut single_filter: Option<TrainedFilter> = None;
     for (level, &scale) in scales.iter().enumerate() {
         let last = level + 1 == scales.len();
@@ -244,7 +246,7 @@ pub fn upscale_streamed(
         )?;
         levels.push(report);
         if let Some(a) = assembler {
-            current = a.finish().expect("a level makes at least one band");
+            current = Cow::Owned(a.finish().expect("a level makes at least one band"));
         }
     }
 
@@ -421,11 +423,16 @@ fn run_level(
         } else {
             0
         };
+    let tile = match config.filter.residual_base {
+        ResidualBase::Upsampler => ctx.upsampler.tile(),
+        ResidualBase::Kernel(_) => None,
+    };
     let plan = plan_bands(
         lr.width(),
         lr.height_px(),
         scale,
         context,
+        tile,
         ctx.border,
         ctx.options.memory_limit,
     )?;
@@ -488,8 +495,10 @@ fn run_level(
             })?);
             inner.advance(1, None);
         }
-        let kept = if whole { hr } else { band.keep(&hr, scale) };
-        emit(band.first * scale, &kept)?;
+        if !whole {
+            band.keep(&mut hr, scale);
+        }
+        emit(band.first * scale, &hr)?;
         if !whole {
             ctx.progress.advance(1, None);
         }

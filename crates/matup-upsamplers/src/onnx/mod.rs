@@ -584,6 +584,14 @@ impl RgbUpsampler for OnnxUpsampler {
         self.info.overlap
     }
 
+    /// The sidecar's tile (or the network's fixed input less its overlap).
+    fn tile(&self) -> Option<usize> {
+        match self.fixed[1] {
+            Some(window) => window.checked_sub(2 * self.info.overlap).filter(|&c| c > 0),
+            None => Some(self.info.tile),
+        }
+    }
+
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         let s = self.info.scale;
         if scale != s {
