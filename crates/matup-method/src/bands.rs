@@ -13,9 +13,10 @@ use matup_core::{Error, Result};
 
 /// Heap bytes a band needs per output texel it makes, context rows included: the residual
 /// base's 7 features, an upsampled map and the upsampler's accumulators, the 8 decoded maps,
-/// and the height solve's two f64 buffers with its blurs (89 measured with `cargo bench
-/// --bench memory`, 1K² → 4K² in 17 bands; README "Memory of large outputs").
-pub const BYTES_PER_BAND_TEXEL: u64 = 96;
+/// and the height solve's two f64 buffers with its blurs. `cargo bench --bench memory`
+/// measured 56 to 65 (1K², 2K², 4K² → ×4 in 3 to 5 bands; README "Memory of large
+/// outputs"); the rest is headroom for what the process holds beside the heap.
+pub const BYTES_PER_BAND_TEXEL: u64 = 80;
 
 /// Heap bytes per LR texel that do not shrink with the band: the level's input (36 bytes a
 /// texel with height), what the caller holds beside it, the writers' buffers.
@@ -71,65 +72,88 @@ impl Band {
 }
 
 /// How a level's LR rows are cut into bands.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BandPlan {
-    /// LR rows in all.
-    pub height: usize,
-    /// LR rows each band keeps (the last may keep fewer).
-    pub rows: usize,
-    /// LR rows of context read above and below a band.
-    pub context: usize,
-    pub border: Border,
+    bands: Vec<Band>,
 }
 
 impl BandPlan {
     /// The whole image as one band.
-    pub fn whole(height: usize, border: Border) -> BandPlan {
+    pub fn whole(height: usize) -> BandPlan {
         BandPlan {
-            height,
-            rows: height.max(1),
-            context: 0,
-            border,
+            bands: vec![Band {
+                first: 0,
+                rows: height,
+                read_first: 0,
+                read_rows: height,
+            }],
         }
     }
 
+    /// Bands of `height` rows, each reading at most `max_read` rows: `context` rows above and
+    /// below what it keeps (wrapped around with [`Border::Wrap`]; none past the edge
+    /// otherwise, where the band keeps those rows instead), every band but the last as large
+    /// as `max_read` allows. Needs `max_read > 2 · context`.
+    pub fn greedy(height: usize, max_read: usize, context: usize, border: Border) -> BandPlan {
+        assert!(
+            max_read > 2 * context,
+            "bands of {max_read} rows, {context} of context"
+        );
+        let wrap = border == Border::Wrap;
+        let mut bands = Vec::new();
+        let mut first = 0;
+        while first < height {
+            let above = if wrap { context } else { context.min(first) };
+            let rest = height - first;
+            let rows = if wrap {
+                rest.min(max_read - 2 * context)
+            } else if above + rest <= max_read {
+                rest
+            } else {
+                max_read - above - context
+            };
+            let below = if wrap {
+                context
+            } else {
+                context.min(rest - rows)
+            };
+            bands.push(Band {
+                first,
+                rows,
+                read_first: first as isize - above as isize,
+                read_rows: above + rows + below,
+            });
+            first += rows;
+        }
+        BandPlan { bands }
+    }
+
     pub fn count(&self) -> usize {
-        self.height.div_ceil(self.rows)
+        self.bands.len()
     }
 
     pub fn is_whole(&self) -> bool {
         self.count() <= 1
     }
 
+    /// The most LR rows a band keeps.
+    pub fn rows(&self) -> usize {
+        self.bands.iter().map(|b| b.rows).max().unwrap_or(0)
+    }
+
     pub fn bands(&self) -> impl Iterator<Item = Band> + '_ {
-        (0..self.height).step_by(self.rows).map(move |first| {
-            let rows = self.rows.min(self.height - first);
-            let (read_first, read_end) = if self.is_whole() {
-                (0, self.height as isize)
-            } else if self.border == Border::Wrap {
-                let c = self.context as isize;
-                (first as isize - c, (first + rows) as isize + c)
-            } else {
-                (
-                    first.saturating_sub(self.context) as isize,
-                    (first + rows + self.context).min(self.height) as isize,
-                )
-            };
-            Band {
-                first,
-                rows,
-                read_first,
-                read_rows: (read_end - read_first) as usize,
-            }
-        })
+        self.bands.iter().copied()
     }
 }
 
 /// The bands for an LR input of `width × height` upsampled by `scale` within `limit` bytes
-/// of heap (none: one band), each reading `context` LR rows beyond what it keeps, and as many
-/// rows as a multiple of `tile` where one fits (the upsampler's tiles: a band of 133 rows
-/// would run two rows of 128² tiles). One band when the whole fits; an error naming the limit
-/// when not even [`MIN_BAND_ROWS`] rows do.
+/// of heap (none: one band), each reading `context` LR rows beyond what it keeps. One band
+/// when the whole fits; an error naming the limit when not even [`MIN_BAND_ROWS`] rows do.
+///
+/// The rows a band reads are a multiple of `tile` where that fits (the upsampler's tiles: a
+/// band reading 133 rows would run two rows of 128² tiles), and every band but the last
+/// reads as many as fit: the work repeated is the context's, twice per band boundary, so the
+/// fewest bands cost the least.
 pub fn plan_bands(
     width: usize,
     height: usize,
@@ -139,7 +163,7 @@ pub fn plan_bands(
     border: Border,
     limit: Option<u64>,
 ) -> Result<BandPlan> {
-    let whole = BandPlan::whole(height, border);
+    let whole = BandPlan::whole(height);
     let Some(limit) = limit else {
         return Ok(whole);
     };
@@ -150,12 +174,13 @@ pub fn plan_bands(
     if rows_fitting >= height {
         return Ok(whole);
     }
-    let aligned = |read: usize| match tile {
-        Some(t) if t > 0 && read / t * t >= 2 * context + MIN_BAND_ROWS => read / t * t,
-        _ => read,
+    let max_read = match tile {
+        Some(t) if t > 0 && rows_fitting / t * t >= 2 * context + MIN_BAND_ROWS => {
+            rows_fitting / t * t
+        }
+        _ => rows_fitting,
     };
-    let most = aligned(rows_fitting).saturating_sub(2 * context);
-    if most < MIN_BAND_ROWS {
+    if max_read < 2 * context + MIN_BAND_ROWS {
         let needed = fixed + per_lr_row * (MIN_BAND_ROWS + 2 * context) as u64;
         return Err(Error::Invalid(format!(
             "a memory limit of {} MiB is too low for {width}×{height} → {}×{}: bands of {} \
@@ -167,21 +192,7 @@ pub fn plan_bands(
             needed.div_ceil(1 << 20)
         )));
     }
-    // As few bands as fit, of even height (rounded up to whole tiles where that still fits):
-    // no more memory than they need.
-    let mut rows = height.div_ceil(height.div_ceil(most));
-    if let Some(t) = tile.filter(|&t| t > 0) {
-        let read = (rows + 2 * context).next_multiple_of(t);
-        if read - 2 * context <= most {
-            rows = read - 2 * context;
-        }
-    }
-    Ok(BandPlan {
-        height,
-        rows,
-        context,
-        border,
-    })
+    Ok(BandPlan::greedy(height, max_read, context, border))
 }
 
 /// The default memory limit: a quarter of the machine's memory (Linux's `MemTotal`; 16 GiB
@@ -248,39 +259,30 @@ impl Assembler {
 mod tests {
     use super::*;
 
-    fn plan(height: usize, rows: usize, context: usize, border: Border) -> BandPlan {
-        BandPlan {
-            height,
-            rows,
-            context,
-            border,
-        }
+    fn reads(plan: &BandPlan) -> Vec<(usize, usize, isize, usize)> {
+        plan.bands()
+            .map(|b| (b.first, b.rows, b.read_first, b.read_rows))
+            .collect()
     }
 
     #[test]
     fn bands_cover_every_row_once_with_their_context() {
-        let bands: Vec<Band> = plan(10, 4, 2, Border::Mirror).bands().collect();
-        let firsts: Vec<(usize, usize, isize, usize)> = bands
-            .iter()
-            .map(|b| (b.first, b.rows, b.read_first, b.read_rows))
-            .collect();
-        // Mirror: no context beyond the edges.
-        assert_eq!(firsts, [(0, 4, 0, 6), (4, 4, 2, 8), (8, 2, 6, 4)]);
-        let wrapped: Vec<(isize, usize)> = plan(10, 4, 2, Border::Wrap)
-            .bands()
-            .map(|b| (b.read_first, b.read_rows))
-            .collect();
-        assert_eq!(wrapped, [(-2, 8), (2, 8), (6, 6)]);
+        // Mirror: no context beyond the edges; the first and last bands keep those rows.
+        let mirrored = BandPlan::greedy(10, 8, 2, Border::Mirror);
+        assert_eq!(reads(&mirrored), [(0, 6, 0, 8), (6, 4, 4, 6)]);
+        let wrapped = BandPlan::greedy(10, 8, 2, Border::Wrap);
+        assert_eq!(reads(&wrapped), [(0, 4, -2, 8), (4, 4, 2, 8), (8, 2, 6, 6)]);
         // One band reads the rows as they are, even when tileable.
-        let whole: Vec<Band> = BandPlan::whole(10, Border::Wrap).bands().collect();
-        assert_eq!(whole.len(), 1);
-        assert_eq!((whole[0].read_first, whole[0].read_rows), (0, 10));
+        assert_eq!(reads(&BandPlan::whole(10)), [(0, 10, 0, 10)]);
     }
 
     #[test]
     fn a_band_reads_wrapped_rows_and_keeps_its_own() {
         let m = Map::from_fn(3, 10, 2, |c, y, x| (c * 100 + y * 10 + x) as f32);
-        let band = plan(10, 4, 2, Border::Wrap).bands().next().unwrap();
+        let band = BandPlan::greedy(10, 8, 2, Border::Wrap)
+            .bands()
+            .next()
+            .unwrap();
         let read = band.read(&m);
         let first_column: Vec<f32> = (0..read.height()).map(|y| read.get(1, y, 0)).collect();
         assert_eq!(
@@ -309,17 +311,25 @@ mod tests {
                 .unwrap()
                 .is_whole()
         );
-        // 512 LR columns ×4: a row of bands costs 150 · 16 · 512 bytes = 1.17 MiB.
-        let p = plan_bands(512, 512, 4, 30, None, Border::Wrap, Some(200 * mib)).unwrap();
-        assert!(!p.is_whole());
         let fixed = BYTES_PER_LR_TEXEL * 512 * 512;
-        let band = BYTES_PER_BAND_TEXEL * 16 * 512 * (p.rows + 2 * p.context) as u64;
-        assert!(fixed + band <= 200 * mib, "{p:?}");
-        // With 128-row tiles, the rows read are a multiple of them.
-        let tiled = plan_bands(512, 512, 4, 30, Some(128), Border::Wrap, Some(200 * mib));
-        let tiled = tiled.unwrap();
-        assert_eq!((tiled.rows + 2 * tiled.context) % 128, 0, "{tiled:?}");
-        assert!(tiled.rows <= p.rows);
+        let band_bytes = |read: usize| BYTES_PER_BAND_TEXEL * 16 * 512 * read as u64;
+        for border in [Border::Wrap, Border::Mirror] {
+            for tile in [None, Some(128)] {
+                let p = plan_bands(512, 512, 4, 30, tile, border, Some(200 * mib)).unwrap();
+                assert!(p.count() > 1, "{p:?}");
+                let mut next = 0;
+                for (i, band) in p.bands().enumerate() {
+                    assert_eq!(band.first, next, "{p:?}");
+                    next += band.rows;
+                    assert!(fixed + band_bytes(band.read_rows) <= 200 * mib, "{p:?}");
+                    // Every band but the last reads whole tiles.
+                    if let (Some(t), true) = (tile, i + 1 < p.count()) {
+                        assert_eq!(band.read_rows % t, 0, "{p:?}");
+                    }
+                }
+                assert_eq!(next, 512);
+            }
+        }
         let error = plan_bands(512, 512, 4, 30, None, Border::Wrap, Some(40 * mib)).unwrap_err();
         assert!(error.to_string().contains("40 MiB"), "{error}");
     }

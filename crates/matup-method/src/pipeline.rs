@@ -444,10 +444,10 @@ fn run_level(
     let inner: &dyn Progress = if whole { ctx.progress } else { &Silent };
     if !whole {
         ctx.progress.note(&format!(
-            "level {}: {} bands of {} rows (memory limit {} MiB)",
+            "level {}: {} bands of up to {} rows (memory limit {} MiB)",
             level + 1,
             plan.count(),
-            plan.rows * scale,
+            plan.rows() * scale,
             ctx.options.memory_limit.unwrap_or(0) >> 20
         ));
         ctx.progress.stage(&tag("bands"), plan.count() as u64);
