@@ -39,6 +39,12 @@ pub struct LearnConfig {
     /// Weight of the normal term (mean chordal distance between the normals) beside the renders.
     #[serde(default)]
     pub normal_weight: f64,
+    /// Pull toward the base model's weights: after each step every weight `w` moves by
+    /// `learning_rate · anchor_weight · (w₀ − w)` toward its start `w₀` (decoupled, as AdamW
+    /// decays toward zero; the idea of L2-SP, Li et al. 2018). A blend with the base model
+    /// learned while training rather than chosen after; 0: none.
+    #[serde(default)]
+    pub anchor_weight: f64,
     /// Steps between checkpoints.
     #[serde(default = "default_checkpoint_every")]
     pub checkpoint_every: usize,
@@ -125,6 +131,14 @@ impl LearnConfig {
         }
         if !self.learning_rate.is_finite() || self.learning_rate <= 0.0 {
             return Err("learning_rate must be positive".into());
+        }
+        let pull = self.learning_rate * self.anchor_weight;
+        if !(0.0..=1.0).contains(&pull) {
+            return Err(format!(
+                "anchor_weight {} must be at least 0 and at most 1 / learning_rate ({})",
+                self.anchor_weight,
+                1.0 / self.learning_rate
+            ));
         }
         self.loss_norm().map_err(|e| e.to_string())?;
         Ok(())

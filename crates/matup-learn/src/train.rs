@@ -30,12 +30,16 @@ use crate::export::export;
 use crate::net::TrainableNet;
 use crate::shipped::{decode_outputs, normal_chord, shading_params, shown, BackProjection};
 
-/// Adam (Kingma & Ba 2015) over the network's tensors, its moments checkpointed with them.
+/// Adam (Kingma & Ba 2015) over the network's tensors, its moments checkpointed with them;
+/// with an anchor, each step also pulls the weights toward where they started
+/// ([`LearnConfig::anchor_weight`]).
 struct Adam {
     m: Vec<Tensor>,
     v: Vec<Tensor>,
     step: usize,
     learning_rate: f64,
+    /// The starting weights and the pull's weight.
+    anchor: Option<(Vec<Tensor>, f64)>,
 }
 
 const BETA1: f64 = 0.9;
@@ -43,13 +47,22 @@ const BETA2: f64 = 0.999;
 const EPSILON: f64 = 1e-8;
 
 impl Adam {
-    fn new(vars: &[Var], learning_rate: f64) -> candle_core::Result<Adam> {
+    /// For `vars` as they are now (the base model's weights, the anchor's start).
+    fn new(vars: &[Var], learning_rate: f64, anchor_weight: f64) -> candle_core::Result<Adam> {
         let zeros = |v: &Var| v.as_tensor().zeros_like();
+        // A copy: a `Var`'s tensor is updated in place.
+        let start = |v: &Var| v.as_tensor().copy();
         Ok(Adam {
             m: vars.iter().map(zeros).collect::<candle_core::Result<_>>()?,
             v: vars.iter().map(zeros).collect::<candle_core::Result<_>>()?,
             step: 0,
             learning_rate,
+            anchor: if anchor_weight > 0.0 {
+                let start = vars.iter().map(start).collect::<candle_core::Result<_>>()?;
+                Some((start, anchor_weight))
+            } else {
+                None
+            },
         })
     }
 
@@ -57,13 +70,16 @@ impl Adam {
         self.step += 1;
         let c1 = 1.0 - BETA1.powi(self.step as i32);
         let c2 = 1.0 - BETA2.powi(self.step as i32);
-        for ((var, m), v) in vars.iter().zip(&mut self.m).zip(&mut self.v) {
+        for (i, ((var, m), v)) in vars.iter().zip(&mut self.m).zip(&mut self.v).enumerate() {
             let Some(g) = grads.get(var.as_tensor()) else {
                 continue;
             };
             *m = ((&*m * BETA1)? + (g * (1.0 - BETA1))?)?;
             *v = ((&*v * BETA2)? + (g.sqr()? * (1.0 - BETA2))?)?;
-            let step = ((&*m / c1)? / ((&*v / c2)?.sqrt()? + EPSILON)?)?;
+            let mut step = ((&*m / c1)? / ((&*v / c2)?.sqrt()? + EPSILON)?)?;
+            if let Some((start, weight)) = &self.anchor {
+                step = (step + ((var.as_tensor() - &start[i])? * *weight)?)?;
+            }
             var.set(&(var.as_tensor() - (step * self.learning_rate)?)?)?;
         }
         Ok(())
@@ -474,7 +490,7 @@ pub fn train(
         dir: dir.to_path_buf(),
     };
     let vars = trainer.net.vars();
-    let mut adam = Adam::new(&vars, config.learning_rate)?;
+    let mut adam = Adam::new(&vars, config.learning_rate, config.anchor_weight)?;
     let info = load_checkpoint(&files, &vars, &mut adam, config, device)?;
     let resumed_from = info.as_ref().map(|i| i.iteration);
     let mut iteration = resumed_from.unwrap_or(0);

@@ -257,6 +257,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         learning_rate: 2e-4,
         loss: "l11".into(),
         normal_weight: 0.1,
+        anchor_weight: 0.0,
         checkpoint_every: 2,
         validate_every: 3,
         val_crop: 32,
@@ -392,6 +393,60 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
         4,
         "{val}"
     );
+}
+
+#[test]
+fn an_anchored_run_stays_near_the_network_it_started_from() {
+    let dir = tempfile::tempdir().unwrap();
+    let device = Device::Cpu;
+    let config = LearnConfig {
+        validate_every: 0,
+        ..tiny_run(dir.path(), 8)
+    };
+    // How far the weights went from the stock network's, root mean square over all.
+    let distance = |name: &str, anchor_weight: f64| {
+        let run = dir.path().join(name);
+        let config = LearnConfig {
+            anchor_weight,
+            ..config.clone()
+        };
+        train(&config, &run, &device, &matup_core::progress::Silent).unwrap();
+        let stock = TrainableNet::load(&config.base_model, &device).unwrap();
+        let (mut sum, mut count) = (0.0f64, 0usize);
+        for (i, start) in stock.vars().iter().enumerate() {
+            let start = start
+                .as_tensor()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap();
+            let (_, now) = checkpoint_tensors(&run)
+                .into_iter()
+                .find(|(k, _)| *k == format!("w{i}"))
+                .unwrap();
+            sum += start
+                .iter()
+                .zip(&now)
+                .map(|(a, b)| ((a - b) as f64).powi(2))
+                .sum::<f64>();
+            count += start.len();
+        }
+        (sum / count as f64).sqrt()
+    };
+    let free = distance("free", 0.0);
+    // Pulled all the way back after each step: only the last step's move remains.
+    let anchored = distance("anchored", 1.0 / config.learning_rate);
+    println!("RMS distance from stock after 8 steps: {free:.2e} free, {anchored:.2e} anchored");
+    assert!(free > 0.0 && anchored < 0.5 * free, "{free} {anchored}");
+    // A pull past the start is refused.
+    let path = dir.path().join("over.toml");
+    let over = LearnConfig {
+        anchor_weight: 2.0 / config.learning_rate,
+        ..config.clone()
+    };
+    std::fs::write(&path, toml::to_string(&over).unwrap()).unwrap();
+    let error = LearnConfig::load(&path).unwrap_err().to_string();
+    assert!(error.contains("anchor_weight"), "{error}");
 }
 
 /// Trains the run in `dir` up to `steps` steps of `config` (whose count is larger): the
