@@ -14,8 +14,8 @@ use matup_core::{Error, Result};
 /// Heap bytes a band needs per output texel it makes, context rows included: the residual
 /// base's 7 features, an upsampled map and the upsampler's accumulators, the 8 decoded maps,
 /// and the height solve's two f64 buffers with its blurs. `cargo bench --bench memory`
-/// measured 56 to 65 (1K², 2K², 4K² → ×4 in 3 to 5 bands; README "Memory of large
-/// outputs"); the rest is headroom for what the process holds beside the heap.
+/// measured 64 at 2K² and 4K² → ×4 (2 and 4 bands) and 73 at 1K² (3 small bands; README
+/// "Memory of large outputs"); the rest is headroom for what the process holds beside the heap.
 pub const BYTES_PER_BAND_TEXEL: u64 = 80;
 
 /// Heap bytes per LR texel that do not shrink with the band: the level's input (36 bytes a
@@ -151,7 +151,7 @@ impl BandPlan {
 /// when the whole fits; an error naming the limit when not even [`MIN_BAND_ROWS`] rows do.
 ///
 /// The rows a band reads are a multiple of `tile` where that fits (the upsampler's tiles: a
-/// band reading 133 rows would run two rows of 128² tiles), and every band but the last
+/// band reading 261 rows would run two rows of 256² tiles), and every band but the last
 /// reads as many as fit: the work repeated is the context's, twice per band boundary, so the
 /// fewest bands cost the least.
 pub fn plan_bands(

@@ -566,15 +566,20 @@ fn blend_weights(
 }
 
 impl OnnxUpsampler {
-    /// The tiling of an axis of `len` texels: cores of the sidecar's `tile` with `overlap`
-    /// texels of context on each side; for a network with a fixed input size (`fixed`),
+    /// The tiling of an axis of `len` texels: even cores of at most the sidecar's `tile`, with
+    /// `overlap` texels of context on each side; for a network with a fixed input size (`fixed`),
     /// windows of exactly that size, their cores as large as the overlap allows (or the whole
     /// axis, with more context, when it is shorter).
     fn tile_axis(&self, len: usize, fixed: Option<usize>) -> Result<TileAxis> {
         let o = self.info.overlap;
         match fixed {
             None => {
-                let core = self.info.tile.min(len);
+                // As few tiles as `tile` allows, their cores evened out: 840 texels in tiles
+                // of 256 run four cores of 210, not three of 256 and a fourth shifted back
+                // over the third (a band of rows of a larger output ends so, 12 % more work
+                // at 2K² → 8K² in 2 bands).
+                let count = len.div_ceil(self.info.tile.max(1));
+                let core = len.div_ceil(count.max(1));
                 Ok(TileAxis {
                     core,
                     before: o,
