@@ -699,7 +699,7 @@ impl RgbUpsampler for OnnxUpsampler {
                 // run of its plane. Writing the three planes and a weight plane at once (each
                 // 256 MB apart at 8K²) cost 7.5× the time per texel at 8K² that it did at 4K²
                 // (perf), 14 s of 2K² → 8K²'s 174.
-                acc.par_chunks_mut(out_w * out_h)
+                acc.par_chunks_mut((out_w * out_h).max(1))
                     .enumerate()
                     .for_each(|(c, plane)| {
                         for (&(i, j), out) in group.iter().zip(&outputs) {
