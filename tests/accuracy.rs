@@ -259,6 +259,77 @@ fn self_validation_picks_per_map_upsampling_when_it_is_best() {
 }
 
 #[test]
+fn selection_among_upsamplers_runs_the_one_that_validates_best() {
+    // A real material's 128² crop as the input: SPAN (the defaults' `auto`) and bilinear,
+    // each through the defaults, validated at 32².
+    let m = matup::load_material(
+        Some(&common::shared_material("polyhaven_coast_sand_rocks_02")),
+        &Default::default(),
+    )
+    .unwrap()
+    .crop(0, 0, 512, 512)
+    .box_downsample(4);
+    let config = Config {
+        select: Selection::Upsampler,
+        select_upsamplers: vec!["bilinear".into(), "auto".into()],
+        seed: 1,
+        ..Config::default()
+    };
+    let (result, report) = matup::upscale(&m, &config, &RunOptions::default(), &Silent).unwrap();
+    let selection = report.selection.expect("validated");
+    let names: Vec<_> = selection
+        .candidates
+        .iter()
+        .map(|c| c.name.as_str())
+        .collect();
+    // The configured upsampler first; "auto" again is the same setting, validated once.
+    assert_eq!(names, ["upsampler auto", "upsampler bilinear"]);
+    assert_eq!(selection.validation_size, [32, 32]);
+    for c in &selection.candidates {
+        println!(
+            "{}: {:.3} dB, FLIP {:.4}",
+            c.name, c.render_psnr, c.render_flip
+        );
+    }
+    // The best score wins, and the run goes on with its upsampler: what a plain run with it
+    // gives.
+    let best = (selection.candidates.iter())
+        .max_by(|a, b| a.score.total_cmp(&b.score))
+        .unwrap();
+    assert_eq!(selection.chosen, best.name);
+    let upsampler = best.name.trim_start_matches("upsampler ").to_string();
+    assert_eq!(report.config.upsampler, upsampler);
+    assert_eq!(report.config.select, Selection::Off);
+    let plain = Config {
+        upsampler,
+        seed: 1,
+        ..Config::default()
+    };
+    let (plain, _) = matup::upscale(&m, &plain, &RunOptions::default(), &Silent).unwrap();
+    assert_eq!(result.normal.data(), plain.normal.data());
+    assert_eq!(result.base_color.data(), plain.base_color.data());
+    // Candidates without a selection, or a selection without candidates, are refused.
+    for (select, upsamplers, says) in [
+        (
+            Selection::Off,
+            vec!["bilinear".to_string()],
+            "select = \"upsampler\"",
+        ),
+        (Selection::Upsampler, vec![], "select_upsamplers"),
+    ] {
+        let c = Config {
+            select,
+            select_upsamplers: upsamplers,
+            ..Config::default()
+        };
+        let e = matup::upscale(&m, &c, &RunOptions::default(), &Silent)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(says), "{e}");
+    }
+}
+
+#[test]
 fn a_crop_of_a_tileable_material_is_not_called_tileable() {
     for name in ["polyhaven_denim_fabric", "polyhaven_wood_cabinet_worn_long"] {
         let m = matup::load_material(Some(&common::shared_material(name)), &Default::default())

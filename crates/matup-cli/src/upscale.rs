@@ -149,9 +149,14 @@ pub struct SettingsArgs {
     /// `metallic=0.1,normal=1` (keys base_color, metallic, normal, roughness).
     #[arg(long, value_name = "KEY=W,...")]
     pub prior: Option<String>,
-    /// auto: choose the settings by validating candidates one scale down; off: as given.
+    /// auto: choose the settings by validating candidates one scale down; upsampler: choose
+    /// only the upsampler, among --upsampler and each --select-upsampler; off: as given.
     #[arg(long)]
     pub select: Option<Selection>,
+    /// One more upsampler for --select to validate (repeatable), e.g. a fine-tuned network
+    /// beside the stock one: `--select upsampler --select-upsampler onnx:tuned.onnx`.
+    #[arg(long = "select-upsampler", value_name = "SPEC")]
+    pub select_upsamplers: Vec<String>,
     /// β, weight of the LR-consistency term.
     #[arg(long)]
     pub lr_consistency: Option<f32>,
@@ -235,6 +240,9 @@ impl SettingsArgs {
             select => select,
             lr_consistency => train.lr_consistency, cross_scale => train.cross_scale,
         );
+        if !self.select_upsamplers.is_empty() {
+            c.select_upsamplers = self.select_upsamplers.clone();
+        }
         if let Some(p) = &self.prior {
             c.train.prior.set(p)?;
         }

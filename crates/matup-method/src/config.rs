@@ -278,6 +278,9 @@ pub enum Selection {
     /// Score the candidate settings on the LR material downsampled once more (where the LR
     /// material is the truth) and run the best.
     Auto,
+    /// As `Auto`, with only the upsampler as candidates: the configured one and each of
+    /// [`Config::select_upsamplers`], the settings otherwise as given.
+    Upsampler,
 }
 
 impl FromStr for Selection {
@@ -286,8 +289,9 @@ impl FromStr for Selection {
         match s {
             "off" => Ok(Selection::Off),
             "auto" => Ok(Selection::Auto),
+            "upsampler" => Ok(Selection::Upsampler),
             _ => Err(Error::Invalid(format!(
-                "unknown selection '{s}'; use auto or off"
+                "unknown selection '{s}'; use auto, upsampler or off"
             ))),
         }
     }
@@ -298,6 +302,7 @@ impl fmt::Display for Selection {
         f.write_str(match self {
             Selection::Off => "off",
             Selection::Auto => "auto",
+            Selection::Upsampler => "upsampler",
         })
     }
 }
@@ -584,8 +589,13 @@ pub struct Config {
     /// Skip work the material cannot use (constant channels, dark lights).
     pub skip: bool,
     pub seed: u64,
-    /// `auto`: choose among candidate settings by validating them one scale down.
+    /// `auto`: choose among candidate settings by validating them one scale down;
+    /// `upsampler`: among upsamplers only.
     pub select: Selection,
+    /// More upsamplers for the selection to validate (`NAME[:ARGUMENT]`), each in place of
+    /// `upsampler` with the settings otherwise as given: a network fine-tuned for some
+    /// materials beside the stock one, kept only where it validates better.
+    pub select_upsamplers: Vec<String>,
     pub lights: LightsConfig,
     pub filter: FilterConfig,
     pub train: TrainConfig,
@@ -602,6 +612,7 @@ impl Default for Config {
             skip: true,
             seed: 0,
             select: Selection::Off,
+            select_upsamplers: Vec::new(),
             lights: LightsConfig::default(),
             filter: FilterConfig::default(),
             train: TrainConfig::default(),
@@ -679,6 +690,16 @@ impl Config {
         if f.self_ensemble && f.residual_base != ResidualBase::Upsampler {
             return bad(
                 "filter.self_ensemble averages the upsampler's passes: it needs filter.residual_base = \"upsampler\"".into(),
+            );
+        }
+        if !self.select_upsamplers.is_empty() && self.select == Selection::Off {
+            return bad(
+                "select_upsamplers are candidates for the selection: set select = \"upsampler\" (or \"auto\")".into(),
+            );
+        }
+        if self.select == Selection::Upsampler && self.select_upsamplers.is_empty() {
+            return bad(
+                "select = \"upsampler\" chooses among upsamplers: name at least one in select_upsamplers (--select-upsampler)".into(),
             );
         }
         let t = &self.train;

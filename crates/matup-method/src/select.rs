@@ -57,15 +57,36 @@ pub fn score(render_psnr: f64, render_flip: f64) -> f64 {
     render_psnr - 10.0 * render_flip.max(1e-6).log10()
 }
 
-/// The candidates for `config`: per-map super-resolution by the run's upsampler and the LR
-/// maps interpolated by Lanczos-3 (each back-projected onto the LR maps, nothing learned),
-/// the filter trained on the upsampled renders on top of the per-map base, and the
-/// configuration as given.
+/// The candidates for `config`. `auto`: per-map super-resolution by the run's upsampler and
+/// the LR maps interpolated by Lanczos-3 (each back-projected onto the LR maps, nothing
+/// learned), the filter trained on the upsampled renders on top of the per-map base, and the
+/// configuration as given. Both: the configuration as given with each of `select_upsamplers`
+/// in place of its upsampler (`upsampler`: these and the configuration as given only).
 pub fn candidates(config: &Config) -> Vec<Candidate> {
     let given = Config {
         select: Selection::Off,
+        select_upsamplers: Vec::new(),
         ..config.clone()
     };
+    let with_upsampler = |name: &String| Candidate {
+        name: format!("upsampler {name}"),
+        config: Config {
+            upsampler: name.clone(),
+            ..given.clone()
+        },
+    };
+    if config.select == Selection::Upsampler {
+        let mut out = vec![Candidate {
+            name: format!("upsampler {}", given.upsampler),
+            config: given.clone(),
+        }];
+        for c in config.select_upsamplers.iter().map(with_upsampler) {
+            if !out.iter().any(|o| o.config == c.config) {
+                out.push(c);
+            }
+        }
+        return out;
+    }
     let per_map = |base: ResidualBase| {
         let mut c = given.clone();
         c.filter.residual_base = base;
@@ -98,6 +119,11 @@ pub fn candidates(config: &Config) -> Vec<Candidate> {
                 name: name.to_string(),
                 config: c,
             });
+        }
+    }
+    for c in config.select_upsamplers.iter().map(with_upsampler) {
+        if !out.iter().any(|o| o.config == c.config) {
+            out.push(c);
         }
     }
     out
