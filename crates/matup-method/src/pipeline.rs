@@ -175,10 +175,6 @@ pub fn upscale_streamed(
 
     let model: Arc<dyn ShadingModel> =
         Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
-    let (mut upsampler_used, upsampler) = choose_upsampler(config)?;
-    if options.oracle.is_some() {
-        upsampler_used = "oracle (exact renders of the true material)".into();
-    }
     let (tileable, seam) = match config.tileable {
         Some(t) => (t, None),
         None => {
@@ -198,6 +194,11 @@ pub fn upscale_streamed(
     });
     let (chosen, selection) = choose_settings(material, config, options, tileable, progress)?;
     let config = &chosen;
+    // The upsampler of the chosen settings: the selection may have changed it.
+    let (mut upsampler_used, upsampler) = choose_upsampler(config)?;
+    if options.oracle.is_some() {
+        upsampler_used = "oracle (exact renders of the true material)".into();
+    }
     if let Some(s) = &selection {
         timings.push(("select".to_string(), s.seconds));
     }
