@@ -68,25 +68,6 @@ pub fn candidates(config: &Config) -> Vec<Candidate> {
         select_upsamplers: Vec::new(),
         ..config.clone()
     };
-    let with_upsampler = |name: &String| Candidate {
-        name: format!("upsampler {name}"),
-        config: Config {
-            upsampler: name.clone(),
-            ..given.clone()
-        },
-    };
-    if config.select == Selection::Upsampler {
-        let mut out = vec![Candidate {
-            name: format!("upsampler {}", given.upsampler),
-            config: given.clone(),
-        }];
-        for c in config.select_upsamplers.iter().map(with_upsampler) {
-            if !out.iter().any(|o| o.config == c.config) {
-                out.push(c);
-            }
-        }
-        return out;
-    }
     let per_map = |base: ResidualBase| {
         let mut c = given.clone();
         c.filter.residual_base = base;
@@ -104,26 +85,30 @@ pub fn candidates(config: &Config) -> Vec<Candidate> {
         c.train.targets = TargetKind::Direct;
         c
     };
-    let mut out: Vec<Candidate> = Vec::new();
-    for (name, c) in [
-        ("as configured", given.clone()),
-        ("per-map upsampler", per_map(ResidualBase::Upsampler)),
-        (
-            "lanczos3-interpolated maps",
-            per_map(ResidualBase::Kernel(Kernel::Lanczos3)),
-        ),
-        ("filter on upsampled renders", trained),
-    ] {
-        if !out.iter().any(|o| o.config == c) {
-            out.push(Candidate {
-                name: name.to_string(),
-                config: c,
-            });
-        }
+    let mut settings: Vec<(String, Config)> = match config.select {
+        Selection::Upsampler => vec![(format!("upsampler {}", given.upsampler), given.clone())],
+        _ => vec![
+            ("as configured".into(), given.clone()),
+            ("per-map upsampler".into(), per_map(ResidualBase::Upsampler)),
+            (
+                "lanczos3-interpolated maps".into(),
+                per_map(ResidualBase::Kernel(Kernel::Lanczos3)),
+            ),
+            ("filter on upsampled renders".into(), trained),
+        ],
+    };
+    for name in &config.select_upsamplers {
+        let c = Config {
+            upsampler: name.clone(),
+            ..given.clone()
+        };
+        settings.push((format!("upsampler {name}"), c));
     }
-    for c in config.select_upsamplers.iter().map(with_upsampler) {
-        if !out.iter().any(|o| o.config == c.config) {
-            out.push(c);
+    // Each setting once, under the first name it came with.
+    let mut out: Vec<Candidate> = Vec::new();
+    for (name, config) in settings {
+        if !out.iter().any(|o| o.config == config) {
+            out.push(Candidate { name, config });
         }
     }
     out
