@@ -9,6 +9,7 @@ use matup::material::Material;
 use matup::pipeline::{detect_tileable, features};
 use matup::progress::Silent;
 use matup::resample::{box_downsample, upsample};
+use matup::select::SelectionReport;
 use matup::targets::{base_renders, upsampled_targets, DetailBase, LrRenders, Targets};
 use matup::{
     render, shading_model, upsampler, Border, Kernel, LightSetSpec, Map, PluginSpec, RenderOptions,
@@ -204,6 +205,16 @@ fn the_lr_consistency_term_pulls_the_result_toward_its_input() {
     assert!(after < 0.8 * before, "{after} vs {before}");
 }
 
+/// Each candidate's scores at the validation scale, for the test's log.
+fn print_candidates(selection: &SelectionReport) {
+    for c in &selection.candidates {
+        println!(
+            "{}: {:.3} dB, FLIP {:.4}",
+            c.name, c.render_psnr, c.render_flip
+        );
+    }
+}
+
 #[test]
 fn self_validation_picks_per_map_upsampling_when_it_is_best() {
     // Smooth maps: per-map interpolation made consistent with the input is nearly exact,
@@ -227,12 +238,7 @@ fn self_validation_picks_per_map_upsampling_when_it_is_best() {
     config.select = Selection::Auto;
     let (result, report) = matup::upscale(&m, &config, &RunOptions::default(), &Silent).unwrap();
     let selection = report.selection.expect("validated");
-    for c in &selection.candidates {
-        println!(
-            "{}: {:.2} dB, FLIP {:.4}",
-            c.name, c.render_psnr, c.render_flip
-        );
-    }
+    print_candidates(&selection);
     assert_eq!(selection.validation_size, [16, 16]);
     assert_eq!(selection.candidates.len(), 4);
     assert!(
@@ -284,12 +290,7 @@ fn selection_among_upsamplers_runs_the_one_that_validates_best() {
     };
     let (result, report) = matup::upscale(&m, &config, &RunOptions::default(), &Silent).unwrap();
     let selection = report.selection.expect("validated");
-    for c in &selection.candidates {
-        println!(
-            "{}: {:.3} dB, FLIP {:.4}",
-            c.name, c.render_psnr, c.render_flip
-        );
-    }
+    print_candidates(&selection);
     // The configured upsampler first; the tuned network again is the same setting, once.
     let names: Vec<_> = selection
         .candidates
