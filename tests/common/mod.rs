@@ -22,6 +22,19 @@ pub fn shared_material(name: &str) -> PathBuf {
     path
 }
 
+/// `../shared/corpus/<name>`, the training corpus beside the shared materials.
+pub fn corpus_material(name: &str) -> PathBuf {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus")
+        .join(name);
+    assert!(
+        path.is_dir(),
+        "{} is missing: the tests read the corpus beside the repository",
+        path.display()
+    );
+    path
+}
+
 /// The sample material shipped with the repository.
 pub fn sample_material() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("samples/victorian_wood")

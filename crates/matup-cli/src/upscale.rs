@@ -54,7 +54,7 @@ pub struct SettingsArgs {
     #[arg(long)]
     pub chain: Option<Chain>,
     /// RGB upsampler of the renders (see `matup list`); default `auto`: the shipped SR
-    /// network (onnx:span_x4_ch48) where it applies, else lanczos3.
+    /// network tuned for materials (onnx:span_x4_materials) where it applies, else lanczos3.
     #[arg(long)]
     pub upsampler: Option<String>,
     /// Shading model (see `matup list`).

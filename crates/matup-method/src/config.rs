@@ -620,8 +620,9 @@ impl Default for Config {
     }
 }
 
-/// What `upsampler = "auto"` tries, best first: the shipped SR network, then Lanczos.
-pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
+/// What `upsampler = "auto"` tries, best first: SPAN tuned for material maps (models/README.md
+/// has its card), stock SPAN where a models folder lacks the tuned file, then Lanczos.
+pub const AUTO_UPSAMPLERS: [&str; 3] = ["onnx:span_x4_materials", "onnx:span_x4_ch48", "lanczos3"];
 
 /// The scales one level of the method handles.
 pub const LEVEL_SCALES: [usize; 3] = [2, 3, 4];
