@@ -11,25 +11,22 @@ use matup::{Map, RunOptions};
 
 /// `../shared/materials/<name>` (CI checks the repository out with `shared/` beside it).
 pub fn shared_material(name: &str) -> PathBuf {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/materials")
-        .join(name);
-    assert!(
-        path.is_dir(),
-        "{} is missing: the tests read the shared materials beside the repository",
-        path.display()
-    );
-    path
+    beside_repository("materials", name)
 }
 
 /// `../shared/corpus/<name>`, the training corpus beside the shared materials.
 pub fn corpus_material(name: &str) -> PathBuf {
+    beside_repository("corpus", name)
+}
+
+fn beside_repository(set: &str, name: &str) -> PathBuf {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/corpus")
+        .join("../shared")
+        .join(set)
         .join(name);
     assert!(
         path.is_dir(),
-        "{} is missing: the tests read the corpus beside the repository",
+        "{} is missing: the tests read ../shared/{set} beside the repository",
         path.display()
     );
     path
