@@ -369,6 +369,8 @@ fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
     .unwrap()
     .crop(0, 0, 256, 256);
     let lr = truth.box_downsample(4);
+    let lights = LightSetSpec::held_out(16);
+    let ggx = shading_model(&"ggx".parse().unwrap()).unwrap();
     let run = |upsampler: &str| {
         let config = Config {
             upsampler: upsampler.into(),
@@ -378,8 +380,6 @@ fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
         };
         let (result, report) =
             matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
-        let lights = LightSetSpec::held_out(16);
-        let ggx = shading_model(&"ggx".parse().unwrap()).unwrap();
         let score = matup::eval::metrics::evaluate(&truth, &result, ggx.as_ref(), &lights).unwrap();
         (score, report.upsampler_used)
     };
@@ -393,4 +393,14 @@ fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
     // Measured: 25.25 dB / FLIP 0.1054 against 24.99 / 0.1090.
     assert!(tuned.render_psnr > stock.render_psnr + 0.1);
     assert!(tuned.render_flip < stock.render_flip);
+    // Where the network would upsample renders (a trained filter) or maps left as it gives
+    // them (no back-projection), which it was not trained for, `auto` runs stock SPAN.
+    let mut trained = Config::default();
+    trained.train.epochs = 10;
+    let mut unprojected = Config::default();
+    unprojected.filter.back_project = false;
+    for config in [trained, unprojected] {
+        let (used, _) = matup::pipeline::choose_upsampler(&config).unwrap();
+        assert_eq!(used, "onnx:span_x4_ch48");
+    }
 }

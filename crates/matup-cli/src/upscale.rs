@@ -53,8 +53,9 @@ pub struct SettingsArgs {
     /// How ×16 is reached: two-level (train again on the ×4 result) or single (reuse the ×4 filter).
     #[arg(long)]
     pub chain: Option<Chain>,
-    /// RGB upsampler of the renders (see `matup list`); default `auto`: the shipped SR
-    /// network tuned for materials (onnx:span_x4_materials) where it applies, else lanczos3.
+    /// RGB upsampler of the renders (see `matup list`); default `auto`: the shipped SR network,
+    /// tuned for materials (onnx:span_x4_materials) where no filter is trained and the maps are
+    /// back-projected, else stock (onnx:span_x4_ch48), where it applies, else lanczos3.
     #[arg(long)]
     pub upsampler: Option<String>,
     /// Shading model (see `matup list`).

@@ -580,7 +580,8 @@ pub struct Config {
     pub scale: usize,
     pub chain: Chain,
     /// The RGB upsampler of the renders (`NAME[:ARGUMENT]`), or `auto`: the best the build
-    /// has ([`AUTO_UPSAMPLERS`], first that loads and fits the scale).
+    /// has ([`MATERIAL_NETWORK`] where [`Config::upsamples_maps_only`], else
+    /// [`AUTO_UPSAMPLERS`]; the first that loads and fits the scale).
     pub upsampler: String,
     /// The shading model (`NAME[:OPTIONS]`).
     pub shading: String,
@@ -620,9 +621,15 @@ impl Default for Config {
     }
 }
 
-/// What `upsampler = "auto"` tries, best first: SPAN tuned for material maps (models/README.md
-/// has its card), stock SPAN where a models folder lacks the tuned file, then Lanczos.
-pub const AUTO_UPSAMPLERS: [&str; 3] = ["onnx:span_x4_materials", "onnx:span_x4_ch48", "lanczos3"];
+/// SPAN tuned for material maps (models/README.md has its card). It was trained and measured
+/// through the per-map base back-projected onto the LR maps, and only there beats stock SPAN:
+/// each map on its own it loses (README, Learned upsampling), and renders are not what it
+/// learned. So `auto` runs it first only where [`Config::upsamples_maps_only`].
+pub const MATERIAL_NETWORK: &str = "onnx:span_x4_materials";
+
+/// What `upsampler = "auto"` tries otherwise (and after [`MATERIAL_NETWORK`], where a models
+/// folder lacks it), best first: stock SPAN, then Lanczos.
+pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
 
 /// The scales one level of the method handles.
 pub const LEVEL_SCALES: [usize; 3] = [2, 3, 4];
@@ -640,6 +647,15 @@ pub fn check_supported_scale(scale: usize, what: &str) -> Result<()> {
 }
 
 impl Config {
+    /// Whether the upsampler's only work is the per-map base back-projected onto the LR maps,
+    /// which is then the result (no filter trained, so no renders upsampled): the use
+    /// [`MATERIAL_NETWORK`] was trained and measured for.
+    pub fn upsamples_maps_only(&self) -> bool {
+        self.filter.residual_base == ResidualBase::Upsampler
+            && self.filter.back_project
+            && self.train.epochs == 0
+    }
+
     /// METHOD.md's settings, the paper's: the filter trained for 10 epochs on the renders
     /// upsampled by the RGB upsampler, added to bilinearly upsampled maps.
     pub fn paper() -> Config {

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::bands::{plan_bands, Assembler};
-use crate::config::{Chain, Config, ResidualBase, Selection, AUTO_UPSAMPLERS};
+use crate::config::{Chain, Config, ResidualBase, Selection, AUTO_UPSAMPLERS, MATERIAL_NETWORK};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
 use crate::height::{band_margin, detail_scale, rebuild_height};
@@ -309,8 +309,9 @@ fn choose_settings(
     Ok((candidates[best].config.clone(), Some(report)))
 }
 
-/// The configured upsampler, or for `auto` the first of [`AUTO_UPSAMPLERS`] that loads and
-/// supports every level's scale.
+/// The configured upsampler, or for `auto` the first that loads and supports every level's
+/// scale: [`MATERIAL_NETWORK`] where the configuration only upsamples maps, then
+/// [`AUTO_UPSAMPLERS`].
 pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
     let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
         let spec: PluginSpec = spec.parse()?;
@@ -323,8 +324,9 @@ pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler
     if config.upsampler != "auto" {
         return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
     }
+    let material = config.upsamples_maps_only().then_some(MATERIAL_NETWORK);
     let mut last = None;
-    for spec in AUTO_UPSAMPLERS {
+    for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
         match fits(spec) {
             Ok(up) => return Ok((spec.to_string(), up)),
             Err(e) => last = Some(e),
