@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use matup_core::tensor::parse_device;
+use matup_learn::config::Target;
 use matup_learn::{train, LearnConfig};
 
 use crate::plot::plot_learning_curves;
@@ -57,7 +58,11 @@ pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
     bars.finish();
     // Drawn whether the run finished or stopped: the curves so far.
     if args.output.join("train.csv").is_file() {
-        plot_learning_curves(&args.output)?;
+        let validated = match config.target {
+            Target::Maps => "matup upscale's defaults",
+            Target::Renders => "upsampled renders",
+        };
+        plot_learning_curves(&args.output, validated)?;
     }
     let summary = match summary {
         Err(matup_core::Error::Cancelled { epochs_done }) => anyhow::bail!(

@@ -104,8 +104,9 @@ fn draw(points: &[(String, f64, f64)], path: &Path) -> Result<(), Box<dyn std::e
 }
 
 /// `curves.png` of a `matup learn` run: the training loss (mean of every 100 steps) and each
-/// validation's render PSNR gain over the start (per material and the mean), against the step.
-pub fn plot_learning_curves(run: &Path) -> anyhow::Result<()> {
+/// validation's render PSNR gain over the start (per material and the mean), against the step;
+/// `validated` says what the validation scored.
+pub fn plot_learning_curves(run: &Path, validated: &str) -> anyhow::Result<()> {
     let read = |name: &str| -> anyhow::Result<Vec<Vec<String>>> {
         let text = std::fs::read_to_string(run.join(name))?;
         Ok(text
@@ -143,7 +144,7 @@ pub fn plot_learning_curves(run: &Path) -> anyhow::Result<()> {
     let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
     let path = run.join("curves.png");
     let tmp = run.join("curves.partial.png");
-    draw_curves(&loss, &gains, &tmp)
+    draw_curves(&loss, &gains, validated, &tmp)
         .map_err(|e| anyhow!("{}: cannot draw the plot: {e}", path.display()))?;
     std::fs::rename(&tmp, path)?;
     Ok(())
@@ -154,6 +155,7 @@ type Curve = Vec<(f64, f64)>;
 fn draw_curves(
     loss: &Curve,
     gains: &BTreeMap<String, Curve>,
+    validated: &str,
     path: &Path,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let root = BitMapBackend::new(path, (1400, 600)).into_drawing_area();
@@ -180,7 +182,7 @@ fn draw_curves(
     let pad = (g_hi - g_lo).max(0.05) * 0.1;
     let mut chart = ChartBuilder::on(&right)
         .caption(
-            "validation: render PSNR gain over the start (dB), matup upscale's defaults",
+            &format!("validation: render PSNR gain over the start (dB), {validated}"),
             ("sans-serif", 20),
         )
         .margin(20)

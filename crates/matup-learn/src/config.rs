@@ -5,6 +5,20 @@ use std::path::{Path, PathBuf};
 use matup_core::{Error, LossNorm, Result};
 use serde::{Deserialize, Serialize};
 
+/// What the network learns to upsample.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Target {
+    /// The material's maps, judged by the renders of what `matup upscale`'s defaults make of
+    /// them (decoded, back-projected): a network for the per-map residual base.
+    #[default]
+    Maps,
+    /// Renders: the LR material's renders to the true material's, under the same light (the
+    /// method's targets; METHOD.md). Judged by the upsampled renders of the validation
+    /// materials against the renders of their truth.
+    Renders,
+}
+
 /// What `matup learn` trains and how. Paths are relative to the directory matup runs in.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -17,18 +31,22 @@ pub struct LearnConfig {
     pub train: Vec<String>,
     /// Materials validated on, never trained on.
     pub val: Vec<String>,
+    /// What the network upsamples: `maps` (the default) or `renders`.
+    #[serde(default)]
+    pub target: Target,
     /// Upsampling factor (the network's).
     #[serde(default = "default_scale")]
     pub scale: usize,
     /// Optimiser steps in all (a resumed run continues to this count).
     pub iterations: usize,
-    /// Material crops per step; each sends its four maps through the network.
+    /// Material crops per step; each sends its four maps through the network (its render under
+    /// each light with `target = "renders"`).
     #[serde(default = "default_batch")]
     pub batch: usize,
     /// Side of a true crop in texels (its LR version is `patch / scale`).
     #[serde(default = "default_patch")]
     pub patch: usize,
-    /// Random lights over the hemisphere per step.
+    /// Random lights over the hemisphere per step (shared by the step's crops).
     #[serde(default = "default_lights")]
     pub lights: usize,
     /// Adam's step size.
@@ -36,7 +54,8 @@ pub struct LearnConfig {
     /// The render loss's norm over colour and lights (as the method's `train.loss`).
     #[serde(default = "default_loss")]
     pub loss: String,
-    /// Weight of the normal term (mean chordal distance between the normals) beside the renders.
+    /// Weight of the normal term (mean chordal distance between the normals) beside the renders;
+    /// maps only.
     #[serde(default)]
     pub normal_weight: f64,
     /// Pull toward the base model's weights: after each step every weight `w` moves by
@@ -139,6 +158,12 @@ impl LearnConfig {
                 self.anchor_weight,
                 1.0 / self.learning_rate
             ));
+        }
+        if self.target == Target::Renders && self.normal_weight != 0.0 {
+            return Err(
+                "normal_weight needs target = \"maps\": a network of renders makes no normals"
+                    .into(),
+            );
         }
         self.loss_norm().map_err(|e| e.to_string())?;
         Ok(())

@@ -6,7 +6,7 @@ use std::path::Path;
 use matup_core::io::write_atomic;
 use matup_core::{Error, Result};
 
-use crate::config::LearnConfig;
+use crate::config::{LearnConfig, Target};
 use crate::net::TrainableNet;
 
 /// Writes `path` (`NAME.onnx`) and its sidecar `NAME.toml`: the base model's sidecar with the
@@ -17,14 +17,23 @@ pub fn export(
     config: &LearnConfig,
     iteration: usize,
 ) -> Result<()> {
+    let trained_on = match config.target {
+        Target::Maps => format!(
+            "their maps upsampled, with a {} render loss through back-projection (normal \
+             weight {})",
+            config.loss, config.normal_weight
+        ),
+        Target::Renders => format!(
+            "their renders upsampled, against the true materials' renders ({} loss)",
+            config.loss
+        ),
+    };
     let description = format!(
         "{} fine-tuned by `matup learn` for {iteration} steps on {} materials, box-filtered \
-         ×{}, with a {} render loss through back-projection (normal weight {})",
+         ×{}: {trained_on}",
         base_name(config),
         config.train.len(),
         config.scale,
-        config.loss,
-        config.normal_weight
     );
     export_described(net, path, config, &description)
 }

@@ -12,19 +12,22 @@ use std::time::Instant;
 use candle_core::{backprop::GradStore, Device, Tensor, Var};
 use matup_core::io::write_atomic;
 use matup_core::lights::Light;
+use matup_core::map::Map;
 use matup_core::progress::Progress;
+use matup_core::render::{render, RenderOptions};
 use matup_core::resample::Border;
 use matup_core::shading::tensor_form;
 use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::tensor::{loss_norm, params_tensor, LightTensors};
+use matup_core::upsample::upsampler as rgb_upsampler;
 use matup_core::{Error, LightSetSpec, LossNorm, Material, PluginSpec, Result};
-use matup_eval::metrics::{evaluate, Evaluation};
+use matup_eval::metrics::{evaluate, flip, psnr, rmse, sharpness, Evaluation};
 use matup_method::{upscale, Config, RunOptions};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
-use crate::config::LearnConfig;
+use crate::config::{LearnConfig, Target};
 use crate::data::{lr_features, network_inputs, random_pair, Corpus, Pair};
 use crate::export::export;
 use crate::net::TrainableNet;
@@ -213,6 +216,16 @@ impl Trainer {
             .map(|_| random_pair(&self.corpus, c.patch, c.scale, &mut rng))
             .collect();
         let lights = self.random_lights(c.lights, &mut rng);
+        match c.target {
+            Target::Maps => self.maps_loss(&pairs, &lights),
+            Target::Renders => self.renders_loss(&pairs, &lights),
+        }
+    }
+
+    /// The network's maps, decoded and back-projected as `matup upscale` ships them, rendered
+    /// against the truth's renders (plus the normal term).
+    fn maps_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
+        let c = &self.config;
         let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
         let inputs = network_inputs(&lrs, &self.device)?;
         let (lr, fixed) = lr_features(&lrs, &self.device)?;
@@ -220,7 +233,7 @@ impl Trainer {
         let hr = self
             .back_projection
             .apply(&decode_outputs(&outputs)?, &lr)?;
-        let params = (0..c.batch)
+        let params = (0..pairs.len())
             .map(|b| shading_params(&hr.get(b)?, &fixed[b]))
             .collect::<candle_core::Result<Vec<_>>>()?;
         let params = Tensor::cat(&params, 0)?;
@@ -235,20 +248,59 @@ impl Trainer {
         // Both rendered at the truth's positions (height displaced): the network makes no
         // height, and the loss should see only what it makes.
         let positions: Vec<[f32; 3]> = truth_texels.iter().map(|t| t.position).collect();
-        let light_tensors = LightTensors::new(&lights, &positions, &self.device)?;
+        let light_tensors = LightTensors::new(lights, &positions, &self.device)?;
         let shading = tensor_form(self.model.as_ref())?;
         let target = shown(shading, &truth, &light_tensors)?.detach();
         let rendered = shown(shading, &params, &light_tensors)?;
         let render = loss_norm(&self.norm, &(rendered - target)?)?.mean_all()?;
         let normal = normal_chord(&params, &truth)?;
         let loss = (&render + (&normal * c.normal_weight)?)?;
-        let numbers = StepLoss {
-            loss: loss.to_scalar::<f32>()? as f64,
-            render: render.to_scalar::<f32>()? as f64,
-            normal: normal.to_scalar::<f32>()? as f64,
-        };
-        Ok((loss, numbers))
+        step_loss(loss, render, normal)
     }
+
+    /// The network's upsampling of the LR crops' renders against the true crops' renders,
+    /// both made by matup's renderer as the method makes its LR renders (anti-aliased; crops
+    /// do not tile, so their borders mirror).
+    fn renders_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
+        let renders = |pick: fn(&Pair) -> &Material| -> candle_core::Result<Tensor> {
+            let maps: Vec<Map> = pairs
+                .iter()
+                .flat_map(|p| render(pick(p), self.model.as_ref(), lights, CROP_RENDERS))
+                .collect();
+            stack(&maps, &self.device)
+        };
+        let inputs = renders(|p| &p.lr)?;
+        let target = renders(|p| &p.truth)?;
+        let outputs = self.net.forward(&inputs)?;
+        // The norm over colour, as the method's loss takes it: channels last.
+        let error = (outputs - target)?.permute((0, 2, 3, 1))?;
+        let render = loss_norm(&self.norm, &error)?.mean_all()?;
+        let normal = render.zeros_like()?;
+        step_loss(render.clone(), render, normal)
+    }
+}
+
+/// Renders of training and validation crops: anti-aliased as the method's LR renders, borders
+/// mirrored (a crop does not tile).
+const CROP_RENDERS: RenderOptions = RenderOptions {
+    supersample: true,
+    border: Border::Mirror,
+};
+
+/// RGB maps of one size as a `[N, 3, h, w]` tensor (maps are stored plane by plane).
+fn stack(maps: &[Map], device: &Device) -> candle_core::Result<Tensor> {
+    let (w, h) = (maps[0].width(), maps[0].height());
+    let data: Vec<f32> = maps.iter().flat_map(|m| m.data().iter().copied()).collect();
+    Tensor::from_vec(data, (maps.len(), 3, h, w), device)
+}
+
+fn step_loss(loss: Tensor, render: Tensor, normal: Tensor) -> Result<(Tensor, StepLoss)> {
+    let numbers = StepLoss {
+        loss: loss.to_scalar::<f32>()? as f64,
+        render: render.to_scalar::<f32>()? as f64,
+        normal: normal.to_scalar::<f32>()? as f64,
+    };
+    Ok((loss, numbers))
 }
 
 /// Saves the network's tensors and the optimiser's moments, then the info (the info last: a
@@ -391,13 +443,54 @@ pub fn validation_set(config: &LearnConfig) -> Result<Vec<ValMaterial>> {
         .collect())
 }
 
-/// `matup upscale`'s defaults with `upsampler`, on every validation material, against the
-/// truth under `lights` held-out lights.
+/// A validation's numbers for one material.
+#[derive(Clone, Debug)]
+pub struct Score {
+    pub render_psnr: f64,
+    pub render_flip: f64,
+    /// Normal error (°), base colour, roughness and metallic RMSE, where the network makes maps.
+    pub maps: Option<[f64; 4]>,
+    pub render_sharpness: f64,
+    pub reference_render_sharpness: f64,
+}
+
+impl From<Evaluation> for Score {
+    fn from(e: Evaluation) -> Score {
+        Score {
+            render_psnr: e.render_psnr,
+            render_flip: e.render_flip,
+            maps: Some([
+                e.normal_error_degrees,
+                e.base_color_rmse,
+                e.roughness_rmse,
+                e.metallic_rmse,
+            ]),
+            render_sharpness: e.render_sharpness,
+            reference_render_sharpness: e.reference_render_sharpness,
+        }
+    }
+}
+
+/// Validates the network `upsampler` as `target` says it is used, on every validation
+/// material under `lights` held-out lights.
 pub fn validate(
+    target: Target,
     upsampler: &str,
     set: &[ValMaterial],
     lights: usize,
-) -> Result<Vec<(String, Evaluation)>> {
+) -> Result<Vec<(String, Score)>> {
+    match target {
+        Target::Maps => validate_maps(upsampler, set, lights),
+        Target::Renders => validate_renders(upsampler, set, lights),
+    }
+}
+
+/// `matup upscale`'s defaults with `upsampler`, against the truth.
+fn validate_maps(
+    upsampler: &str,
+    set: &[ValMaterial],
+    lights: usize,
+) -> Result<Vec<(String, Score)>> {
     let config = Config {
         upsampler: upsampler.to_string(),
         ..Config::default()
@@ -417,44 +510,81 @@ pub fn validate(
                 model.as_ref(),
                 &LightSetSpec::held_out(lights),
             )?;
-            Ok((v.name.clone(), e))
+            Ok((v.name.clone(), e.into()))
         })
         .collect()
 }
 
-/// The mean render PSNR and FLIP of an evaluation list.
-pub fn means(evaluations: &[(String, Evaluation)]) -> (f64, f64) {
-    let n = evaluations.len().max(1) as f64;
+/// The LR material's renders upsampled by `upsampler` (matup's own executor) against the
+/// truth's renders, light by light: how close the method's direct targets come to exact ones.
+fn validate_renders(
+    upsampler: &str,
+    set: &[ValMaterial],
+    lights: usize,
+) -> Result<Vec<(String, Score)>> {
+    let s = rgb_upsampler(&upsampler.parse::<PluginSpec>()?)?;
+    let model = shading_model(&"ggx".parse::<PluginSpec>()?)?;
+    let lights = LightSetSpec::held_out(lights).build();
+    set.iter()
+        .map(|v| {
+            let scale = v.truth.width() / v.lr.width();
+            // Per light: squared error, FLIP, sharpness of the upsampled and the true render.
+            let mut per_light: Vec<[f64; 4]> = Vec::with_capacity(lights.len());
+            for light in &lights {
+                let light = std::slice::from_ref(light);
+                let lr = render(&v.lr, model.as_ref(), light, CROP_RENDERS);
+                let up = s.upsample(&lr, scale, Border::Mirror)?.remove(0);
+                let truth = render(&v.truth, model.as_ref(), light, CROP_RENDERS).remove(0);
+                per_light.push([
+                    rmse(&truth, &up).powi(2),
+                    flip(&truth, &up),
+                    sharpness(&up),
+                    sharpness(&truth),
+                ]);
+            }
+            let mean = |k: usize| per_light.iter().map(|p| p[k]).sum::<f64>() / lights.len() as f64;
+            Ok((
+                v.name.clone(),
+                Score {
+                    render_psnr: psnr(mean(0)),
+                    render_flip: mean(1),
+                    maps: None,
+                    render_sharpness: mean(2),
+                    reference_render_sharpness: mean(3),
+                },
+            ))
+        })
+        .collect()
+}
+
+/// The mean render PSNR and FLIP of a validation.
+pub fn means(scores: &[(String, Score)]) -> (f64, f64) {
+    let n = scores.len().max(1) as f64;
     (
-        evaluations.iter().map(|e| e.1.render_psnr).sum::<f64>() / n,
-        evaluations.iter().map(|e| e.1.render_flip).sum::<f64>() / n,
+        scores.iter().map(|e| e.1.render_psnr).sum::<f64>() / n,
+        scores.iter().map(|e| e.1.render_flip).sum::<f64>() / n,
     )
 }
 
 const VAL_HEADER: &str = "iteration,material,render_psnr,render_flip,normal_degrees,base_color_rmse,roughness_rmse,metallic_rmse,render_sharpness,reference_render_sharpness";
 
-fn log_validation(
-    files: &RunFiles,
-    iteration: usize,
-    evaluations: &[(String, Evaluation)],
-) -> Result<()> {
-    let row = |name: &str, e: &Evaluation| {
+fn log_validation(files: &RunFiles, iteration: usize, scores: &[(String, Score)]) -> Result<()> {
+    let row = |name: &str, e: &Score| {
+        let maps = match e.maps {
+            Some([normal, base, rough, metal]) => {
+                format!("{normal:.4},{base:.5},{rough:.5},{metal:.5}")
+            }
+            None => ",,,".into(),
+        };
         format!(
-            "{iteration},{name},{:.4},{:.5},{:.4},{:.5},{:.5},{:.5},{:.5},{:.5}",
-            e.render_psnr,
-            e.render_flip,
-            e.normal_error_degrees,
-            e.base_color_rmse,
-            e.roughness_rmse,
-            e.metallic_rmse,
-            e.render_sharpness,
-            e.reference_render_sharpness
+            "{iteration},{name},{:.4},{:.5},{maps},{:.5},{:.5}",
+            e.render_psnr, e.render_flip, e.render_sharpness, e.reference_render_sharpness
         )
     };
-    for (name, e) in evaluations {
+    for (name, e) in scores {
         append(&files.val_log(), VAL_HEADER, &row(name, e))?;
     }
-    let (psnr, flip) = means(evaluations);
+    let (psnr, flip) = means(scores);
     append(
         &files.val_log(),
         VAL_HEADER,
@@ -513,6 +643,7 @@ pub fn train(
         progress.stage(&format!("validate step {iteration}"), set.len() as u64);
         export(&trainer.net, &files.last(), config, iteration)?;
         let evaluations = validate(
+            config.target,
             &format!("onnx:{}", files.last().display()),
             &set,
             config.val_lights,

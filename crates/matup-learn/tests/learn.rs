@@ -14,6 +14,7 @@ use matup_core::{
     load_material, save_material, Dihedral, LightSetSpec, LoadOptions, Map, Material, PluginSpec,
     SaveOptions,
 };
+use matup_learn::config::Target;
 use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
 use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection};
@@ -249,6 +250,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         corpus,
         train: vec!["a".into()],
         val: vec!["b".into()],
+        target: Target::Maps,
         scale: 4,
         iterations,
         batch: 1,
@@ -393,6 +395,89 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
         4,
         "{val}"
     );
+}
+
+#[test]
+fn a_network_of_renders_learns_the_true_renders_and_is_validated_on_matups_upsampling() {
+    let dir = tempfile::tempdir().unwrap();
+    let device = Device::Cpu;
+    let config = LearnConfig {
+        target: Target::Renders,
+        normal_weight: 0.0,
+        validate_every: 8,
+        ..tiny_run(dir.path(), 8)
+    };
+    let run = dir.path().join("renders");
+    train(&config, &run, &device, &matup_core::progress::Silent).unwrap();
+
+    // The steps' losses (their crops' renders under their lights) are lower after training.
+    let mean_loss = |model: &Path| {
+        let trainer = matup_learn::train::Trainer::new(
+            &LearnConfig {
+                base_model: model.to_path_buf(),
+                ..config.clone()
+            },
+            &device,
+        )
+        .unwrap();
+        (0..config.iterations)
+            .map(|i| trainer.loss(i).unwrap().1.loss)
+            .sum::<f64>()
+            / config.iterations as f64
+    };
+    let (before, after) = (
+        mean_loss(&config.base_model),
+        mean_loss(&run.join("last.onnx")),
+    );
+    println!("the steps' mean render loss: {before:.5} → {after:.5}");
+    assert!(after < 0.95 * before, "{before} → {after}");
+
+    // The first validation scores stock SPAN upsampling the validation crop's renders (made
+    // as the method makes its LR renders) against the true crop's, under the held-out lights.
+    let truth = load_material(Some(&config.corpus.join("b")), &LoadOptions::default()).unwrap();
+    let lr = truth.box_downsample(4);
+    let model = shading_model(&"ggx".parse::<PluginSpec>().unwrap()).unwrap();
+    let options = RenderOptions {
+        supersample: true,
+        border: Border::Mirror,
+    };
+    let lights = LightSetSpec::held_out(config.val_lights).build();
+    let stock = OnnxUpsampler::load(&config.base_model, EngineChoice::Matup).unwrap();
+    let upsampled = stock
+        .upsample(
+            &render(&lr, model.as_ref(), &lights, options),
+            4,
+            Border::Mirror,
+        )
+        .unwrap();
+    let exact = render(&truth, model.as_ref(), &lights, options);
+    let mse = upsampled
+        .iter()
+        .zip(&exact)
+        .map(|(a, b)| matup_eval::metrics::rmse(a, b).powi(2))
+        .sum::<f64>()
+        / lights.len() as f64;
+    let expected = matup_eval::metrics::psnr(mse);
+    let val = std::fs::read_to_string(run.join("val.csv")).unwrap();
+    let first: Vec<&str> = val.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!(first[..2], ["0", "b"], "{val}");
+    let logged: f64 = first[2].parse().unwrap();
+    assert!(
+        (logged - expected).abs() < 1e-3,
+        "{logged} against {expected}"
+    );
+    // No maps to score.
+    assert_eq!(first[4..8], ["", "", "", ""], "{val}");
+
+    // A normal term has no normals to act on.
+    let path = dir.path().join("normals.toml");
+    let with_normals = LearnConfig {
+        normal_weight: 0.5,
+        ..config.clone()
+    };
+    std::fs::write(&path, toml::to_string(&with_normals).unwrap()).unwrap();
+    let error = LearnConfig::load(&path).unwrap_err().to_string();
+    assert!(error.contains("normal_weight"), "{error}");
 }
 
 #[test]
