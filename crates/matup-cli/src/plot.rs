@@ -182,7 +182,7 @@ fn draw_curves(
     let pad = (g_hi - g_lo).max(0.05) * 0.1;
     let mut chart = ChartBuilder::on(&right)
         .caption(
-            &format!("validation: render PSNR gain over the start (dB), {validated}"),
+            format!("validation: render PSNR gain over the start (dB), {validated}"),
             ("sans-serif", 20),
         )
         .margin(20)
