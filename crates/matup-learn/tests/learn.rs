@@ -288,6 +288,23 @@ fn losses(run: &Path) -> Vec<String> {
         .collect()
 }
 
+/// The mean loss of `config`'s steps (their crops, symmetries and lights) with the network
+/// `model` in place of the base model.
+fn mean_step_loss(config: &LearnConfig, model: &Path) -> f64 {
+    let trainer = matup_learn::train::Trainer::new(
+        &LearnConfig {
+            base_model: model.to_path_buf(),
+            ..config.clone()
+        },
+        &Device::Cpu,
+    )
+    .unwrap();
+    (0..config.iterations)
+        .map(|i| trainer.loss(i).unwrap().1.loss)
+        .sum::<f64>()
+        / config.iterations as f64
+}
+
 #[test]
 fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
     let dir = tempfile::tempdir().unwrap();
@@ -309,20 +326,7 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
     // The steps' losses (their crops, symmetries and lights) are lower with the trained
     // weights than with the stock network.
     let trained = whole.join("last.onnx");
-    let mean_loss = |model: &Path| {
-        let trainer = matup_learn::train::Trainer::new(
-            &LearnConfig {
-                base_model: model.to_path_buf(),
-                ..config.clone()
-            },
-            &device,
-        )
-        .unwrap();
-        (0..config.iterations)
-            .map(|i| trainer.loss(i).unwrap().1.loss)
-            .sum::<f64>()
-            / config.iterations as f64
-    };
+    let mean_loss = |model: &Path| mean_step_loss(&config, model);
     let (before, after) = (mean_loss(&config.base_model), mean_loss(&trained));
     println!("the steps' mean loss: {before:.5} → {after:.5}");
     assert!(after < 0.95 * before, "{before} → {after}");
@@ -411,20 +415,7 @@ fn a_network_of_renders_learns_the_true_renders_and_is_validated_on_matups_upsam
     train(&config, &run, &device, &matup_core::progress::Silent).unwrap();
 
     // The steps' losses (their crops' renders under their lights) are lower after training.
-    let mean_loss = |model: &Path| {
-        let trainer = matup_learn::train::Trainer::new(
-            &LearnConfig {
-                base_model: model.to_path_buf(),
-                ..config.clone()
-            },
-            &device,
-        )
-        .unwrap();
-        (0..config.iterations)
-            .map(|i| trainer.loss(i).unwrap().1.loss)
-            .sum::<f64>()
-            / config.iterations as f64
-    };
+    let mean_loss = |model: &Path| mean_step_loss(&config, model);
     let (before, after) = (
         mean_loss(&config.base_model),
         mean_loss(&run.join("last.onnx")),
