@@ -61,6 +61,7 @@ pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
         let validated = match config.target {
             Target::Maps => "matup upscale's defaults",
             Target::Renders => "upsampled renders",
+            Target::Normals => "the truth with the network's normals",
         };
         plot_learning_curves(&args.output, validated)?;
     }

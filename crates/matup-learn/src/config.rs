@@ -17,6 +17,10 @@ pub enum Target {
     /// method's targets; METHOD.md). Judged by the upsampled renders of the validation
     /// materials against the renders of their truth.
     Renders,
+    /// The normal map alone (a network per map kind), judged through the renders of the true
+    /// material with its normals replaced by the network's, back-projected as the defaults
+    /// back-project them: the map that carries the maps network's render gain.
+    Normals,
 }
 
 /// What `matup learn` trains and how. Paths are relative to the directory matup runs in.
@@ -58,6 +62,11 @@ pub struct LearnConfig {
     /// maps only.
     #[serde(default)]
     pub normal_weight: f64,
+    /// With `target = "normals"`: the LR height map as a fourth input channel beside the
+    /// normals (a joint network: normals and height are two views of one surface). Its
+    /// weights in the first convolution start at zero, so the run starts as the base model.
+    #[serde(default)]
+    pub height_guide: bool,
     /// Pull toward the base model's weights: after each step every weight `w` moves by
     /// `learning_rate · anchor_weight · (w₀ − w)` toward its start `w₀` (decoupled, as AdamW
     /// decays toward zero; the idea of L2-SP, Li et al. 2018). A blend with the base model
@@ -164,6 +173,9 @@ impl LearnConfig {
                 "normal_weight needs target = \"maps\": a network of renders makes no normals"
                     .into(),
             );
+        }
+        if self.height_guide && self.target != Target::Normals {
+            return Err("height_guide needs target = \"normals\"".into());
         }
         self.loss_norm().map_err(|e| e.to_string())?;
         Ok(())

@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use candle_core::{Device, Tensor};
-use matup_core::{load_material, Dihedral, LoadOptions, MapKind, Material, Result};
+use matup_core::{load_material, Dihedral, Error, LoadOptions, MapKind, Material, Result};
 use matup_eval::baseline::encode_for_upsampler;
 use matup_method::filter::FEATURES;
 use matup_method::pipeline::{constant_features, features};
@@ -76,6 +76,38 @@ pub fn network_inputs(lrs: &[&Material], device: &Device) -> candle_core::Result
         }
     }
     Tensor::from_vec(data, (lrs.len() * IMAGES_PER_MATERIAL, 3, h, w), device)
+}
+
+/// The LR normal maps encoded as the per-map upsampler sends them, `[B, 3, h, w]`, and with
+/// `height_guide` the LR height maps beside them, `[B, 1, h, w]`, centred on 0.5 (a height
+/// map's level is arbitrary, so the guide is the same for every tile of a large map).
+pub fn normal_inputs(
+    lrs: &[&Material],
+    height_guide: bool,
+    device: &Device,
+) -> Result<(Tensor, Option<Tensor>)> {
+    let (w, h) = (lrs[0].width(), lrs[0].height_px());
+    let normals: Vec<f32> = lrs
+        .iter()
+        .flat_map(|lr| {
+            encode_for_upsampler(MapKind::Normal, &lr.normal)
+                .data()
+                .to_vec()
+        })
+        .collect();
+    let normals = Tensor::from_vec(normals, (lrs.len(), 3, h, w), device)?;
+    if !height_guide {
+        return Ok((normals, None));
+    }
+    let mut heights = Vec::with_capacity(lrs.len() * w * h);
+    for lr in lrs {
+        let height = lr.height.as_ref().ok_or_else(|| {
+            Error::Invalid("height_guide: a material without a height map".into())
+        })?;
+        heights.extend(height.data().iter().map(|v| v - 0.5));
+    }
+    let heights = Tensor::from_vec(heights, (lrs.len(), 1, h, w), device)?;
+    Ok((normals, Some(heights)))
 }
 
 /// The 7 features of LR materials, `[B, 7, h, w]`, and per material the features that are

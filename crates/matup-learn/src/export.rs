@@ -27,6 +27,11 @@ pub fn export(
             "their renders upsampled, against the true materials' renders ({} loss)",
             config.loss
         ),
+        Target::Normals => format!(
+            "their normal maps upsampled, with a {} render loss of the true materials with \
+             these normals through back-projection (normal weight {})",
+            config.loss, config.normal_weight
+        ),
     };
     let description = format!(
         "{} fine-tuned by `matup learn` for {iteration} steps on {} materials, box-filtered \

@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use candle_core::{Device, Tensor, Var};
+use matup_core::resample::Border;
 use matup_core::{Error, Result};
 use matup_upsamplers::onnx::{
     read_graph, read_sidecar, Arith, Graph, ModelInfo, ModelProto, Op, PerTexel, RawConv,
@@ -28,6 +29,9 @@ pub struct TrainableNet {
     convs: Vec<Option<ConvWeights>>,
     proto: ModelProto,
     pub info: ModelInfo,
+    /// A joint network's extra input: the index of the convolution that reads the network's
+    /// input and its weights for the height channel (see [`TrainableNet::add_height_guide`]).
+    height_guide: Option<(usize, ConvWeights)>,
 }
 
 fn invalid(path: &Path, what: impl std::fmt::Display) -> Error {
@@ -81,7 +85,56 @@ impl TrainableNet {
             convs,
             proto,
             info,
+            height_guide: None,
         })
+    }
+
+    /// Makes the network joint: a height map read beside the RGB input by the first
+    /// convolution, through weights of its own that start at zero (so the network starts as
+    /// it was). The convolution must read the input through per-texel steps only (SPAN's
+    /// normalisation), so that the height enters where the colours do.
+    pub fn add_height_guide(&mut self) -> Result<()> {
+        let producer = |value: usize| self.graph.steps.iter().position(|s| s.output == value);
+        let Some(entry) = self
+            .graph
+            .steps
+            .iter()
+            .position(|s| matches!(s.op, Op::Conv(..)))
+        else {
+            return Err(Error::Invalid("the network has no convolution".into()));
+        };
+        let mut value = self.graph.steps[entry].inputs[0];
+        while value != 0 {
+            match producer(value).map(|i| &self.graph.steps[i]) {
+                Some(step) if matches!(step.op, Op::PerTexel(_)) => value = step.inputs[0],
+                _ => {
+                    return Err(Error::Invalid(
+                        "the network's first convolution does not read its input through per-texel steps only: no place for a height channel".into(),
+                    ))
+                }
+            }
+        }
+        let w = self.convs[entry].as_ref().expect("a conv step has weights");
+        let (kh, kw) = w.kernel;
+        let cout = w.weights.dim(0).map_err(candle)?;
+        let device = w.weights.device().clone();
+        let zeros =
+            Var::zeros((cout, kh * kw), candle_core::DType::F32, &device).map_err(candle)?;
+        self.height_guide = Some((
+            entry,
+            ConvWeights {
+                weights: zeros,
+                bias: None,
+                kernel: (kh, kw),
+                cin: 1,
+            },
+        ));
+        Ok(())
+    }
+
+    /// Whether the network reads a height map beside its RGB input.
+    pub fn has_height_guide(&self) -> bool {
+        self.height_guide.is_some()
     }
 
     /// The trainable tensors, in a fixed order (checkpoints and the optimiser use it).
@@ -89,6 +142,7 @@ impl TrainableNet {
         self.convs
             .iter()
             .flatten()
+            .chain(self.height_guide.as_ref().map(|(_, w)| w))
             .flat_map(|c| std::iter::once(c.weights.clone()).chain(c.bias.clone()))
             .collect()
     }
@@ -96,6 +150,25 @@ impl TrainableNet {
     /// Upsamples `[B, 3, h, w]` RGB images in [0, 1] (the executor's input convention: the
     /// sidecar's ranges and channel order applied here), zero padding at the borders.
     pub fn forward(&self, images: &Tensor) -> candle_core::Result<Tensor> {
+        self.forward_guided(images, None)
+    }
+
+    /// [`TrainableNet::forward`] for a joint network: `height` `[B, 1, h, w]` beside the
+    /// images (required when the network has a height guide, ignored otherwise).
+    pub fn forward_guided(
+        &self,
+        images: &Tensor,
+        height: Option<&Tensor>,
+    ) -> candle_core::Result<Tensor> {
+        let guide = match (&self.height_guide, height) {
+            (Some(g), Some(h)) => Some((g, h)),
+            (Some(_), None) => {
+                return Err(candle_core::Error::Msg(
+                    "a height-guided network needs the height map".into(),
+                ))
+            }
+            (None, _) => None,
+        };
         let [lo, hi] = self.info.input_range;
         let [olo, ohi] = self.info.output_range;
         let bgr = self.info.channel_order == "bgr";
@@ -112,7 +185,7 @@ impl TrainableNet {
         let input = swap(&images.affine((hi - lo) as f64, lo as f64)?)?;
         let mut values: Vec<Option<Tensor>> = vec![None; self.graph.values];
         values[0] = Some(input);
-        for (step, conv) in self.graph.steps.iter().zip(&self.convs) {
+        for (index, (step, conv)) in self.graph.steps.iter().zip(&self.convs).enumerate() {
             let input = |k: usize| {
                 values[step.inputs[k]]
                     .clone()
@@ -121,7 +194,13 @@ impl TrainableNet {
             let out = match &step.op {
                 Op::Conv(_, then) => {
                     let w = conv.as_ref().expect("a conv step has weights");
-                    per_texel(&convolve(&input(0), w)?, then)?
+                    let mut y = convolve(&input(0), w)?;
+                    if let Some(((entry, g), height)) = guide {
+                        if *entry == index {
+                            y = (y + convolve(height, g)?)?;
+                        }
+                    }
+                    per_texel(&y, then)?
                 }
                 Op::PerTexel(chain) => per_texel(&input(0), chain)?,
                 Op::Arith(a) => {
@@ -153,9 +232,45 @@ impl TrainableNet {
             .clamp(0f32, 1f32)
     }
 
+    /// [`TrainableNet::forward_guided`] as matup's executor runs a whole image: read with
+    /// `context` texels beyond each edge taken as `border` says (as the executor's tiles read
+    /// theirs), the output cropped back to the image's.
+    pub fn forward_bordered(
+        &self,
+        images: &Tensor,
+        height: Option<&Tensor>,
+        context: usize,
+        border: Border,
+    ) -> candle_core::Result<Tensor> {
+        let pad = |x: &Tensor| -> candle_core::Result<Tensor> {
+            let (_, _, h, w) = x.dims4()?;
+            let indices = |n: usize| {
+                let reach = context as isize;
+                let i: Vec<u32> = (-reach..n as isize + reach)
+                    .map(|i| border.index(i, n) as u32)
+                    .collect();
+                Tensor::from_vec(i, n + 2 * context, x.device())
+            };
+            x.index_select(&indices(h)?, 2)?
+                .index_select(&indices(w)?, 3)
+        };
+        let height = height.map(pad).transpose()?;
+        let out = self.forward_guided(&pad(images)?, height.as_ref())?;
+        let (_, _, h, w) = images.dims4()?;
+        let s = self.info.scale;
+        out.narrow(2, context * s, h * s)?
+            .narrow(3, context * s, w * s)
+    }
+
     /// The ONNX file with the current weights written into its initialisers: the same graph,
     /// so matup's executor runs it as it ran the original.
     pub fn to_onnx(&self) -> Result<Vec<u8>> {
+        if self.has_height_guide() {
+            return Err(Error::Invalid(
+                "a height-guided network has no ONNX form here: matup's executor runs RGB networks"
+                    .into(),
+            ));
+        }
         let mut proto = self.proto.clone();
         let graph = proto.graph.as_mut().expect("read_graph checked the graph");
         for (step, weights) in self.graph.steps.iter().zip(&self.convs) {

@@ -37,16 +37,38 @@ pub fn decode_outputs(outputs: &Tensor) -> candle_core::Result<Tensor> {
     let per_material = outputs.reshape((b, IMAGES_PER_MATERIAL, 3, h, w))?;
     let image = |k: usize| per_material.narrow(1, k, 1)?.squeeze(1);
     let base = srgb_to_linear(&image(0)?.clamp(0f32, 1f32)?)?.clamp(0f32, 1f32)?;
-    // DirectX encoding, (n + 1) / 2; renormalised (a zero vector cannot come out of 2v − 1
-    // in practice, the floor only keeps the division finite).
-    let normal = image(1)?.affine(2.0, -1.0)?;
-    let length = normal.sqr()?.sum_keepdim(1)?.maximum(1e-20f32)?.sqrt()?;
-    let normal = normal.broadcast_div(&length)?;
+    let normal = decode_normal_image(&image(1)?)?;
     let grey = |k: usize| image(k)?.mean_keepdim(1);
     let roughness = grey(2)?.clamp(MIN_ROUGHNESS, 1f32)?;
     let metallic = grey(3)?.clamp(0f32, 1f32)?;
     let alpha = roughness.sqr()?.clamp(MIN_ALPHA, 1f32)?;
     Tensor::cat(&[&base, &metallic, &normal.narrow(1, 0, 2)?, &alpha], 1)
+}
+
+/// Normal-map images `[B, 3, H, W]` (DirectX encoding, `(n + 1) / 2`) → unit normals,
+/// renormalised as the per-map upsampler renormalises them (a zero vector cannot come out of
+/// `2v − 1` in practice; the floor only keeps the division finite).
+pub fn decode_normal_image(image: &Tensor) -> candle_core::Result<Tensor> {
+    let normal = image.affine(2.0, -1.0)?;
+    let length = normal.sqr()?.sum_keepdim(1)?.maximum(1e-20f32)?.sqrt()?;
+    normal.broadcast_div(&length)
+}
+
+/// The normals of shading parameters from normal features `[B, 2, H, W]` (x and y),
+/// `[B·H·W, 3]` texel by texel, as the filter's decode rebuilds them.
+pub fn normal_params(xy: &Tensor) -> candle_core::Result<Tensor> {
+    let xy = xy.permute((0, 2, 3, 1))?.flatten_to(2)?;
+    let t = xy.dim(0)?;
+    let features = Tensor::cat(
+        &[
+            &Tensor::zeros((t, 4), xy.dtype(), xy.device())?,
+            &xy,
+            &Tensor::ones((t, 1), xy.dtype(), xy.device())?,
+        ],
+        1,
+    )?;
+    let (params, _) = decode_tensors(&features.zeros_like()?, &features, &[None; FEATURES])?;
+    params.narrow(1, 4, 3)
 }
 
 /// Back-projection onto the LR features as matrix products: the box filter as a mean of
@@ -101,6 +123,22 @@ impl BackProjection {
     /// `hr` `[B, 7, H, W]` corrected so that its box-downsample comes back to `lr`
     /// `[B, 7, h, w]`, values kept in their ranges.
     pub fn apply(&self, hr: &Tensor, lr: &Tensor) -> candle_core::Result<Tensor> {
+        self.apply_features(hr, lr, 0)
+    }
+
+    /// [`BackProjection::apply`] to some of the features: `hr` `[B, C, H, W]` and `lr`
+    /// `[B, C, h, w]` hold features `first..first + C` (each is back-projected on its own).
+    pub fn apply_features(
+        &self,
+        hr: &Tensor,
+        lr: &Tensor,
+        first: usize,
+    ) -> candle_core::Result<Tensor> {
+        let count = hr.dim(1)?;
+        let (lo, hi) = (
+            self.lo.narrow(1, first, count)?,
+            self.hi.narrow(1, first, count)?,
+        );
         let mut hr = hr.clone();
         for _ in 0..BACK_PROJECTIONS {
             let mismatch = (lr - hr.avg_pool2d(self.scale)?)?;
@@ -108,8 +146,8 @@ impl BackProjection {
                 .spread
                 .broadcast_matmul(&mismatch.broadcast_matmul(&self.spread_t)?)?;
             hr = (hr + correction)?
-                .broadcast_maximum(&self.lo)?
-                .broadcast_minimum(&self.hi)?;
+                .broadcast_maximum(&lo)?
+                .broadcast_minimum(&hi)?;
         }
         Ok(hr)
     }

@@ -19,6 +19,7 @@ use matup_core::resample::Border;
 use matup_core::shading::tensor_form;
 use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::tensor::{loss_norm, params_tensor, LightTensors};
+use matup_core::tileable::detect_tileable;
 use matup_core::upsample::upsampler as rgb_upsampler;
 use matup_core::{Error, LightSetSpec, LossNorm, Material, PluginSpec, Result};
 use matup_eval::metrics::{evaluate, flip, psnr, rmse, sharpness, Evaluation};
@@ -28,10 +29,13 @@ use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
 use crate::config::{LearnConfig, Target};
-use crate::data::{lr_features, network_inputs, random_pair, Corpus, Pair};
+use crate::data::{lr_features, network_inputs, normal_inputs, random_pair, Corpus, Pair};
 use crate::export::export;
 use crate::net::TrainableNet;
-use crate::shipped::{decode_outputs, normal_chord, shading_params, shown, BackProjection};
+use crate::shipped::{
+    decode_normal_image, decode_outputs, normal_chord, normal_params, shading_params, shown,
+    BackProjection,
+};
 
 /// Adam (Kingma & Ba 2015) over the network's tensors, its moments checkpointed with them;
 /// with an anchor, each step also pulls the weights toward where they started
@@ -154,7 +158,11 @@ pub struct Trainer {
 
 impl Trainer {
     pub fn new(config: &LearnConfig, device: &Device) -> Result<Trainer> {
-        let net = TrainableNet::load(&config.base_model, device)?;
+        let mut net = TrainableNet::load(&config.base_model, device)?;
+        if config.height_guide {
+            net.add_height_guide()
+                .map_err(|e| Error::file(&config.base_model, e.to_string()))?;
+        }
         if net.info.scale != config.scale {
             return Err(Error::Invalid(format!(
                 "{}: a ×{} network, but the configuration asks for ×{}",
@@ -182,6 +190,19 @@ impl Trainer {
             config: config.clone(),
             device: device.clone(),
         })
+    }
+
+    /// Puts the weights of the run in `dir` (its last checkpoint, of this configuration) in
+    /// place of the base model's; returns the checkpoint's step.
+    pub fn load_run(&self, dir: &Path) -> Result<usize> {
+        let vars = self.net.vars();
+        let mut adam = Adam::new(&vars, self.config.learning_rate, 0.0)?;
+        let files = RunFiles {
+            dir: dir.to_path_buf(),
+        };
+        load_checkpoint(&files, &vars, &mut adam, &self.config, &self.device)?
+            .map(|info| info.iteration)
+            .ok_or_else(|| Error::file(&files.checkpoint_info(), "no checkpoint"))
     }
 
     /// The random generator of step `iteration`: a function of the seed and the step alone,
@@ -219,13 +240,13 @@ impl Trainer {
         match c.target {
             Target::Maps => self.maps_loss(&pairs, &lights),
             Target::Renders => self.renders_loss(&pairs, &lights),
+            Target::Normals => self.normals_loss(&pairs, &lights),
         }
     }
 
     /// The network's maps, decoded and back-projected as `matup upscale` ships them, rendered
     /// against the truth's renders (plus the normal term).
     fn maps_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
-        let c = &self.config;
         let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
         let inputs = network_inputs(&lrs, &self.device)?;
         let (lr, fixed) = lr_features(&lrs, &self.device)?;
@@ -237,24 +258,45 @@ impl Trainer {
             .map(|b| shading_params(&hr.get(b)?, &fixed[b]))
             .collect::<candle_core::Result<Vec<_>>>()?;
         let params = Tensor::cat(&params, 0)?;
-        let truth_texels: Vec<_> = pairs
-            .iter()
-            .flat_map(|p| (0..p.truth.base_color.texels()).map(|i| p.truth.texel(i)))
-            .collect();
-        let truth = params_tensor(
-            &truth_texels.iter().map(|t| t.params).collect::<Vec<_>>(),
+        self.against_truth(&TrueTexels::new(pairs, &self.device)?, &params, lights)
+    }
+
+    /// The network's normal maps, decoded and back-projected as `matup upscale` ships them,
+    /// in the true material in place of its own normals, rendered against the truth's renders
+    /// (plus the normal term).
+    fn normals_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
+        let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
+        let normals = shipped_normals(
+            &self.net,
+            &lrs,
+            &self.back_projection,
+            0,
+            Border::Mirror,
             &self.device,
         )?;
+        let truth = TrueTexels::new(pairs, &self.device)?;
+        let t = &truth.params;
+        let params = Tensor::cat(&[&t.narrow(1, 0, 4)?, &normals, &t.narrow(1, 7, 3)?], 1)?;
+        self.against_truth(&truth, &params, lights)
+    }
+
+    /// The render loss of shading parameters `[T, 10]` (the pairs' texels in order) against
+    /// the truth's, plus the normal term.
+    fn against_truth(
+        &self,
+        truth: &TrueTexels,
+        params: &Tensor,
+        lights: &[Light],
+    ) -> Result<(Tensor, StepLoss)> {
         // Both rendered at the truth's positions (height displaced): the network makes no
         // height, and the loss should see only what it makes.
-        let positions: Vec<[f32; 3]> = truth_texels.iter().map(|t| t.position).collect();
-        let light_tensors = LightTensors::new(lights, &positions, &self.device)?;
+        let light_tensors = LightTensors::new(lights, &truth.positions, &self.device)?;
         let shading = tensor_form(self.model.as_ref())?;
-        let target = shown(shading, &truth, &light_tensors)?.detach();
-        let rendered = shown(shading, &params, &light_tensors)?;
+        let target = shown(shading, &truth.params, &light_tensors)?.detach();
+        let rendered = shown(shading, params, &light_tensors)?;
         let render = loss_norm(&self.norm, &(rendered - target)?)?.mean_all()?;
-        let normal = normal_chord(&params, &truth)?;
-        let loss = (&render + (&normal * c.normal_weight)?)?;
+        let normal = normal_chord(params, &truth.params)?;
+        let loss = (&render + (&normal * self.config.normal_weight)?)?;
         step_loss(loss, render, normal)
     }
 
@@ -278,6 +320,51 @@ impl Trainer {
         let normal = render.zeros_like()?;
         step_loss(render.clone(), render, normal)
     }
+}
+
+/// The true crops' texels, in order: shading parameters `[T, 10]` and positions.
+struct TrueTexels {
+    params: Tensor,
+    positions: Vec<[f32; 3]>,
+}
+
+impl TrueTexels {
+    fn new(pairs: &[Pair], device: &Device) -> Result<TrueTexels> {
+        let texels: Vec<_> = pairs
+            .iter()
+            .flat_map(|p| (0..p.truth.base_color.texels()).map(|i| p.truth.texel(i)))
+            .collect();
+        Ok(TrueTexels {
+            params: params_tensor(&texels.iter().map(|t| t.params).collect::<Vec<_>>(), device)?,
+            positions: texels.iter().map(|t| t.position).collect(),
+        })
+    }
+}
+
+/// What `matup upscale`'s defaults make of `net`'s upsampling of the LR normal maps (decoded,
+/// renormalised, back-projected onto the LR normals by `back_projection`), as the shading
+/// parameters' normals `[T, 3]`, texel by texel. The network reads each LR map whole, zero padded (training crops), or with `context`
+/// texels beyond its edges taken as `border` says, as matup's executor reads a whole image
+/// (validation).
+fn shipped_normals(
+    net: &TrainableNet,
+    lrs: &[&Material],
+    back_projection: &BackProjection,
+    context: usize,
+    border: Border,
+    device: &Device,
+) -> Result<Tensor> {
+    let (images, height) = normal_inputs(lrs, net.has_height_guide(), device)?;
+    let upsampled = if context == 0 {
+        net.forward_guided(&images, height.as_ref())?
+    } else {
+        net.forward_bordered(&images, height.as_ref(), context, border)?
+    };
+    let unit = decode_normal_image(&upsampled)?;
+    let (lr, _) = lr_features(lrs, device)?;
+    // Normal x and y are features 4 and 5.
+    let xy = back_projection.apply_features(&unit.narrow(1, 0, 2)?, &lr.narrow(1, 4, 2)?, 4)?;
+    Ok(normal_params(&xy)?)
 }
 
 /// Renders of training and validation crops: anti-aliased as the method's LR renders, borders
@@ -482,7 +569,47 @@ pub fn validate(
     match target {
         Target::Maps => validate_maps(upsampler, set, lights),
         Target::Renders => validate_renders(upsampler, set, lights),
+        Target::Normals => {
+            let spec = upsampler.parse::<PluginSpec>()?;
+            let path = spec.argument.as_deref().unwrap_or_default();
+            let net = TrainableNet::load(Path::new(path), &Device::Cpu)?;
+            validate_normals(&net, set, lights)
+        }
     }
+}
+
+/// The true validation material with `net`'s normals in place of its own, as `matup
+/// upscale`'s defaults would ship them (decoded, back-projected onto the LR normals), against
+/// the truth: how much of the render error the network's normal maps leave.
+pub fn validate_normals(
+    net: &TrainableNet,
+    set: &[ValMaterial],
+    lights: usize,
+) -> Result<Vec<(String, Score)>> {
+    let model = shading_model(&"ggx".parse::<PluginSpec>()?)?;
+    let device = Device::Cpu;
+    set.iter()
+        .map(|v| {
+            let (w, h) = (v.truth.width(), v.truth.height_px());
+            let scale = w / v.lr.width();
+            // Borders as `matup upscale` takes them: wrapped where the LR map tiles.
+            let border = Border::for_tiling(detect_tileable(&v.lr).0);
+            let back_projection = BackProjection::new(v.lr.width(), scale, border, &device)?;
+            let context = net.info.overlap;
+            let normals =
+                shipped_normals(net, &[&v.lr], &back_projection, context, border, &device)?;
+            let planar = normals.t()?.flatten_all()?.to_vec1::<f32>()?;
+            let mut candidate = v.truth.clone();
+            candidate.normal = Map::from_planar(w, h, 3, planar);
+            let e = evaluate(
+                &v.truth,
+                &candidate,
+                model.as_ref(),
+                &LightSetSpec::held_out(lights),
+            )?;
+            Ok((v.name.clone(), e.into()))
+        })
+        .collect()
 }
 
 /// `matup upscale`'s defaults with `upsampler`, against the truth.
@@ -641,13 +768,18 @@ pub fn train(
             return Ok(());
         }
         progress.stage(&format!("validate step {iteration}"), set.len() as u64);
-        export(&trainer.net, &files.last(), config, iteration)?;
-        let evaluations = validate(
-            config.target,
-            &format!("onnx:{}", files.last().display()),
-            &set,
-            config.val_lights,
-        )?;
+        let evaluations = if config.target == Target::Normals {
+            // In candle: a height-guided network has no ONNX form.
+            validate_normals(&trainer.net, &set, config.val_lights)?
+        } else {
+            export(&trainer.net, &files.last(), config, iteration)?;
+            validate(
+                config.target,
+                &format!("onnx:{}", files.last().display()),
+                &set,
+                config.val_lights,
+            )?
+        };
         progress.advance(set.len() as u64, None);
         log_validation(&files, iteration, &evaluations)?;
         let (psnr, flip) = means(&evaluations);
@@ -656,7 +788,9 @@ pub fn train(
         ));
         if best.is_none_or(|(b, _)| psnr > b) {
             *best = Some((psnr, iteration));
-            export(&trainer.net, &files.best(), config, iteration)?;
+            if !trainer.net.has_height_guide() {
+                export(&trainer.net, &files.best(), config, iteration)?;
+            }
         }
         Ok(())
     };

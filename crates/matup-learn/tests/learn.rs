@@ -259,6 +259,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         learning_rate: 2e-4,
         loss: "l11".into(),
         normal_weight: 0.1,
+        height_guide: false,
         anchor_weight: 0.0,
         checkpoint_every: 2,
         validate_every: 3,
@@ -469,6 +470,99 @@ fn a_network_of_renders_learns_the_true_renders_and_is_validated_on_matups_upsam
     std::fs::write(&path, toml::to_string(&with_normals).unwrap()).unwrap();
     let error = LearnConfig::load(&path).unwrap_err().to_string();
     assert!(error.contains("normal_weight"), "{error}");
+}
+
+#[test]
+fn a_network_of_normals_is_validated_as_shipped_and_a_height_guide_starts_as_its_network() {
+    let dir = tempfile::tempdir().unwrap();
+    let device = Device::Cpu;
+    let config = LearnConfig {
+        target: Target::Normals,
+        validate_every: 8,
+        ..tiny_run(dir.path(), 8)
+    };
+    let guided = LearnConfig {
+        height_guide: true,
+        ..config.clone()
+    };
+    let trainer = |c: &LearnConfig| matup_learn::train::Trainer::new(c, &device).unwrap();
+    let (plain, joint) = (trainer(&config), trainer(&guided));
+    // Before training, the height guide's weights are zero: the same losses.
+    for i in 0..3 {
+        assert_eq!(plain.loss(i).unwrap().1.loss, joint.loss(i).unwrap().1.loss);
+    }
+
+    // Trained, the joint network's steps lose less, and it reads the height.
+    let joint_run = dir.path().join("joint");
+    train(&guided, &joint_run, &device, &matup_core::progress::Silent).unwrap();
+    let mean_loss = |t: &matup_learn::train::Trainer| {
+        (0..8).map(|i| t.loss(i).unwrap().1.loss).sum::<f64>() / 8.0
+    };
+    let before = mean_loss(&joint);
+    assert_eq!(joint.load_run(&joint_run).unwrap(), 8);
+    let after = mean_loss(&joint);
+    println!("the joint network's steps' mean loss: {before:.5} → {after:.5}");
+    assert!(after < 0.95 * before, "{before} → {after}");
+    let height_weights = joint.net.vars().last().unwrap().as_tensor().clone();
+    let largest = height_weights.abs().unwrap().max_all().unwrap();
+    assert!(
+        largest.to_scalar::<f32>().unwrap() > 1e-5,
+        "the height is not read"
+    );
+    // matup's executor runs RGB networks: no export, said plainly.
+    assert!(!joint_run.join("best.onnx").exists());
+    let error = joint.net.to_onnx().unwrap_err().to_string();
+    assert!(error.contains("height-guided"), "{error}");
+
+    // A network of normals' first validation scores what `matup upscale`'s defaults ship with
+    // the base network: the truth with the normals of their result, under the held-out lights.
+    let plain_run = dir.path().join("plain");
+    train(&config, &plain_run, &device, &matup_core::progress::Silent).unwrap();
+    let truth = load_material(Some(&config.corpus.join("b")), &LoadOptions::default()).unwrap();
+    let lr = truth.box_downsample(4);
+    let defaults = matup_method::Config {
+        upsampler: format!("onnx:{}", config.base_model.display()),
+        ..Default::default()
+    };
+    let (shipped, _) = matup_method::upscale(
+        &lr,
+        &defaults,
+        &matup_method::RunOptions::default(),
+        &matup_core::progress::Silent,
+    )
+    .unwrap();
+    let mut candidate = truth.clone();
+    candidate.normal = shipped.normal.clone();
+    let model = shading_model(&"ggx".parse::<PluginSpec>().unwrap()).unwrap();
+    let expected = matup_eval::metrics::evaluate(
+        &truth,
+        &candidate,
+        model.as_ref(),
+        &LightSetSpec::held_out(config.val_lights),
+    )
+    .unwrap();
+    let first_row = |run: &Path| -> Vec<String> {
+        let val = std::fs::read_to_string(run.join("val.csv")).unwrap();
+        val.lines()
+            .nth(1)
+            .unwrap()
+            .split(',')
+            .map(String::from)
+            .collect()
+    };
+    let first = first_row(&plain_run);
+    assert_eq!(first[..2], ["0", "b"]);
+    let (psnr, degrees): (f64, f64) = (first[2].parse().unwrap(), first[4].parse().unwrap());
+    println!(
+        "first validation {psnr:.4} dB, {degrees:.4}°; matup upscale's normals {:.4} dB, {:.4}°",
+        expected.render_psnr, expected.normal_error_degrees
+    );
+    assert!((psnr - expected.render_psnr).abs() < 1e-3);
+    assert!((degrees - expected.normal_error_degrees).abs() < 1e-3);
+    // The joint network started where the plain one did.
+    assert_eq!(first_row(&joint_run), first);
+    // A network of normals is an RGB network: exported as the others are.
+    assert!(plain_run.join("best.onnx").is_file());
 }
 
 #[test]
