@@ -35,7 +35,7 @@ pub struct LearnConfig {
     pub train: Vec<String>,
     /// Materials validated on, never trained on.
     pub val: Vec<String>,
-    /// What the network upsamples: `maps` (the default) or `renders`.
+    /// What the network upsamples: `maps` (the default), `renders` or `normals`.
     #[serde(default)]
     pub target: Target,
     /// Upsampling factor (the network's).
@@ -44,7 +44,7 @@ pub struct LearnConfig {
     /// Optimiser steps in all (a resumed run continues to this count).
     pub iterations: usize,
     /// Material crops per step; each sends its four maps through the network (its render under
-    /// each light with `target = "renders"`).
+    /// each light with `target = "renders"`, its normal map with `target = "normals"`).
     #[serde(default = "default_batch")]
     pub batch: usize,
     /// Side of a true crop in texels (its LR version is `patch / scale`).
