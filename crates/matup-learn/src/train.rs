@@ -571,7 +571,11 @@ pub fn validate(
         Target::Renders => validate_renders(upsampler, set, lights),
         Target::Normals => {
             let spec = upsampler.parse::<PluginSpec>()?;
-            let path = spec.argument.as_deref().unwrap_or_default();
+            let Some(path) = spec.argument.as_deref() else {
+                return Err(Error::Invalid(format!(
+                    "'{upsampler}': a network of normals is validated from its file (onnx:PATH)"
+                )));
+            };
             let net = TrainableNet::load(Path::new(path), &Device::Cpu)?;
             validate_normals(&net, set, lights)
         }
@@ -586,30 +590,20 @@ pub fn validate_normals(
     set: &[ValMaterial],
     lights: usize,
 ) -> Result<Vec<(String, Score)>> {
-    let model = shading_model(&"ggx".parse::<PluginSpec>()?)?;
     let device = Device::Cpu;
-    set.iter()
-        .map(|v| {
-            let (w, h) = (v.truth.width(), v.truth.height_px());
-            let scale = w / v.lr.width();
-            // Borders as `matup upscale` takes them: wrapped where the LR map tiles.
-            let border = Border::for_tiling(detect_tileable(&v.lr).0);
-            let back_projection = BackProjection::new(v.lr.width(), scale, border, &device)?;
-            let context = net.info.overlap;
-            let normals =
-                shipped_normals(net, &[&v.lr], &back_projection, context, border, &device)?;
-            let planar = normals.t()?.flatten_all()?.to_vec1::<f32>()?;
-            let mut candidate = v.truth.clone();
-            candidate.normal = Map::from_planar(w, h, 3, planar);
-            let e = evaluate(
-                &v.truth,
-                &candidate,
-                model.as_ref(),
-                &LightSetSpec::held_out(lights),
-            )?;
-            Ok((v.name.clone(), e.into()))
-        })
-        .collect()
+    score_each(set, lights, |v| {
+        let (w, h) = (v.truth.width(), v.truth.height_px());
+        let scale = w / v.lr.width();
+        // Borders as `matup upscale` takes them: wrapped where the LR map tiles.
+        let border = Border::for_tiling(detect_tileable(&v.lr).0);
+        let back_projection = BackProjection::new(v.lr.width(), scale, border, &device)?;
+        let context = net.info.overlap;
+        let normals = shipped_normals(net, &[&v.lr], &back_projection, context, border, &device)?;
+        let planar = normals.t()?.flatten_all()?.to_vec1::<f32>()?;
+        let mut candidate = v.truth.clone();
+        candidate.normal = Map::from_planar(w, h, 3, planar);
+        Ok(candidate)
+    })
 }
 
 /// `matup upscale`'s defaults with `upsampler`, against the truth.
@@ -622,21 +616,29 @@ fn validate_maps(
         upsampler: upsampler.to_string(),
         ..Config::default()
     };
+    score_each(set, lights, |v| {
+        let (out, _) = upscale(
+            &v.lr,
+            &config,
+            &RunOptions::default(),
+            &matup_core::progress::Silent,
+        )?;
+        Ok(out)
+    })
+}
+
+/// Each validation material's `candidate` against its truth, rendered with `ggx` under
+/// `lights` held-out lights.
+fn score_each(
+    set: &[ValMaterial],
+    lights: usize,
+    candidate: impl Fn(&ValMaterial) -> Result<Material>,
+) -> Result<Vec<(String, Score)>> {
     let model = shading_model(&"ggx".parse::<PluginSpec>()?)?;
+    let lights = LightSetSpec::held_out(lights);
     set.iter()
         .map(|v| {
-            let (out, _) = upscale(
-                &v.lr,
-                &config,
-                &RunOptions::default(),
-                &matup_core::progress::Silent,
-            )?;
-            let e = evaluate(
-                &v.truth,
-                &out,
-                model.as_ref(),
-                &LightSetSpec::held_out(lights),
-            )?;
+            let e = evaluate(&v.truth, &candidate(v)?, model.as_ref(), &lights)?;
             Ok((v.name.clone(), e.into()))
         })
         .collect()
