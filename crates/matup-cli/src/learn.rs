@@ -31,6 +31,11 @@ pub struct LearnArgs {
     /// model's + ALPHA · OUTPUT/best.onnx's (weight-space interpolation, WiSE-FT).
     #[arg(long, value_name = "ALPHA")]
     pub blend: Option<f64>,
+    /// With --blend: interpolate from this network (of the same graph) instead of the base
+    /// model, e.g. models/span_x4_ch48.onnx for a run that started from another fine-tune;
+    /// writes OUTPUT/blend-ALPHA-NAME.onnx.
+    #[arg(long, value_name = "MODEL", requires = "blend")]
+    pub blend_with: Option<PathBuf>,
 }
 
 pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
@@ -39,7 +44,8 @@ pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
         config.iterations = n;
     }
     if let Some(alpha) = args.blend {
-        let path = matup_learn::export::blend(&config, &args.output, alpha)?;
+        let path =
+            matup_learn::export::blend(&config, &args.output, alpha, args.blend_with.as_deref())?;
         eprintln!("wrote {}", path.display());
         return Ok(());
     }

@@ -67,6 +67,10 @@ pub struct LearnConfig {
     /// weights in the first convolution start at zero, so the run starts as the base model.
     #[serde(default)]
     pub height_guide: bool,
+    /// Share of the training crops cut into tiles with grout between them, made of the
+    /// corpus's own maps (`tiles.rs`: tiled floors and walls, which the corpus lacks); 0: none.
+    #[serde(default)]
+    pub tiled_share: f64,
     /// Pull toward the base model's weights: after each step every weight `w` moves by
     /// `learning_rate · anchor_weight · (w₀ − w)` toward its start `w₀` (decoupled, as AdamW
     /// decays toward zero; the idea of L2-SP, Li et al. 2018). A blend with the base model
@@ -173,6 +177,12 @@ impl LearnConfig {
                 "normal_weight needs target = \"maps\": a network of renders makes no normals"
                     .into(),
             );
+        }
+        if !(0.0..=1.0).contains(&self.tiled_share) {
+            return Err(format!(
+                "tiled_share {} must be between 0 and 1",
+                self.tiled_share
+            ));
         }
         if self.height_guide && self.target != Target::Normals {
             return Err("height_guide needs target = \"normals\"".into());

@@ -12,6 +12,7 @@ use matup_method::pipeline::{constant_features, features};
 use rand::Rng;
 
 use crate::shipped::IMAGES_PER_MATERIAL;
+use crate::tiles::TileLayout;
 
 /// Materials loaded from a corpus folder.
 pub struct Corpus {
@@ -50,13 +51,33 @@ impl Pair {
 
 /// A random `size × size` crop of a random material, at a position that is a multiple of
 /// `scale` (so its LR version is a crop of the whole material's), under a random symmetry.
-pub fn random_pair(corpus: &Corpus, size: usize, scale: usize, rng: &mut impl Rng) -> Pair {
+/// A share `tiled_share` of them is cut into tiles, a second random crop in the grout
+/// ([`TileLayout`]).
+pub fn random_pair(
+    corpus: &Corpus,
+    size: usize,
+    scale: usize,
+    tiled_share: f64,
+    rng: &mut impl Rng,
+) -> Pair {
+    let crop = random_crop(corpus, size, scale, rng);
+    // Drawn only when asked for, so that runs without tiles draw what they always drew.
+    let crop = if tiled_share > 0.0 && rng.random_bool(tiled_share) {
+        let grout = random_crop(corpus, size, scale, rng);
+        TileLayout::random(rng).cut(&crop, &grout)
+    } else {
+        crop
+    };
+    let symmetry = Dihedral::ALL[rng.random_range(0..8)];
+    Pair::new(crop.transformed(symmetry), scale)
+}
+
+fn random_crop(corpus: &Corpus, size: usize, scale: usize, rng: &mut impl Rng) -> Material {
     let m = &corpus.materials[rng.random_range(0..corpus.materials.len())];
     let cells = |extent: usize| (extent - size) / scale + 1;
     let x0 = rng.random_range(0..cells(m.width())) * scale;
     let y0 = rng.random_range(0..cells(m.height_px())) * scale;
-    let symmetry = Dihedral::ALL[rng.random_range(0..8)];
-    Pair::new(m.crop(x0, y0, size, size).transformed(symmetry), scale)
+    m.crop(x0, y0, size, size)
 }
 
 /// The network inputs of LR materials, `[4B, 3, h, w]`: each map encoded as the per-map

@@ -40,24 +40,34 @@ pub fn export(
         config.train.len(),
         config.scale,
     );
-    export_described(net, path, config, &description)
+    export_described(net, path, &config.base_model, &description)
 }
 
 /// The base model's file name.
 fn base_name(config: &LearnConfig) -> String {
-    config
-        .base_model
-        .file_name()
+    file_name(&config.base_model)
+}
+
+fn file_name(path: &Path) -> String {
+    path.file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default()
 }
 
-/// Weight-space interpolation between the base model and a run's best export (WiSE-FT,
-/// Wortsman et al. 2022): every weight `(1 − alpha) · base + alpha · best`, written as
-/// `DIR/blend-ALPHA.onnx` with its sidecar. Fine-tuned networks often keep most of their gain
-/// on data like their training set and lose less on data unlike it when pulled part of the way
-/// back to where they started. Returns the path written.
-pub fn blend(config: &LearnConfig, dir: &Path, alpha: f64) -> Result<std::path::PathBuf> {
+/// Weight-space interpolation between a network and a run's best export (WiSE-FT, Wortsman
+/// et al. 2022): every weight `(1 − alpha) · start + alpha · best`, where `start` is the
+/// configuration's base model, or `toward` (a network of the same graph, such as the stock
+/// network a run that began from another fine-tune came from). Written as
+/// `DIR/blend-ALPHA.onnx` (`DIR/blend-ALPHA-NAME.onnx` with `toward` = `NAME.onnx`) with its
+/// sidecar (the start's). Fine-tuned networks often keep most of their gain on data like their
+/// training set and lose less on data unlike it when pulled part of the way back to where they
+/// started. Returns the path written.
+pub fn blend(
+    config: &LearnConfig,
+    dir: &Path,
+    alpha: f64,
+    toward: Option<&Path>,
+) -> Result<std::path::PathBuf> {
     if !(0.0..=1.0).contains(&alpha) {
         return Err(Error::Invalid(format!(
             "--blend {alpha}: a weight in [0, 1]"
@@ -68,46 +78,59 @@ pub fn blend(config: &LearnConfig, dir: &Path, alpha: f64) -> Result<std::path::
     if !best.is_file() {
         return Err(Error::file(&best, "no best export: train the run first"));
     }
-    let base = TrainableNet::load(&config.base_model, &device)?;
+    let start_model = toward.unwrap_or(&config.base_model);
+    let start = TrainableNet::load(start_model, &device)?;
     let tuned = TrainableNet::load(&best, &device)?;
-    let (base_vars, tuned_vars) = (base.vars(), tuned.vars());
-    if base_vars.len() != tuned_vars.len() {
-        return Err(Error::file(
+    let (start_vars, tuned_vars) = (start.vars(), tuned.vars());
+    let other_graph = || {
+        Error::file(
             &best,
-            "a different graph from the configuration's base_model",
-        ));
+            format!("a different graph from {}", start_model.display()),
+        )
+    };
+    if start_vars.len() != tuned_vars.len() {
+        return Err(other_graph());
     }
-    for (b, t) in base_vars.iter().zip(&tuned_vars) {
+    for (b, t) in start_vars.iter().zip(&tuned_vars) {
         let mix = || b.set(&((b.as_tensor() * (1.0 - alpha))? + (t.as_tensor() * alpha)?)?);
         mix().map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
     }
-    let path = dir.join(format!("blend-{alpha:.2}.onnx"));
+    let name = match toward {
+        None => format!("blend-{alpha:.2}.onnx"),
+        Some(model) => format!(
+            "blend-{alpha:.2}-{}.onnx",
+            model.file_stem().unwrap_or_default().to_string_lossy()
+        ),
+    };
+    let path = dir.join(name);
     let description = format!(
         "{} with every weight (1 − {alpha}) · its own + {alpha} · {}'s (fine-tuned by `matup \
-         learn` on {} materials, box-filtered ×{}, {} render loss)",
-        base_name(config),
+         learn` from {} on {} materials, box-filtered ×{}, {} render loss)",
+        file_name(start_model),
         best.display(),
+        base_name(config),
         config.train.len(),
         config.scale,
         config.loss
     );
-    export_described(&base, &path, config, &description)?;
+    export_described(&start, &path, start_model, &description)?;
     Ok(path)
 }
 
 /// [`export`] with the sidecar's description given.
+/// `base_model` is the network the weights started from (its sidecar is copied).
 fn export_described(
     net: &TrainableNet,
     path: &Path,
-    config: &LearnConfig,
+    base_model: &Path,
     description: &str,
 ) -> Result<()> {
-    let base_sidecar = config.base_model.with_extension("toml");
+    let base_sidecar = base_model.with_extension("toml");
     let text = std::fs::read_to_string(&base_sidecar)
         .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
     let mut sidecar: toml::Table = toml::from_str(&text)
         .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
-    let base = base_name(config);
+    let base = file_name(base_model);
     sidecar.insert("description".into(), description.into());
     let source = sidecar
         .get("source")

@@ -10,6 +10,7 @@ pub mod data;
 pub mod export;
 pub mod net;
 pub mod shipped;
+pub mod tiles;
 pub mod train;
 
 pub use config::LearnConfig;

@@ -234,7 +234,7 @@ impl Trainer {
         let mut rng = self.rng(iteration);
         let c = &self.config;
         let pairs: Vec<_> = (0..c.batch)
-            .map(|_| random_pair(&self.corpus, c.patch, c.scale, &mut rng))
+            .map(|_| random_pair(&self.corpus, c.patch, c.scale, c.tiled_share, &mut rng))
             .collect();
         let lights = self.random_lights(c.lights, &mut rng);
         match c.target {

@@ -260,6 +260,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         loss: "l11".into(),
         normal_weight: 0.1,
         height_guide: false,
+        tiled_share: 0.0,
         anchor_weight: 0.0,
         checkpoint_every: 2,
         validate_every: 3,
@@ -363,7 +364,7 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
     assert!(whole.join("best.onnx").is_file() && whole.join("best.toml").is_file());
 
     // Blends: at 0 the stock network, at 1 the best export, at 0.5 every weight halfway.
-    let blend = |alpha: f64| matup_learn::export::blend(&config, &whole, alpha).unwrap();
+    let blend = |alpha: f64| matup_learn::export::blend(&config, &whole, alpha, None).unwrap();
     let best = whole.join("best.onnx");
     // Not assert_eq: a failure would print every value.
     assert!(
@@ -391,7 +392,15 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
         assert!(max_difference(h, &halfway) <= 1e-6);
     }
     assert!(whole.join("blend-0.50.toml").is_file());
-    assert!(matup_learn::export::blend(&config, &whole, 1.5).is_err());
+    // From another network of the same graph (here the halfway blend): halfway from there.
+    let half = whole.join("blend-0.50.onnx");
+    let from_half = matup_learn::export::blend(&config, &whole, 0.5, Some(&half)).unwrap();
+    assert_eq!(from_half, whole.join("blend-0.50-blend-0.50.onnx"));
+    for ((s, b), q) in stock_w.iter().zip(&best_w).zip(&weights(&from_half)) {
+        let three_quarters: Vec<f32> = s.iter().zip(b).map(|(s, b)| 0.25 * s + 0.75 * b).collect();
+        assert!(max_difference(q, &three_quarters) <= 1e-6);
+    }
+    assert!(matup_learn::export::blend(&config, &whole, 1.5, None).is_err());
 
     let val = std::fs::read_to_string(whole.join("val.csv")).unwrap();
     // Validations at steps 0, 3, 6 and 8, each a material row and a mean row.
