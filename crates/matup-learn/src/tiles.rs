@@ -5,7 +5,9 @@
 //! 8.1°). This lays a grid of tiles over a crop, made of the corpus's own maps: the crop's
 //! material on the tiles (its relief flattened, as glazed tiles are), a second crop's in the
 //! grout, and bevelled edges between them whose slope is added to the normals (as heights add),
-//! so the normals, the height and the colours of a tile agree as a scanned tile's do.
+//! so the normals, the height and the colours of a tile agree as a scanned tile's do. Edges are
+//! ragged (a straight, clean edge taught the network to straighten the painted lines of a road,
+//! Road006 −0.23 dB), and some joints are flush (inlays, painted lines: colour without relief).
 
 use matup_core::{Map, Material};
 use rand::Rng;
@@ -29,12 +31,17 @@ pub struct TileLayout {
     pub relief: f32,
     /// The grout material's base colour is scaled by this (grout is often darker).
     pub grout_shade: f32,
+    /// How far the edges wander from straight lines, in texels (value noise).
+    pub raggedness: f32,
+    /// Seeds the edges' noise.
+    pub noise_seed: u64,
 }
 
 impl TileLayout {
     /// A random layout: tiles of 12 to 96 texels (3 to 24 LR texels at ×4), grout 0.5 to 6
-    /// texels wide, bevels of 1 to 5 texels at 15° to 60°, at any phase (so that the lines fall
-    /// anywhere within an LR texel).
+    /// texels wide, bevels of 1 to 5 texels at 15° to 60° (flush, without relief, one time in
+    /// four), edges up to 2 texels from straight, at any phase (so that the lines fall anywhere
+    /// within an LR texel).
     pub fn random(rng: &mut impl Rng) -> TileLayout {
         let px = rng.random_range(12.0..96.0f32);
         let py = if rng.random_bool(0.5) {
@@ -53,10 +60,39 @@ impl TileLayout {
                 .tan(),
             relief: rng.random_range(0.0..1.0),
             grout_shade: rng.random_range(0.3..1.0),
+            raggedness: rng.random_range(0.0..2.0),
+            noise_seed: rng.random(),
         }
     }
 
-    /// Distance from the point (`x`, `y`) to the nearest grout line's centre.
+    /// Value noise in [−1, 1] at (`x`, `y`) on a lattice of `cell` texels: smooth, and a
+    /// function of the layout's seed alone.
+    fn noise(&self, x: f32, y: f32, cell: f32) -> f32 {
+        let lattice = |i: i64, j: i64| {
+            // SplitMix64's finaliser: a well-mixed hash of the lattice point and the seed.
+            let mut z = self.noise_seed
+                ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^= z >> 31;
+            (z >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+        };
+        let (u, v) = (x / cell, y / cell);
+        let (i, j) = (u.floor() as i64, v.floor() as i64);
+        let smooth = |t: f32| t * t * (3.0 - 2.0 * t);
+        let (a, b) = (smooth(u - u.floor()), smooth(v - v.floor()));
+        let row = |j: i64| lattice(i, j) + (lattice(i + 1, j) - lattice(i, j)) * a;
+        row(j) + (row(j + 1) - row(j)) * b
+    }
+
+    /// How far the edges are moved at (`x`, `y`): two octaves of noise.
+    fn jitter(&self, x: f32, y: f32) -> f32 {
+        self.raggedness * (0.6 * self.noise(x, y, 4.0) + 0.4 * self.noise(x, y, 1.5))
+    }
+
+    /// Distance from the point (`x`, `y`) to the nearest grout line's centre, the lines
+    /// ragged by [`TileLayout::jitter`].
     fn distance_to_grout(&self, x: f32, y: f32) -> f32 {
         let [px, py] = self.period;
         let to_line = |v: f32, period: f32| {
@@ -69,7 +105,8 @@ impl TileLayout {
         } else {
             0.0
         };
-        to_line(x - self.phase[0] - shift, px).min(to_line(y - self.phase[1], py))
+        let straight = to_line(x - self.phase[0] - shift, px).min(to_line(y - self.phase[1], py));
+        straight + self.jitter(x, y)
     }
 
     /// The surface's height above the grout's bottom, in texels, at distance `d` from a line:
@@ -182,6 +219,8 @@ mod tests {
             slope: 1.0,
             relief: 1.0,
             grout_shade: 0.5,
+            raggedness: 0.0,
+            noise_seed: 7,
         }
     }
 
@@ -260,6 +299,41 @@ mod tests {
             assert!(!tiled(&plain));
             assert_eq!(plain.truth, again.truth);
             assert_eq!(plain.lr, plain.truth.box_downsample(4));
+        }
+    }
+
+    #[test]
+    fn ragged_edges_wander_within_their_bound_and_flush_joints_have_no_relief() {
+        let tile = Material::uniform(64, [0.8; 3], 0.2, 0.0);
+        let grout = Material::uniform(64, [0.4; 3], 0.9, 0.0);
+        let ragged = TileLayout {
+            raggedness: 1.5,
+            slope: 0.0,
+            period: [32.0, 1e4],
+            phase: [0.0, 5e3],
+            ..layout()
+        };
+        let out = ragged.cut(&tile, &grout);
+        // The grout's right edge by the line at x = 32, row by row: where its cover falls
+        // below a half.
+        let edges: Vec<usize> = (0..64)
+            .map(|y| {
+                (32..48)
+                    .find(|&x| out.roughness.get(0, y, x) < 0.55)
+                    .unwrap()
+            })
+            .collect();
+        let (lo, hi) = (edges.iter().min().unwrap(), edges.iter().max().unwrap());
+        // Straight, the edge is at 33 (the grout's 1.5 texels); ragged, it wanders by up to
+        // 1.5 either way and at least a texel over 64 rows.
+        assert!(*lo >= 32 && *hi <= 35 && hi - lo >= 1, "{edges:?}");
+        for y in 0..64 {
+            for x in 0..64 {
+                let j = ragged.jitter(x as f32 + 0.5, y as f32 + 0.5);
+                assert!(j.abs() <= 1.5, "jitter {j}");
+                // Flush: colour without relief.
+                assert_eq!(out.normal.get(2, y, x), 1.0);
+            }
         }
     }
 }
