@@ -56,9 +56,9 @@ fn file_name(path: &Path) -> String {
 
 /// Weight-space interpolation between a network and a run's best export (WiSE-FT, Wortsman
 /// et al. 2022): every weight `(1 − alpha) · start + alpha · best`, where `start` is the
-/// configuration's base model, or `toward` (a network of the same graph, such as the stock
+/// configuration's base model, or `from` (a network of the same graph, such as the stock
 /// network a run that began from another fine-tune came from). Written as
-/// `DIR/blend-ALPHA.onnx` (`DIR/blend-ALPHA-NAME.onnx` with `toward` = `NAME.onnx`) with its
+/// `DIR/blend-ALPHA.onnx` (`DIR/blend-ALPHA-NAME.onnx` with `from` = `NAME.onnx`) with its
 /// sidecar (the start's). Fine-tuned networks often keep most of their gain on data like their
 /// training set and lose less on data unlike it when pulled part of the way back to where they
 /// started. Returns the path written.
@@ -66,7 +66,7 @@ pub fn blend(
     config: &LearnConfig,
     dir: &Path,
     alpha: f64,
-    toward: Option<&Path>,
+    from: Option<&Path>,
 ) -> Result<std::path::PathBuf> {
     if !(0.0..=1.0).contains(&alpha) {
         return Err(Error::Invalid(format!(
@@ -78,7 +78,7 @@ pub fn blend(
     if !best.is_file() {
         return Err(Error::file(&best, "no best export: train the run first"));
     }
-    let start_model = toward.unwrap_or(&config.base_model);
+    let start_model = from.unwrap_or(&config.base_model);
     let start = TrainableNet::load(start_model, &device)?;
     let tuned = TrainableNet::load(&best, &device)?;
     let (start_vars, tuned_vars) = (start.vars(), tuned.vars());
@@ -95,7 +95,7 @@ pub fn blend(
         let mix = || b.set(&((b.as_tensor() * (1.0 - alpha))? + (t.as_tensor() * alpha)?)?);
         mix().map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
     }
-    let name = match toward {
+    let name = match from {
         None => format!("blend-{alpha:.2}.onnx"),
         Some(model) => format!(
             "blend-{alpha:.2}-{}.onnx",
@@ -117,8 +117,8 @@ pub fn blend(
     Ok(path)
 }
 
-/// [`export`] with the sidecar's description given.
-/// `base_model` is the network the weights started from (its sidecar is copied).
+/// [`export`] with the sidecar's description given; `base_model` is the network the weights
+/// started from (its sidecar is copied).
 fn export_described(
     net: &TrainableNet,
     path: &Path,
