@@ -80,8 +80,7 @@ impl TileLayout {
         };
         let (u, v) = (x / cell, y / cell);
         let (i, j) = (u.floor() as i64, v.floor() as i64);
-        let smooth = |t: f32| t * t * (3.0 - 2.0 * t);
-        let (a, b) = (smooth(u - u.floor()), smooth(v - v.floor()));
+        let (a, b) = (smoothstep(u - u.floor()), smoothstep(v - v.floor()));
         let row = |j: i64| lattice(i, j) + (lattice(i + 1, j) - lattice(i, j)) * a;
         row(j) + (row(j + 1) - row(j)) * b
     }
@@ -114,7 +113,7 @@ impl TileLayout {
     fn rise(&self, d: f32) -> f32 {
         let t = ((d - self.grout) / self.bevel).clamp(0.0, 1.0);
         // A smoothstep's steepest slope is 1.5 / bevel; scaled to `slope` there.
-        self.slope * self.bevel / 1.5 * t * t * (3.0 - 2.0 * t)
+        self.slope * self.bevel / 1.5 * smoothstep(t)
     }
 
     /// The share of the texel at (`x`, `y`) (its centre) covered by grout.
@@ -203,6 +202,11 @@ impl TileLayout {
             origin: None,
         }
     }
+}
+
+/// `3t² − 2t³`: from 0 to 1 over [0, 1] with zero slope at both ends.
+fn smoothstep(t: f32) -> f32 {
+    t * t * (3.0 - 2.0 * t)
 }
 
 #[cfg(test)]
