@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 use matup_core::{Error, LossNorm, Result};
 use serde::{Deserialize, Serialize};
 
+use crate::data::Shares;
+
 /// What the network learns to upsample.
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
@@ -71,6 +73,11 @@ pub struct LearnConfig {
     /// corpus's own maps (`tiles.rs`: tiled floors and walls, which the corpus lacks); 0: none.
     #[serde(default)]
     pub tiled_share: f64,
+    /// Share of the training crops taken at half the material's resolution (cut twice as
+    /// large, box-filtered): the corpus's materials each come at one scale, the materials
+    /// users bring at any; 0: none.
+    #[serde(default)]
+    pub zoom_out_share: f64,
     /// Pull toward the base model's weights: after each step every weight `w` moves by
     /// `learning_rate · anchor_weight · (w₀ − w)` toward its start `w₀` (decoupled, as AdamW
     /// decays toward zero; the idea of L2-SP, Li et al. 2018). A blend with the base model
@@ -134,6 +141,14 @@ impl LearnConfig {
         Ok(config)
     }
 
+    /// The shares of the training crops zoomed out and cut into tiles.
+    pub fn shares(&self) -> Shares {
+        Shares {
+            zoom_out: self.zoom_out_share,
+            tiled: self.tiled_share,
+        }
+    }
+
     /// The loss norm `loss` names.
     pub fn loss_norm(&self) -> Result<LossNorm> {
         self.loss.parse()
@@ -178,11 +193,13 @@ impl LearnConfig {
                     .into(),
             );
         }
-        if !(0.0..=1.0).contains(&self.tiled_share) {
-            return Err(format!(
-                "tiled_share {} must be between 0 and 1",
-                self.tiled_share
-            ));
+        for (key, share) in [
+            ("tiled_share", self.tiled_share),
+            ("zoom_out_share", self.zoom_out_share),
+        ] {
+            if !(0.0..=1.0).contains(&share) {
+                return Err(format!("{key} {share} must be between 0 and 1"));
+            }
         }
         if self.height_guide && self.target != Target::Normals {
             return Err("height_guide needs target = \"normals\"".into());

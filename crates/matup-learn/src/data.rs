@@ -21,11 +21,26 @@ pub struct Corpus {
 }
 
 impl Corpus {
-    /// Loads `names` from `folder` (each a material folder).
-    pub fn load(folder: &Path, names: &[String]) -> Result<Corpus> {
+    /// Loads `names` from `folder` (each a material folder), each at least `extent` texels
+    /// wide and high (what its crops need).
+    pub fn load(folder: &Path, names: &[String], extent: usize) -> Result<Corpus> {
         let materials = names
             .iter()
-            .map(|name| load_material(Some(&folder.join(name)), &LoadOptions::default()))
+            .map(|name| {
+                let path = folder.join(name);
+                let material = load_material(Some(&path), &LoadOptions::default())?;
+                if material.width() < extent || material.height_px() < extent {
+                    return Err(Error::file(
+                        &path,
+                        format!(
+                            "{}×{} texels, smaller than the {extent}² its crops need",
+                            material.width(),
+                            material.height_px()
+                        ),
+                    ));
+                }
+                Ok(material)
+            })
             .collect::<Result<Vec<_>>>()?;
         Ok(Corpus {
             names: names.to_vec(),
@@ -51,19 +66,20 @@ impl Pair {
 
 /// A random `size × size` crop of a random material, at a position that is a multiple of
 /// `scale` (so its LR version is a crop of the whole material's), under a random symmetry.
-/// A share `tiled_share` of them is cut into tiles, a second random crop in the grout
+/// A share `zoom_out_share` of the crops is taken at half the material's resolution, a
+/// share `tiled_share` of them is cut into tiles, a second random crop in the grout
 /// ([`TileLayout`]).
 pub fn random_pair(
     corpus: &Corpus,
     size: usize,
     scale: usize,
-    tiled_share: f64,
+    shares: Shares,
     rng: &mut impl Rng,
 ) -> Pair {
-    let crop = random_crop(corpus, size, scale, rng);
+    let crop = random_crop(corpus, size, scale, shares.zoom_out, rng);
     // Drawn only when asked for, so that runs without tiles draw what they always drew.
-    let crop = if tiled_share > 0.0 && rng.random_bool(tiled_share) {
-        let grout = random_crop(corpus, size, scale, rng);
+    let crop = if shares.tiled > 0.0 && rng.random_bool(shares.tiled) {
+        let grout = random_crop(corpus, size, scale, shares.zoom_out, rng);
         TileLayout::random(rng).cut(&crop, &grout)
     } else {
         crop
@@ -72,11 +88,47 @@ pub fn random_pair(
     Pair::new(crop.transformed(symmetry), scale)
 }
 
-fn random_crop(corpus: &Corpus, size: usize, scale: usize, rng: &mut impl Rng) -> Material {
+/// The shares of the training crops that are altered: zoomed out, cut into tiles.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Shares {
+    pub zoom_out: f64,
+    pub tiled: f64,
+}
+
+/// How much larger than a crop a material must be: a crop zoomed out is cut twice as large.
+pub fn material_extent(size: usize, zoom_out_share: f64) -> usize {
+    if zoom_out_share > 0.0 {
+        2 * size
+    } else {
+        size
+    }
+}
+
+/// A crop of a random material; a share `zoom_out_share` of them is cut twice as large and
+/// box-filtered to `size`, the material as a capture at half its resolution would see it:
+/// its features twice as dense, its normals averaged (the corpus's materials each come at one
+/// scale, the materials users bring at any).
+fn random_crop(
+    corpus: &Corpus,
+    size: usize,
+    scale: usize,
+    zoom_out_share: f64,
+    rng: &mut impl Rng,
+) -> Material {
+    // Drawn only when asked for, so that runs without zooming draw what they always drew.
+    if zoom_out_share > 0.0 && rng.random_bool(zoom_out_share) {
+        // At a multiple of `2 · scale`, so that the LR version is a crop of the whole
+        // material's halved LR version.
+        return aligned_crop(corpus, 2 * size, 2 * scale, rng).box_downsample(2);
+    }
+    aligned_crop(corpus, size, scale, rng)
+}
+
+fn aligned_crop(corpus: &Corpus, size: usize, step: usize, rng: &mut impl Rng) -> Material {
     let m = &corpus.materials[rng.random_range(0..corpus.materials.len())];
-    let cells = |extent: usize| (extent - size) / scale + 1;
-    let x0 = rng.random_range(0..cells(m.width())) * scale;
-    let y0 = rng.random_range(0..cells(m.height_px())) * scale;
+    let cells = |extent: usize| (extent - size) / step + 1;
+    let x0 = rng.random_range(0..cells(m.width())) * step;
+    let y0 = rng.random_range(0..cells(m.height_px())) * step;
     m.crop(x0, y0, size, size)
 }
 
@@ -149,4 +201,91 @@ pub fn lr_features(
         Tensor::from_vec(data, (lrs.len(), FEATURES, h, w), device)?,
         fixed,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use matup_core::Map;
+    use rand::SeedableRng;
+
+    /// The crops of `material` of `size` at multiples of `step`, under every symmetry, each
+    /// box-filtered by `zoom` as a zoomed-out crop is.
+    fn candidates(material: &Material, size: usize, step: usize, zoom: usize) -> Vec<Material> {
+        let positions = (0..=(material.width() - size) / step).map(|i| i * step);
+        let mut out = Vec::new();
+        for y0 in positions.clone() {
+            for x0 in positions.clone() {
+                let crop = material.crop(x0, y0, size, size);
+                let crop = if zoom > 1 {
+                    crop.box_downsample(zoom)
+                } else {
+                    crop
+                };
+                out.extend(Dihedral::ALL.iter().map(|&t| crop.transformed(t)));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_share_of_the_crops_sees_the_material_at_half_its_resolution() {
+        // Every texel different, so that a crop is known by its values; slanted normals.
+        let mut material = Material::uniform(64, [0.5; 3], 0.5, 0.0);
+        material.base_color = Map::from_fn(64, 64, 3, |c, y, x| {
+            ((x * 7919 + y * 104_729 + c * 31) % 997) as f32 / 997.0
+        });
+        material.roughness = Map::from_fn(64, 64, 1, |_, y, x| 0.1 + ((x * y) % 17) as f32 / 20.0);
+        material.normal = Map::from_fn(64, 64, 3, |c, y, x| {
+            let (nx, ny) = (((x % 5) as f32 - 2.0) / 5.0, ((y % 3) as f32 - 1.0) / 4.0);
+            [nx, ny, (1.0 - nx * nx - ny * ny).sqrt()][c]
+        });
+        let corpus = Corpus {
+            names: vec!["varied".into()],
+            materials: vec![material.clone()],
+        };
+        let plain = candidates(&material, 16, 4, 1);
+        let halved = candidates(&material, 32, 8, 2);
+        let draw = |zoom_out: f64, seed: u64| {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+            let shares = Shares {
+                zoom_out,
+                ..Shares::default()
+            };
+            random_pair(&corpus, 16, 4, shares, &mut rng)
+        };
+        let mut zoomed = 0;
+        for seed in 0..100 {
+            let pair = draw(0.5, seed);
+            assert_eq!(pair.lr, pair.truth.box_downsample(4));
+            let is_plain = plain.contains(&pair.truth);
+            let is_halved = halved.contains(&pair.truth);
+            assert!(is_plain != is_halved, "seed {seed}: one or the other");
+            zoomed += is_halved as usize;
+            // Without zooming, every crop is plain, as runs before the key drew them.
+            assert!(plain.contains(&draw(0.0, seed).truth));
+        }
+        assert!((35..=65).contains(&zoomed), "{zoomed} of 100 zoomed out");
+    }
+
+    #[test]
+    fn a_material_too_small_for_its_crops_is_named() {
+        let folder = tempfile::tempdir().unwrap();
+        let small = Material::uniform(48, [0.5; 3], 0.5, 0.0);
+        matup_core::save_material(
+            &small,
+            &folder.path().join("small"),
+            &matup_core::SaveOptions::default(),
+        )
+        .unwrap();
+        let error = Corpus::load(folder.path(), &["small".into()], 64)
+            .err()
+            .expect("too small");
+        let message = error.to_string();
+        assert!(
+            message.contains("small") && message.contains("48×48"),
+            "{message}"
+        );
+        assert!(Corpus::load(folder.path(), &["small".into()], 48).is_ok());
+    }
 }

@@ -277,7 +277,7 @@ mod tests {
 
     #[test]
     fn a_share_of_the_training_crops_is_tiled_and_the_others_are_plain_crops() {
-        use crate::data::{random_pair, Corpus};
+        use crate::data::{random_pair, Corpus, Shares};
         use rand::SeedableRng;
         let corpus = Corpus {
             names: vec!["light".into(), "dark".into()],
@@ -292,7 +292,11 @@ mod tests {
         };
         let draw = |share: f64, seed: u64| {
             let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-            random_pair(&corpus, 32, 4, share, &mut rng)
+            let shares = Shares {
+                tiled: share,
+                ..Shares::default()
+            };
+            random_pair(&corpus, 32, 4, shares, &mut rng)
         };
         let tiled_count = (0..200).filter(|&seed| tiled(&draw(0.25, seed))).count();
         // A quarter are cut, and some of those have both crops from one material (invisible

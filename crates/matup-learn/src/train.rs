@@ -29,7 +29,9 @@ use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
 use crate::config::{LearnConfig, Target};
-use crate::data::{lr_features, network_inputs, normal_inputs, random_pair, Corpus, Pair};
+use crate::data::{
+    lr_features, material_extent, network_inputs, normal_inputs, random_pair, Corpus, Pair,
+};
 use crate::export::export;
 use crate::net::TrainableNet;
 use crate::shipped::{
@@ -177,7 +179,11 @@ impl Trainer {
             net,
             model,
             norm: config.loss_norm()?,
-            corpus: Corpus::load(&config.corpus, &config.train)?,
+            corpus: Corpus::load(
+                &config.corpus,
+                &config.train,
+                material_extent(config.patch, config.zoom_out_share),
+            )?,
             // Crops do not tile: the bilinear spread mirrors at their borders, as `matup
             // upscale` does for materials that do not tile.
             back_projection: BackProjection::new(
@@ -234,7 +240,7 @@ impl Trainer {
         let mut rng = self.rng(iteration);
         let c = &self.config;
         let pairs: Vec<_> = (0..c.batch)
-            .map(|_| random_pair(&self.corpus, c.patch, c.scale, c.tiled_share, &mut rng))
+            .map(|_| random_pair(&self.corpus, c.patch, c.scale, c.shares(), &mut rng))
             .collect();
         let lights = self.random_lights(c.lights, &mut rng);
         match c.target {
@@ -512,7 +518,8 @@ pub struct ValMaterial {
 
 /// The validation crops of `config.val` (top-left `val_crop²` of each).
 pub fn validation_set(config: &LearnConfig) -> Result<Vec<ValMaterial>> {
-    let corpus = Corpus::load(&config.corpus, &config.val)?;
+    // Any size will do: a validation crop is at most the material.
+    let corpus = Corpus::load(&config.corpus, &config.val, 0)?;
     Ok(corpus
         .names
         .into_iter()

@@ -261,6 +261,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         normal_weight: 0.1,
         height_guide: false,
         tiled_share: 0.0,
+        zoom_out_share: 0.0,
         anchor_weight: 0.0,
         checkpoint_every: 2,
         validate_every: 3,
