@@ -78,6 +78,12 @@ pub struct LearnConfig {
     /// users bring at any; 0: none.
     #[serde(default)]
     pub zoom_out_share: f64,
+    /// LR texels of the material around each training crop that the network reads and the
+    /// loss does not score (maps only): inside an image, where matup's executor reads each
+    /// tile with its neighbours, the network never meets the zero padding at a crop's edge,
+    /// and with a 32² LR crop most of the loss lies within its reach; 0: the crop alone.
+    #[serde(default)]
+    pub context: usize,
     /// Pull toward the base model's weights: after each step every weight `w` moves by
     /// `learning_rate · anchor_weight · (w₀ − w)` toward its start `w₀` (decoupled, as AdamW
     /// decays toward zero; the idea of L2-SP, Li et al. 2018). A blend with the base model
@@ -141,6 +147,11 @@ impl LearnConfig {
         Ok(config)
     }
 
+    /// The side of the crops a step draws: the scored patch and its context.
+    pub fn crop_size(&self) -> usize {
+        self.patch + 2 * self.context * self.scale
+    }
+
     /// The shares of the training crops zoomed out and cut into tiles.
     pub fn shares(&self) -> Shares {
         Shares {
@@ -186,6 +197,9 @@ impl LearnConfig {
                 self.anchor_weight,
                 1.0 / self.learning_rate
             ));
+        }
+        if self.target != Target::Maps && self.context != 0 {
+            return Err("context needs target = \"maps\"".into());
         }
         if self.target == Target::Renders && self.normal_weight != 0.0 {
             return Err(

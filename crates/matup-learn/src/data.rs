@@ -66,8 +66,8 @@ impl Pair {
 
 /// A random `size × size` crop of a random material, at a position that is a multiple of
 /// `scale` (so its LR version is a crop of the whole material's), under a random symmetry.
-/// A share `zoom_out_share` of the crops is taken at half the material's resolution, a
-/// share `tiled_share` of them is cut into tiles, a second random crop in the grout
+/// A share `shares.zoom_out` of the crops is taken at a coarser resolution, a share
+/// `shares.tiled` of them is cut into tiles, a second random crop in the grout
 /// ([`TileLayout`]).
 pub fn random_pair(
     corpus: &Corpus,
@@ -95,17 +95,20 @@ pub struct Shares {
     pub tiled: f64,
 }
 
-/// How much larger than a crop a material must be: a crop zoomed out is cut twice as large.
+/// How many times coarser than its material a zoomed-out crop is.
+const ZOOM_OUT: usize = 2;
+
+/// How large a material must be for crops of `size`: a zoomed-out crop is cut larger.
 pub fn material_extent(size: usize, zoom_out_share: f64) -> usize {
     if zoom_out_share > 0.0 {
-        2 * size
+        ZOOM_OUT * size
     } else {
         size
     }
 }
 
-/// A crop of a random material; a share `zoom_out_share` of them is cut twice as large and
-/// box-filtered to `size`, the material as a capture at half its resolution would see it:
+/// A crop of a random material; a share `zoom_out_share` of them is cut `ZOOM_OUT` times as
+/// large and box-filtered to `size`, the material as a capture at half its resolution sees it:
 /// its features twice as dense, its normals averaged (the corpus's materials each come at one
 /// scale, the materials users bring at any).
 fn random_crop(
@@ -117,9 +120,10 @@ fn random_crop(
 ) -> Material {
     // Drawn only when asked for, so that runs without zooming draw what they always drew.
     if zoom_out_share > 0.0 && rng.random_bool(zoom_out_share) {
-        // At a multiple of `2 · scale`, so that the LR version is a crop of the whole
-        // material's halved LR version.
-        return aligned_crop(corpus, 2 * size, 2 * scale, rng).box_downsample(2);
+        // At a multiple of `ZOOM_OUT · scale`, so that the LR version is a crop of the
+        // whole material's zoomed-out LR version.
+        return aligned_crop(corpus, ZOOM_OUT * size, ZOOM_OUT * scale, rng)
+            .box_downsample(ZOOM_OUT);
     }
     aligned_crop(corpus, size, scale, rng)
 }

@@ -23,6 +23,7 @@ use matup_core::tileable::detect_tileable;
 use matup_core::upsample::upsampler as rgb_upsampler;
 use matup_core::{Error, LightSetSpec, LossNorm, Material, PluginSpec, Result};
 use matup_eval::metrics::{evaluate, flip, psnr, rmse, sharpness, Evaluation};
+use matup_method::filter::FEATURES;
 use matup_method::{upscale, Config, RunOptions};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -182,12 +183,12 @@ impl Trainer {
             corpus: Corpus::load(
                 &config.corpus,
                 &config.train,
-                material_extent(config.patch, config.zoom_out_share),
+                material_extent(config.crop_size(), config.zoom_out_share),
             )?,
             // Crops do not tile: the bilinear spread mirrors at their borders, as `matup
             // upscale` does for materials that do not tile.
             back_projection: BackProjection::new(
-                config.patch / config.scale,
+                config.patch / config.scale + 2 * config.context,
                 config.scale,
                 Border::Mirror,
                 device,
@@ -240,7 +241,7 @@ impl Trainer {
         let mut rng = self.rng(iteration);
         let c = &self.config;
         let pairs: Vec<_> = (0..c.batch)
-            .map(|_| random_pair(&self.corpus, c.patch, c.scale, c.shares(), &mut rng))
+            .map(|_| random_pair(&self.corpus, c.crop_size(), c.scale, c.shares(), &mut rng))
             .collect();
         let lights = self.random_lights(c.lights, &mut rng);
         match c.target {
@@ -252,19 +253,25 @@ impl Trainer {
 
     /// The network's maps, decoded and back-projected as `matup upscale` ships them, rendered
     /// against the truth's renders (plus the normal term).
+    /// Only the crops' centres are scored, without the `context` around them.
     fn maps_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
         let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
-        let inputs = network_inputs(&lrs, &self.device)?;
-        let (lr, fixed) = lr_features(&lrs, &self.device)?;
-        let outputs = self.net.forward(&inputs)?;
-        let hr = self
-            .back_projection
-            .apply(&decode_outputs(&outputs)?, &lr)?;
+        let (hr, fixed) = shipped_maps(&self.net, &lrs, &self.back_projection, &self.device)?;
+        let margin = self.config.context * self.config.scale;
+        let hr = centre(&hr, margin)?;
         let params = (0..pairs.len())
             .map(|b| shading_params(&hr.get(b)?, &fixed[b]))
             .collect::<candle_core::Result<Vec<_>>>()?;
         let params = Tensor::cat(&params, 0)?;
-        self.against_truth(&TrueTexels::new(pairs, &self.device)?, &params, lights)
+        let truths: Vec<Material> = pairs
+            .iter()
+            .map(|p| {
+                let size = p.truth.width() - 2 * margin;
+                p.truth.crop(margin, margin, size, size)
+            })
+            .collect();
+        let truth = TrueTexels::new(&truths.iter().collect::<Vec<_>>(), &self.device)?;
+        self.against_truth(&truth, &params, lights)
     }
 
     /// The network's normal maps, decoded and back-projected as `matup upscale` ships them,
@@ -280,7 +287,8 @@ impl Trainer {
             Border::Mirror,
             &self.device,
         )?;
-        let truth = TrueTexels::new(pairs, &self.device)?;
+        let truths: Vec<&Material> = pairs.iter().map(|p| &p.truth).collect();
+        let truth = TrueTexels::new(&truths, &self.device)?;
         let t = &truth.params;
         let params = Tensor::cat(&[&t.narrow(1, 0, 4)?, &normals, &t.narrow(1, 7, 3)?], 1)?;
         self.against_truth(&truth, &params, lights)
@@ -335,16 +343,40 @@ struct TrueTexels {
 }
 
 impl TrueTexels {
-    fn new(pairs: &[Pair], device: &Device) -> Result<TrueTexels> {
-        let texels: Vec<_> = pairs
+    fn new(truths: &[&Material], device: &Device) -> Result<TrueTexels> {
+        let texels: Vec<_> = truths
             .iter()
-            .flat_map(|p| (0..p.truth.base_color.texels()).map(|i| p.truth.texel(i)))
+            .flat_map(|t| (0..t.base_color.texels()).map(|i| t.texel(i)))
             .collect();
         Ok(TrueTexels {
             params: params_tensor(&texels.iter().map(|t| t.params).collect::<Vec<_>>(), device)?,
             positions: texels.iter().map(|t| t.position).collect(),
         })
     }
+}
+
+/// What `matup upscale`'s defaults make of `net`'s upsampling of LR materials: the 7
+/// features `[B, 7, H, W]`, decoded and back-projected, and per material the features held
+/// constant. The network reads each LR crop whole, zero padded at its edges, which inference
+/// inside an image never meets: [`centre`] keeps what lies out of the padding's reach.
+pub fn shipped_maps(
+    net: &TrainableNet,
+    lrs: &[&Material],
+    back_projection: &BackProjection,
+    device: &Device,
+) -> Result<(Tensor, Vec<[Option<f32>; FEATURES]>)> {
+    let inputs = network_inputs(lrs, device)?;
+    let (lr, fixed) = lr_features(lrs, device)?;
+    let outputs = net.forward(&inputs)?;
+    let hr = back_projection.apply(&decode_outputs(&outputs)?, &lr)?;
+    Ok((hr, fixed))
+}
+
+/// Maps `[B, C, H, W]` without `margin` texels at each edge.
+pub fn centre(maps: &Tensor, margin: usize) -> candle_core::Result<Tensor> {
+    let (_, _, h, w) = maps.dims4()?;
+    maps.narrow(2, margin, h - 2 * margin)?
+        .narrow(3, margin, w - 2 * margin)
 }
 
 /// What `matup upscale`'s defaults make of `net`'s upsampling of the LR normal maps (decoded,

@@ -18,6 +18,7 @@ use matup_learn::config::Target;
 use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
 use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection};
+use matup_learn::train::{centre, shipped_maps};
 use matup_learn::{train, LearnConfig};
 use matup_method::config::{FilterConfig, ResidualBase};
 use matup_method::residual::residual_base;
@@ -63,6 +64,39 @@ impl RgbUpsampler for Lanczos {
             .map(|m| upsample(m, scale, Kernel::Lanczos3, border))
             .collect())
     }
+}
+
+#[test]
+fn a_training_crops_centre_beyond_the_zero_paddings_reach_is_what_matup_upscale_ships() {
+    let device = Device::Cpu;
+    let model = repo().join("models/span_x4_ch48.onnx");
+    let net = TrainableNet::load(&model, &device).unwrap();
+    // 64² LR texels; SPAN reads 22 around each, back-projection's 3 rounds 6 more.
+    let lr = corpus_crop("ambientcg_Rock029", 256).box_downsample(4);
+    let back_projection = BackProjection::new(64, 4, Border::Mirror, &device).unwrap();
+    let (ours, _) = shipped_maps(&net, &[&lr], &back_projection, &device).unwrap();
+    let ours = ours.get(0).unwrap();
+    // matup's defaults: the same network on matup's own executor, each map read with its
+    // mirrored surroundings, then back-projected.
+    let config = FilterConfig {
+        residual_base: ResidualBase::Upsampler,
+        back_project: true,
+        ..FilterConfig::default()
+    };
+    let executor = OnnxUpsampler::load(&model, EngineChoice::Matup).unwrap();
+    let shipped = residual_base(&lr, &config, &executor, 4, Border::Mirror).unwrap();
+    let shipped = Tensor::from_vec(shipped.into_data(), ours.dims(), &device).unwrap();
+    let difference = |margin: usize| -> f32 {
+        let d = (centre(&ours.unsqueeze(0).unwrap(), margin).unwrap()
+            - centre(&shipped.unsqueeze(0).unwrap(), margin).unwrap())
+        .unwrap();
+        d.abs().unwrap().max_all().unwrap().to_scalar().unwrap()
+    };
+    let (whole, centre_only) = (difference(0), difference(4 * 28));
+    println!("max |difference|: whole crop {whole:.2e}, its centre {centre_only:.2e}");
+    // At the crop's edges the zero padding shows; its centre is what users get.
+    assert!(whole > 1e-2, "{whole}");
+    assert!(centre_only <= 1e-4, "{centre_only}");
 }
 
 #[test]
@@ -262,6 +296,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         height_guide: false,
         tiled_share: 0.0,
         zoom_out_share: 0.0,
+        context: 0,
         anchor_weight: 0.0,
         checkpoint_every: 2,
         validate_every: 3,
