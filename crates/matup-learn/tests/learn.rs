@@ -306,6 +306,37 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
     }
 }
 
+#[test]
+fn context_around_the_crops_is_cut_from_the_material_and_only_for_a_network_of_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    // 16² scored with 2 LR texels around: 32² crops, the whole of the 32² material.
+    let config = LearnConfig {
+        patch: 16,
+        context: 2,
+        ..tiny_run(dir.path(), 2)
+    };
+    let trainer = matup_learn::train::Trainer::new(&config, &Device::Cpu).unwrap();
+    assert!(trainer.loss(0).unwrap().1.loss.is_finite());
+    let too_much = LearnConfig {
+        context: 3,
+        ..config.clone()
+    };
+    let error = matup_learn::train::Trainer::new(&too_much, &Device::Cpu)
+        .err()
+        .expect("40² crops of a 32² material")
+        .to_string();
+    assert!(error.contains("32×32") && error.contains("40²"), "{error}");
+    // A network of normals or of renders reads its crops whole.
+    let file = dir.path().join("normals.toml");
+    let normals = LearnConfig {
+        target: Target::Normals,
+        ..config
+    };
+    std::fs::write(&file, toml::to_string(&normals).unwrap()).unwrap();
+    let error = LearnConfig::load(&file).err().expect("refused").to_string();
+    assert!(error.contains("context"), "{error}");
+}
+
 fn checkpoint_tensors(run: &Path) -> Vec<(String, Vec<f32>)> {
     let mut tensors: Vec<_> =
         candle_core::safetensors::load(run.join("checkpoint.safetensors"), &Device::Cpu)
