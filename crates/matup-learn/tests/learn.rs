@@ -333,7 +333,7 @@ fn context_around_the_crops_is_cut_from_the_material_and_only_for_a_network_of_m
         ..config
     };
     std::fs::write(&file, toml::to_string(&normals).unwrap()).unwrap();
-    let error = LearnConfig::load(&file).err().expect("refused").to_string();
+    let error = LearnConfig::load(&file).expect_err("refused").to_string();
     assert!(error.contains("context"), "{error}");
 }
 
