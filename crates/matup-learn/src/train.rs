@@ -252,8 +252,8 @@ impl Trainer {
     }
 
     /// The network's maps, decoded and back-projected as `matup upscale` ships them, rendered
-    /// against the truth's renders (plus the normal term).
-    /// Only the crops' centres are scored, without the `context` around them.
+    /// against the truth's renders (plus the normal term); only the crops' centres are scored,
+    /// without the `context` around them.
     fn maps_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
         let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
         let (hr, fixed) = shipped_maps(&self.net, &lrs, &self.back_projection, &self.device)?;
