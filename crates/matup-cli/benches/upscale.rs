@@ -4,11 +4,12 @@
 //! `cargo bench -p matup-cli --bench upscale`
 //!
 //! Timing rows: the README's main job (matup's defaults on the shipped 128² sample: per-map
-//! SPAN, back-projected, no training); METHOD.md's paper settings (`configs/paper.toml`) on
+//! SPAN, each map under two symmetries averaged, back-projected, no training), and the same
+//! with one pass (the self-ensemble's cost); METHOD.md's paper settings (`configs/paper.toml`) on
 //! the sample with `lanczos3`, the fixed 10 epochs and with early stopping; the defaults' cost
 //! per output megatexel at 256², 512² and 1K² outputs, and the training's (paper settings,
-//! 1 epoch each); with `MATUP_BENCH_4K=1`, also 1K² → 4K² with the defaults and 1 epoch on
-//! 262 144 sampled texels. `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the paper rows.
+//! 1 epoch each); with `MATUP_BENCH_4K=1`, also 1K² → 4K² with the defaults, with one pass,
+//! and 1 epoch on 262 144 sampled texels. `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the paper rows.
 //!
 //! Then the quality of the same settings (`matup sweep`): the four shared materials cropped
 //! to 512² → 128² → ×4, SPAN, render PSNR / FLIP under 16 held-out lights, means over the
@@ -113,6 +114,12 @@ fn main() {
             &[],
         ),
         run(
+            "sample 128²→512², defaults with one pass (--self-ensemble 1)",
+            &sample,
+            512,
+            &["--self-ensemble", "1"],
+        ),
+        run(
             &format!("sample 128²→512², paper settings, lanczos3, {epochs} epochs"),
             &sample,
             512,
@@ -143,6 +150,12 @@ fn main() {
     if std::env::var("MATUP_BENCH_4K").is_ok_and(|v| v == "1") {
         let dir = downsampled("polyhaven_wood_cabinet_worn_long", 1024);
         rows.push(run("wood 1K²→4K², defaults", dir.path(), 4096, &[]));
+        rows.push(run(
+            "wood 1K²→4K², defaults with one pass (--self-ensemble 1)",
+            dir.path(),
+            4096,
+            &["--self-ensemble", "1"],
+        ));
         rows.push(run(
             "wood 1K²→4K², paper settings, 1 epoch of 262144 texels",
             dir.path(),

@@ -9,7 +9,8 @@ use matup_apps::view::write_run_view;
 use matup_core::{FileFormat, LossNorm, SaveOptions};
 use matup_method::bands::default_memory_limit;
 use matup_method::config::{
-    Activation, Backend, Chain, Interpolation, ResidualBase, Schedule, Selection, TargetKind,
+    Activation, Backend, Chain, EnsembleMaps, Interpolation, ResidualBase, Schedule, Selection,
+    TargetKind,
 };
 use matup_method::train::Stop;
 use matup_method::Config;
@@ -105,10 +106,14 @@ pub struct SettingsArgs {
     /// Use the residual base as upsampled, without back-projection.
     #[arg(long)]
     pub no_back_project: bool,
-    /// Upsample the maps under the eight symmetries of the square and average them
-    /// (geometric self-ensemble; eight times the upsampler's time).
-    #[arg(long)]
-    pub self_ensemble: bool,
+    /// Upsample the maps under N symmetries of the square (2, 4 or 8; 8 if N is left out; 1
+    /// for none) and average them (geometric self-ensemble; N times the upsampler's time on
+    /// the maps it covers).
+    #[arg(long, value_name = "N", num_args = 0..=1, default_missing_value = "8")]
+    pub self_ensemble: Option<usize>,
+    /// The maps the self-ensemble covers: all, or normal (the normal map alone).
+    #[arg(long, value_name = "MAPS")]
+    pub self_ensemble_maps: Option<EnsembleMaps>,
     /// Learning rate.
     #[arg(long)]
     pub lr: Option<f64>,
@@ -268,8 +273,11 @@ impl SettingsArgs {
         if self.no_back_project {
             c.filter.back_project = false;
         }
-        if self.self_ensemble {
-            c.filter.self_ensemble = true;
+        if let Some(n) = self.self_ensemble {
+            c.filter.self_ensemble = n;
+        }
+        if let Some(maps) = self.self_ensemble_maps {
+            c.filter.self_ensemble_maps = maps;
         }
         if self.early_stop {
             c.train.early_stop.enabled = true;

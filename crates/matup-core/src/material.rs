@@ -298,16 +298,9 @@ impl Material {
     /// the columns negates normal x, mirroring the rows negates y, a transpose swaps them).
     pub fn transformed(&self, t: Dihedral) -> Material {
         let mut out = self.map_every(|m| m.transformed(t));
-        let n = out.normal.texels();
-        let data = out.normal.data_mut();
-        for i in 0..n {
-            [data[i], data[n + i]] = t.vector([data[i], data[n + i]]);
-        }
+        turn_with_surface(MapKind::Normal, &mut out.normal, t);
         if let Some(angle) = out.anisotropy_angle.as_mut() {
-            for v in angle.data_mut() {
-                let [x, y] = t.vector([v.cos(), v.sin()]);
-                *v = y.atan2(x);
-            }
+            turn_with_surface(MapKind::AnisotropyAngle, angle, t);
         }
         out
     }
@@ -327,6 +320,36 @@ impl Material {
         ] {
             restore_map_invariants(kind, self.map_mut(kind).expect("always present"));
         }
+    }
+}
+
+/// A map of `kind` under a symmetry of the square, as [`Material::transformed`] moves it: the
+/// texels move, and normals and anisotropy directions turn with the surface.
+pub fn transformed_map(kind: MapKind, map: &Map, t: Dihedral) -> Map {
+    let mut out = map.transformed(t);
+    turn_with_surface(kind, &mut out, t);
+    out
+}
+
+/// Turns the directions a map of `kind` holds (normals, anisotropy angles) as the surface
+/// turns under `t`, texel by texel: it moves no texel, so it may come before or after
+/// [`Map::transformed`].
+pub fn turn_with_surface(kind: MapKind, map: &mut Map, t: Dihedral) {
+    match kind {
+        MapKind::Normal => {
+            let n = map.texels();
+            let data = map.data_mut();
+            for i in 0..n {
+                [data[i], data[n + i]] = t.vector([data[i], data[n + i]]);
+            }
+        }
+        MapKind::AnisotropyAngle => {
+            for v in map.data_mut() {
+                let [x, y] = t.vector([v.cos(), v.sin()]);
+                *v = y.atan2(x);
+            }
+        }
+        _ => {}
     }
 }
 

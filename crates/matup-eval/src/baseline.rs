@@ -5,10 +5,13 @@ use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::io::{decode_normals, encode_normals};
 use matup_core::map::Dihedral;
 use matup_core::map::Map;
-use matup_core::material::{restore_map_invariants, MapKind, Material, NormalConvention};
+use matup_core::material::{
+    restore_map_invariants, transformed_map, turn_with_surface, MapKind, Material, NormalConvention,
+};
 use matup_core::resample::Border;
 use matup_core::upsample::RgbUpsampler;
 use matup_core::{Error, Result};
+use serde::{Deserialize, Serialize};
 
 /// Upsamples each map of `material` by `scale` with `upsampler`, as the map's file would be:
 /// base colour sRGB-encoded, normals as `(n + 1) / 2` colours (io's own encoding), grey maps
@@ -21,112 +24,228 @@ pub fn upscale_per_map(
     border: Border,
 ) -> Result<Material> {
     let mut out = material.clone();
-    upscale_each_map(material, upsampler, scale, border, |kind, map| {
-        *out.map_mut(kind).expect("present in the clone") = map;
-        Ok(())
-    })?;
+    upscale_each_map(
+        material,
+        upsampler,
+        scale,
+        border,
+        SelfEnsemble::NONE,
+        |kind, map| {
+            *out.map_mut(kind).expect("present in the clone") = map;
+            Ok(())
+        },
+    )?;
     Ok(out)
 }
 
-/// [`upscale_per_map`] a map at a time: each map of `material` is upsampled, decoded and
-/// handed to `each` before the next is upsampled, so a caller that packs them elsewhere never
-/// holds all of them at the output size (at 8K² each map is 0.25–0.75 GB).
+/// [`upscale_per_map`] a map at a time, the maps `ensemble` covers under its symmetries: each
+/// map of `material` is upsampled, decoded and handed to `each` before the next is upsampled,
+/// so a caller that packs them elsewhere never holds all of them at the output size (at 8K²
+/// each map is 0.25–0.75 GB).
 pub fn upscale_each_map(
     material: &Material,
     upsampler: &dyn RgbUpsampler,
     scale: usize,
     border: Border,
+    ensemble: SelfEnsemble,
     mut each: impl FnMut(MapKind, Map) -> Result<()>,
 ) -> Result<()> {
     for kind in MapKind::ALL {
         let Some(map) = material.map(kind) else {
             continue;
         };
-        let image = encode_for_upsampler(kind, map);
-        let up = (upsampler
-            .upsample(&[image], scale, border)?
-            .into_iter()
-            .next())
-        .ok_or_else(|| Error::Invalid(format!("the upsampler returned no image for {kind:?}")))?;
-        let want = (map.width() * scale, map.height() * scale);
-        if (up.width(), up.height()) != want || up.channels() < 3 {
-            return Err(Error::Invalid(format!(
-                "the upsampler returned a {}×{}×{} image for the {}×{} {kind:?} map at ×{scale} \
-                 (expected {}×{}×3)",
-                up.width(),
-                up.height(),
-                up.channels(),
-                map.width(),
-                map.height(),
-                want.0,
-                want.1
-            )));
-        }
-        let mut decoded = match kind {
-            MapKind::BaseColor => up.map_values(|v| srgb_to_linear(v.clamp(0.0, 1.0))),
-            MapKind::Normal => {
-                let mut normals = up;
-                decode_normals(&mut normals, NormalConvention::DirectX);
-                normals
-            }
-            _ => {
-                let (w, h) = (up.width(), up.height());
-                Map::from_fn(w, h, 1, |_, y, x| {
-                    (up.get(0, y, x) + up.get(1, y, x) + up.get(2, y, x)) / 3.0
-                })
-            }
+        let up = if let Some(flat) = flat_upsampled(map, scale) {
+            flat
+        } else if ensemble.covers(kind) {
+            upscale_map_ensemble(kind, map, upsampler, scale, border, ensemble.symmetries()?)?
+        } else {
+            upscale_map(kind, map, upsampler, scale, border)?
         };
-        restore_map_invariants(kind, &mut decoded);
-        each(kind, decoded)?;
+        each(kind, up)?;
     }
     Ok(())
 }
 
-/// [`upscale_per_map`] under each of the eight symmetries of the square, turned back and
-/// averaged (geometric self-ensemble, as SR papers report it): the material is mirrored and
-/// transposed as a surface (normals turn with it, [`Material::transformed`]), so the normal
-/// maps the network sees are real normal maps. Maps are averaged, normals renormalised after.
-/// Eight times the cost of one pass.
-pub fn upscale_per_map_ensemble(
-    material: &Material,
+/// A map of `kind` upsampled once, as [`upscale_per_map`] upsamples it.
+fn upscale_map(
+    kind: MapKind,
+    map: &Map,
     upsampler: &dyn RgbUpsampler,
     scale: usize,
     border: Border,
-) -> Result<Material> {
-    let mut sum: Option<Material> = None;
-    for t in Dihedral::ALL {
-        let up = upscale_per_map(&material.transformed(t), upsampler, scale, border)?
-            .transformed(t.inverse());
-        match sum.as_mut() {
-            None => sum = Some(up),
-            Some(total) => {
-                for kind in MapKind::ALL {
-                    if let (Some(a), Some(b)) = (total.map_mut(kind), up.map(kind)) {
-                        a.data_mut()
-                            .iter_mut()
-                            .zip(b.data())
-                            .for_each(|(a, b)| *a += b);
-                    }
-                }
-            }
-        }
+) -> Result<Map> {
+    let image = encode_for_upsampler(kind, map);
+    let up = (upsampler
+        .upsample(&[image], scale, border)?
+        .into_iter()
+        .next())
+    .ok_or_else(|| Error::Invalid(format!("the upsampler returned no image for {kind:?}")))?;
+    let want = (map.width() * scale, map.height() * scale);
+    if (up.width(), up.height()) != want || up.channels() < 3 {
+        return Err(Error::Invalid(format!(
+            "the upsampler returned a {}×{}×{} image for the {}×{} {kind:?} map at ×{scale} \
+             (expected {}×{}×3)",
+            up.width(),
+            up.height(),
+            up.channels(),
+            map.width(),
+            map.height(),
+            want.0,
+            want.1
+        )));
     }
-    let mut mean = sum.expect("eight symmetries");
-    let n = Dihedral::ALL.len() as f32;
-    for kind in MapKind::ALL {
-        if let Some(m) = mean.map_mut(kind) {
-            m.data_mut().iter_mut().for_each(|v| *v /= n);
+    let mut decoded = match kind {
+        MapKind::BaseColor => up.map_values(|v| srgb_to_linear(v.clamp(0.0, 1.0))),
+        MapKind::Normal => {
+            let mut normals = up;
+            decode_normals(&mut normals, NormalConvention::DirectX);
+            normals
         }
+        _ => {
+            let (w, h) = (up.width(), up.height());
+            Map::from_fn(w, h, 1, |_, y, x| {
+                (up.get(0, y, x) + up.get(1, y, x) + up.get(2, y, x)) / 3.0
+            })
+        }
+    };
+    restore_map_invariants(kind, &mut decoded);
+    Ok(decoded)
+}
+
+/// A map whose every texel is the same, upsampled: the same value at the output size. Any
+/// upsampler should return a flat map as it is, and a network returns it with a small bias of
+/// its own, so none is run on one; most materials' metallic maps are flat, and skipping them
+/// saves a quarter of the upsampler's time.
+fn flat_upsampled(map: &Map, scale: usize) -> Option<Map> {
+    let texels = map.texels();
+    if texels == 0 {
+        return None;
     }
-    if mean.anisotropy_angle.is_some() {
+    let first: Vec<f32> = (0..map.channels())
+        .map(|c| map.data()[c * texels])
+        .collect();
+    let flat =
+        (map.data().chunks(texels).zip(&first)).all(|(plane, v)| plane.iter().all(|x| x == v));
+    flat.then(|| {
+        Map::from_fn(
+            map.width() * scale,
+            map.height() * scale,
+            map.channels(),
+            |c, _, _| first[c],
+        )
+    })
+}
+
+/// A map of `kind` upsampled under each of `symmetries`, turned back and averaged (geometric
+/// self-ensemble, as SR papers report it): the map is mirrored and transposed as the surface
+/// would be (normals turn with it, [`transformed_map`]), so the normal maps the network sees
+/// are real normal maps. Normals are renormalised after the mean.
+fn upscale_map_ensemble(
+    kind: MapKind,
+    map: &Map,
+    upsampler: &dyn RgbUpsampler,
+    scale: usize,
+    border: Border,
+    symmetries: &[Dihedral],
+) -> Result<Map> {
+    if kind == MapKind::AnisotropyAngle {
         // Directions do not average as numbers; not what the ensemble is for.
-        return Err(matup_core::Error::Invalid(
+        return Err(Error::Invalid(
             "the self-ensemble does not handle anisotropy directions".into(),
         ));
     }
-    mean.origin = material.origin.clone();
-    mean.restore_invariants();
+    let (w, h) = (map.width() * scale, map.height() * scale);
+    let mut sum: Option<Map> = None;
+    for &t in symmetries {
+        let mut up = upscale_map(
+            kind,
+            &transformed_map(kind, map, t),
+            upsampler,
+            scale,
+            border,
+        )?;
+        // Turned back: the directions first (texel by texel), then the texels, into the sum.
+        let back = t.inverse();
+        turn_with_surface(kind, &mut up, back);
+        sum.get_or_insert_with(|| Map::filled(w, h, up.channels(), 0.0))
+            .add_transformed(&up, back);
+    }
+    let sum = sum.ok_or_else(|| Error::Invalid("a self-ensemble of no symmetries".into()))?;
+    let n = symmetries.len() as f32;
+    let mut mean = sum.map_values(|v| v / n);
+    restore_map_invariants(kind, &mut mean);
     Ok(mean)
+}
+
+/// The geometric self-ensemble of the per-map upsampling: the maps it covers are upsampled
+/// under `symmetries` symmetries of the square and averaged, the others once. Each symmetry
+/// past the first is one more pass of the upsampler over the maps covered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SelfEnsemble {
+    /// 1 (no ensemble), 2, 4 or 8: the first of [`ENSEMBLE_ORDER`].
+    pub symmetries: usize,
+    pub maps: EnsembleMaps,
+}
+
+/// The maps a [`SelfEnsemble`] covers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EnsembleMaps {
+    /// Every map the upsampler runs on.
+    #[default]
+    All,
+    /// The normal map alone (the map whose upsampling the renders depend on most).
+    Normal,
+}
+
+impl std::str::FromStr for EnsembleMaps {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "all" => Ok(EnsembleMaps::All),
+            "normal" => Ok(EnsembleMaps::Normal),
+            _ => Err(Error::Invalid(format!(
+                "the self-ensemble covers \"all\" maps or the \"normal\" map, not \"{s}\""
+            ))),
+        }
+    }
+}
+
+/// The symmetries of a self-ensemble, in the order its size takes them: the identity, the half
+/// turn (it reverses both axes, so a shift the network makes along either cancels), the two
+/// mirrors, then the four with a transpose.
+pub const ENSEMBLE_ORDER: [Dihedral; 8] = {
+    let order = [0, 3, 1, 2, 4, 7, 5, 6];
+    let mut out = [Dihedral::ALL[0]; 8];
+    let mut i = 0;
+    while i < 8 {
+        out[i] = Dihedral::ALL[order[i]];
+        i += 1;
+    }
+    out
+};
+
+impl SelfEnsemble {
+    /// One pass of every map.
+    pub const NONE: SelfEnsemble = SelfEnsemble {
+        symmetries: 1,
+        maps: EnsembleMaps::All,
+    };
+
+    /// Whether a map of `kind` is upsampled under more than the identity.
+    pub fn covers(self, kind: MapKind) -> bool {
+        self.symmetries > 1 && (self.maps == EnsembleMaps::All || kind == MapKind::Normal)
+    }
+
+    /// The symmetries averaged, or an error for a size that is not 1, 2, 4 or 8.
+    pub fn symmetries(self) -> Result<&'static [Dihedral]> {
+        match self.symmetries {
+            1 | 2 | 4 | 8 => Ok(&ENSEMBLE_ORDER[..self.symmetries]),
+            n => Err(Error::Invalid(format!(
+                "a self-ensemble averages 1, 2, 4 or 8 symmetries of the square, not {n}"
+            ))),
+        }
+    }
 }
 
 /// A map of `kind` as the RGB image an upsampler sees: base colour sRGB-encoded, normals as
@@ -154,6 +273,140 @@ mod tests {
         }
     }
 
+    /// Bilinear, then every texel moved one column right (wrapping): an upsampler with a shift,
+    /// as a network may have one.
+    struct Shifted;
+    impl RgbUpsampler for Shifted {
+        fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+            Ok(Bilinear
+                .upsample(images, scale, border)?
+                .into_iter()
+                .map(|m| shift_columns(&m, 1))
+                .collect())
+        }
+    }
+
+    fn shift_columns(m: &Map, by: isize) -> Map {
+        let w = m.width() as isize;
+        Map::from_fn(m.width(), m.height(), m.channels(), |c, y, x| {
+            m.get(c, y, (x as isize - by).rem_euclid(w) as usize)
+        })
+    }
+
+    /// Tilted normals, roughness and colour that vary over the texels.
+    fn varied_material() -> Material {
+        let mut m = Material::uniform(8, [0.2, 0.4, 0.6], 0.5, 0.0);
+        m.base_color = Map::from_fn(8, 8, 3, |c, y, x| 0.1 + 0.1 * ((x + 2 * y + c) % 8) as f32);
+        m.roughness = Map::from_fn(8, 8, 1, |_, y, x| 0.1 + 0.08 * ((x * 3 + y) % 7) as f32);
+        m.metallic = Map::from_fn(8, 8, 1, |_, y, x| ((x / 2 + y) % 2) as f32);
+        m.normal = Map::from_fn(8, 8, 3, |c, y, x| {
+            let (nx, ny) = (
+                0.4 * ((x % 3) as f32 - 1.0),
+                0.3 * ((y * 2 + x) % 3) as f32 - 0.3,
+            );
+            [nx, ny, (1.0 - nx * nx - ny * ny).sqrt()][c]
+        });
+        m
+    }
+
+    fn max_difference(a: &Map, b: &Map) -> f32 {
+        (a.data().iter().zip(b.data()))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f32::max)
+    }
+
+    #[test]
+    fn a_self_ensemble_turns_the_maps_back_so_a_symmetric_upsampler_gives_its_one_pass() {
+        // Bilinear at ×4 with wrapping borders is the same under every symmetry of the square,
+        // so averaging its eight passes changes nothing, unless a pass is not turned back (or
+        // its normals not turned with the surface: x and y would then average toward zero).
+        let m = varied_material();
+        let once = upscale_per_map(&m, &Bilinear, 4, Border::Wrap).unwrap();
+        for symmetries in [2, 4, 8] {
+            let ensemble = SelfEnsemble {
+                symmetries,
+                maps: EnsembleMaps::All,
+            };
+            upscale_each_map(&m, &Bilinear, 4, Border::Wrap, ensemble, |kind, map| {
+                let d = max_difference(&map, once.map(kind).unwrap());
+                assert!(d < 1e-5, "{symmetries} symmetries, {kind:?}: {d}");
+                Ok(())
+            })
+            .unwrap();
+        }
+    }
+
+    #[test]
+    fn a_self_ensemble_of_two_is_the_half_turn_and_cancels_a_shift() {
+        // Under the half turn the shift to the right comes back as a shift to the left: the
+        // pair averages the two, centred again.
+        let m = varied_material();
+        let plain = upscale_per_map(&m, &Bilinear, 4, Border::Wrap).unwrap();
+        let shifted = upscale_per_map(&m, &Shifted, 4, Border::Wrap).unwrap();
+        let centred = |map: &Map| {
+            let (right, left) = (shift_columns(map, 1), shift_columns(map, -1));
+            Map::from_fn(map.width(), map.height(), map.channels(), |c, y, x| {
+                0.5 * (right.get(c, y, x) + left.get(c, y, x))
+            })
+        };
+        for maps in [EnsembleMaps::All, EnsembleMaps::Normal] {
+            let ensemble = SelfEnsemble {
+                symmetries: 2,
+                maps,
+            };
+            upscale_each_map(&m, &Shifted, 4, Border::Wrap, ensemble, |kind, map| {
+                let d_shifted = max_difference(&map, shifted.map(kind).unwrap());
+                if ensemble.covers(kind) {
+                    assert!(d_shifted > 0.01, "{maps:?} {kind:?}: {d_shifted}");
+                    if kind == MapKind::Roughness {
+                        let d = max_difference(&map, &centred(&plain.roughness));
+                        assert!(d < 1e-5, "{maps:?}: {d}");
+                    }
+                } else {
+                    // Maps the ensemble leaves out are upsampled once, as without it.
+                    assert_eq!(d_shifted, 0.0, "{maps:?} {kind:?}");
+                }
+                Ok(())
+            })
+            .unwrap();
+        }
+        let err = SelfEnsemble {
+            symmetries: 3,
+            maps: EnsembleMaps::All,
+        }
+        .symmetries()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("1, 2, 4 or 8") && err.contains("not 3"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_flat_map_comes_back_flat_without_the_upsampler() {
+        struct Failing;
+        impl RgbUpsampler for Failing {
+            fn upsample(&self, _: &[Map], _: usize, _: Border) -> Result<Vec<Map>> {
+                Err(Error::Invalid("ran".into()))
+            }
+        }
+        // Every map of a uniform material is flat (the normals point straight up).
+        let m = Material::uniform(8, [0.2, 0.4, 0.6], 0.5, 1.0);
+        let up = upscale_per_map(&m, &Failing, 4, Border::Wrap).unwrap();
+        assert_eq!((up.width(), up.height_px()), (32, 32));
+        assert!(up.metallic.data().iter().all(|&v| v == 1.0));
+        assert!(up.roughness.data().iter().all(|&v| v == 0.5));
+        for (c, want) in [0.2, 0.4, 0.6].into_iter().enumerate() {
+            assert!(up.base_color.plane(c).iter().all(|&v| v == want));
+        }
+        // One texel off and the upsampler runs.
+        let mut bump = m.clone();
+        bump.roughness.data_mut()[5] = 0.6;
+        let err = upscale_per_map(&bump, &Failing, 4, Border::Wrap).unwrap_err();
+        assert!(err.to_string().contains("ran"), "{err}");
+    }
+
     #[test]
     fn grey_maps_upsample_like_the_kernel_and_colours_stay() {
         let mut m = Material::uniform(8, [0.2, 0.4, 0.6], 0.5, 0.0);
@@ -164,9 +417,19 @@ mod tests {
         for (a, b) in up.roughness.data().iter().zip(direct.data()) {
             assert!((a - b).abs() < 1e-6);
         }
-        // A constant colour survives the sRGB round trip.
-        for (c, want) in [0.2, 0.4, 0.6].into_iter().enumerate() {
-            assert!((up.base_color.mean(c) - want).abs() < 1e-5);
+        // Constant channels of a colour map that is not flat (it goes through the upsampler)
+        // survive the sRGB round trip.
+        m.base_color = Map::from_fn(8, 8, 3, |c, y, x| {
+            [0.1 * (1 + (x + y) % 5) as f32, 0.4, 0.6][c]
+        });
+        let up = upscale_per_map(&m, &Bilinear, 4, Border::Wrap).unwrap();
+        for (c, want) in [0.4, 0.6].into_iter().enumerate() {
+            let channel = up.base_color.plane(c + 1);
+            assert!(
+                channel.iter().all(|v| (v - want).abs() < 1e-5),
+                "channel {}",
+                c + 1
+            );
         }
         assert!((up.normal.mean(2) - 1.0).abs() < 1e-6);
     }
@@ -178,8 +441,7 @@ mod tests {
                 Bilinear.upsample(images, 2, border)
             }
         }
-        let m = Material::uniform(8, [0.2, 0.4, 0.6], 0.5, 0.0);
-        let message = upscale_per_map(&m, &Twice, 4, Border::Wrap)
+        let message = upscale_per_map(&varied_material(), &Twice, 4, Border::Wrap)
             .unwrap_err()
             .to_string();
         assert!(

@@ -645,7 +645,9 @@ pub fn validate_normals(
     })
 }
 
-/// `matup upscale`'s defaults with `upsampler`, against the truth.
+/// `matup upscale`'s defaults with `upsampler` run once over each map (no self-ensemble: the
+/// network's own measure, as every run before the ensemble became a default scored it),
+/// against the truth.
 fn validate_maps(
     upsampler: &str,
     set: &[ValMaterial],
@@ -653,7 +655,7 @@ fn validate_maps(
 ) -> Result<Vec<(String, Score)>> {
     let config = Config {
         upsampler: upsampler.to_string(),
-        ..Config::default()
+        ..one_pass_defaults()
     };
     score_each(set, lights, |v| {
         let (out, _) = upscale(
@@ -664,6 +666,13 @@ fn validate_maps(
         )?;
         Ok(out)
     })
+}
+
+/// matup's defaults with each map upsampled once (no self-ensemble).
+pub fn one_pass_defaults() -> Config {
+    let mut config = Config::default();
+    config.filter.self_ensemble = 1;
+    config
 }
 
 /// Each validation material's `candidate` against its truth, rendered with `ggx` under

@@ -18,7 +18,7 @@ use matup_learn::config::Target;
 use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
 use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection};
-use matup_learn::train::{centre, shipped_maps};
+use matup_learn::train::{centre, one_pass_defaults, shipped_maps};
 use matup_learn::{train, LearnConfig};
 use matup_method::config::{FilterConfig, ResidualBase};
 use matup_method::residual::residual_base;
@@ -81,6 +81,7 @@ fn a_training_crops_centre_beyond_the_zero_paddings_reach_is_what_matup_upscale_
     let config = FilterConfig {
         residual_base: ResidualBase::Upsampler,
         back_project: true,
+        self_ensemble: 1,
         ..FilterConfig::default()
     };
     let executor = OnnxUpsampler::load(&model, EngineChoice::Matup).unwrap();
@@ -108,6 +109,7 @@ fn the_training_pipeline_computes_what_matup_upscale_ships() {
     let config = FilterConfig {
         residual_base: ResidualBase::Upsampler,
         back_project: true,
+        self_ensemble: 1,
         ..FilterConfig::default()
     };
     let shipped = residual_base(&lr, &config, &Lanczos, 4, Border::Mirror).unwrap();
@@ -598,7 +600,7 @@ fn a_network_of_normals_is_validated_as_shipped_and_a_height_guide_starts_as_its
     let lr = truth.box_downsample(4);
     let defaults = matup_method::Config {
         upsampler: format!("onnx:{}", config.base_model.display()),
-        ..Default::default()
+        ..one_pass_defaults()
     };
     let (shipped, _) = matup_method::upscale(
         &lr,

@@ -13,7 +13,7 @@ use matup_core::material::{Material, MIN_ALPHA};
 use matup_core::resample::{box_downsample, upsample, Border, Kernel};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
-use matup_eval::baseline::{upscale_each_map, upscale_per_map_ensemble};
+use matup_eval::baseline::upscale_each_map;
 
 /// Rounds of back-projection: each removes most of the mismatch that remains (a bilinear
 /// spread does not invert the box filter in one round), so three leave little.
@@ -95,21 +95,22 @@ fn upsampled_base(
 ) -> Result<Map> {
     Ok(match config.residual_base {
         ResidualBase::Kernel(kernel) => upsample(&features(lr), scale, kernel, border),
-        ResidualBase::Upsampler if config.self_ensemble => features(&upscale_per_map_ensemble(
-            &feature_maps(lr),
-            upsampler,
-            scale,
-            border,
-        )?),
         ResidualBase::Upsampler => {
             // Each map packed as soon as it is upsampled: the maps and their features at the
             // output size at once were this stage's peak.
             let (w, h) = (lr.width() * scale, lr.height_px() * scale);
             let mut base = Map::filled(w, h, FEATURES, 0.0);
-            upscale_each_map(&feature_maps(lr), upsampler, scale, border, |kind, map| {
-                pack_features(&mut base, kind, &map);
-                Ok(())
-            })?;
+            upscale_each_map(
+                &feature_maps(lr),
+                upsampler,
+                scale,
+                border,
+                config.self_ensemble(),
+                |kind, map| {
+                    pack_features(&mut base, kind, &map);
+                    Ok(())
+                },
+            )?;
             base
         }
     })
