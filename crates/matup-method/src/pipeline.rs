@@ -11,7 +11,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::bands::{plan_bands, Assembler};
+use crate::bands::{plan_bands, Assembler, BYTES_PER_BAND_TEXEL, ENSEMBLE_BYTES_PER_BAND_TEXEL};
 use crate::config::{Chain, Config, ResidualBase, Selection, AUTO_UPSAMPLERS, MATERIAL_NETWORK};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
@@ -438,6 +438,14 @@ fn run_level(
         tile,
         ctx.border,
         ctx.options.memory_limit,
+        BYTES_PER_BAND_TEXEL
+            + if config.filter.residual_base == ResidualBase::Upsampler
+                && config.filter.self_ensemble > 1
+            {
+                ENSEMBLE_BYTES_PER_BAND_TEXEL
+            } else {
+                0
+            },
     )?;
     report.bands = plan.count();
     let whole = plan.is_whole();
