@@ -312,71 +312,51 @@ mod tests {
     #[test]
     fn the_plan_fits_the_limit_or_says_why_not() {
         let mib = 1u64 << 20;
+        let plan = |tile, border, limit, per_texel| {
+            plan_bands(512, 512, 4, 30, tile, border, limit, per_texel)
+        };
         // No limit, or a generous one: one band.
-        assert!(plan_bands(
-            512,
-            512,
-            4,
-            30,
-            None,
-            Border::Wrap,
-            None,
-            BYTES_PER_BAND_TEXEL
-        )
-        .unwrap()
-        .is_whole());
-        assert!(plan_bands(
-            512,
-            512,
-            4,
-            30,
-            None,
-            Border::Wrap,
-            Some(4096 * mib),
-            BYTES_PER_BAND_TEXEL
-        )
-        .unwrap()
-        .is_whole());
+        assert!(plan(None, Border::Wrap, None, BYTES_PER_BAND_TEXEL)
+            .unwrap()
+            .is_whole());
+        assert!(
+            plan(None, Border::Wrap, Some(4096 * mib), BYTES_PER_BAND_TEXEL)
+                .unwrap()
+                .is_whole()
+        );
         let fixed = BYTES_PER_LR_TEXEL * 512 * 512;
-        let band_bytes = |read: usize| BYTES_PER_BAND_TEXEL * 16 * 512 * read as u64;
-        for border in [Border::Wrap, Border::Mirror] {
-            for tile in [None, Some(128)] {
-                let p = plan_bands(
-                    512,
-                    512,
-                    4,
-                    30,
-                    tile,
-                    border,
-                    Some(200 * mib),
-                    BYTES_PER_BAND_TEXEL,
-                )
-                .unwrap();
-                assert!(p.count() > 1, "{p:?}");
-                let mut next = 0;
-                for (i, band) in p.bands().enumerate() {
-                    assert_eq!(band.first, next, "{p:?}");
-                    next += band.rows;
-                    assert!(fixed + band_bytes(band.read_rows) <= 200 * mib, "{p:?}");
-                    // Every band but the last reads whole tiles.
-                    if let (Some(t), true) = (tile, i + 1 < p.count()) {
-                        assert_eq!(band.read_rows % t, 0, "{p:?}");
+        for per_texel in [
+            BYTES_PER_BAND_TEXEL,
+            BYTES_PER_BAND_TEXEL + ENSEMBLE_BYTES_PER_BAND_TEXEL,
+        ] {
+            let band_bytes = |read: usize| per_texel * 16 * 512 * read as u64;
+            for border in [Border::Wrap, Border::Mirror] {
+                for tile in [None, Some(128)] {
+                    let p = plan(tile, border, Some(200 * mib), per_texel).unwrap();
+                    assert!(p.count() > 1, "{p:?}");
+                    let mut next = 0;
+                    for (i, band) in p.bands().enumerate() {
+                        assert_eq!(band.first, next, "{p:?}");
+                        next += band.rows;
+                        assert!(fixed + band_bytes(band.read_rows) <= 200 * mib, "{p:?}");
+                        // Every band but the last reads whole tiles.
+                        if let (Some(t), true) = (tile, i + 1 < p.count()) {
+                            assert_eq!(band.read_rows % t, 0, "{p:?}");
+                        }
                     }
+                    assert_eq!(next, 512);
                 }
-                assert_eq!(next, 512);
             }
         }
-        let error = plan_bands(
-            512,
-            512,
-            4,
-            30,
-            None,
-            Border::Wrap,
-            Some(40 * mib),
-            BYTES_PER_BAND_TEXEL,
-        )
-        .unwrap_err();
+        // A self-ensemble's bytes make the bands narrower.
+        let rows = |per_texel| {
+            let p = plan(None, Border::Mirror, Some(200 * mib), per_texel).unwrap();
+            p.bands().map(|b| b.read_rows).max().unwrap()
+        };
+        assert!(
+            rows(BYTES_PER_BAND_TEXEL + ENSEMBLE_BYTES_PER_BAND_TEXEL) < rows(BYTES_PER_BAND_TEXEL)
+        );
+        let error = plan(None, Border::Wrap, Some(40 * mib), BYTES_PER_BAND_TEXEL).unwrap_err();
         assert!(error.to_string().contains("40 MiB"), "{error}");
     }
 
