@@ -117,21 +117,13 @@ fn upscale_map(
 /// its own, so none is run on one; most materials' metallic maps are flat, and skipping them
 /// saves a quarter of the upsampler's time.
 fn flat_upsampled(map: &Map, scale: usize) -> Option<Map> {
-    let texels = map.texels();
-    if texels == 0 {
-        return None;
-    }
-    let first: Vec<f32> = (0..map.channels())
-        .map(|c| map.data()[c * texels])
-        .collect();
-    let flat =
-        (map.data().chunks(texels).zip(&first)).all(|(plane, v)| plane.iter().all(|x| x == v));
+    let flat = map.texels() > 0 && (0..map.channels()).all(|c| map.is_constant(c, 0.0));
     flat.then(|| {
         Map::from_fn(
             map.width() * scale,
             map.height() * scale,
             map.channels(),
-            |c, _, _| first[c],
+            |c, _, _| map.plane(c)[0],
         )
     })
 }
