@@ -137,13 +137,12 @@ fn default_val_lights() -> usize {
 impl LearnConfig {
     /// Reads and checks a configuration file.
     pub fn load(path: &Path) -> Result<LearnConfig> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| Error::Invalid(format!("{}: cannot read: {e}", path.display())))?;
-        let config: LearnConfig = toml::from_str(&text)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let config: LearnConfig =
+            toml::from_str(&text).map_err(|e| Error::file(path, e.to_string()))?;
         config
             .validate()
-            .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+            .map_err(|e| Error::file(path, e.to_string()))?;
         Ok(config)
     }
 

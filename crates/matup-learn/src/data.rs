@@ -6,8 +6,8 @@ use std::path::Path;
 
 use candle_core::{Device, Tensor};
 use matup_core::{load_material, Dihedral, Error, LoadOptions, MapKind, Material, Result};
-use matup_eval::baseline::encode_for_upsampler;
 use matup_method::filter::FEATURES;
+use matup_method::per_map::encode_for_upsampler;
 use matup_method::pipeline::{constant_features, features};
 use rand::Rng;
 

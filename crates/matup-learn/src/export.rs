@@ -126,10 +126,9 @@ fn export_described(
     description: &str,
 ) -> Result<()> {
     let base_sidecar = base_model.with_extension("toml");
-    let text = std::fs::read_to_string(&base_sidecar)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
-    let mut sidecar: toml::Table = toml::from_str(&text)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", base_sidecar.display())))?;
+    let text = std::fs::read_to_string(&base_sidecar).map_err(|e| Error::io(&base_sidecar, e))?;
+    let mut sidecar: toml::Table =
+        toml::from_str(&text).map_err(|e| Error::file(&base_sidecar, e.to_string()))?;
     let base = file_name(base_model);
     sidecar.insert("description".into(), description.into());
     let source = sidecar

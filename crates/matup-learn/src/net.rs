@@ -35,12 +35,7 @@ pub struct TrainableNet {
 }
 
 fn invalid(path: &Path, what: impl std::fmt::Display) -> Error {
-    Error::Invalid(format!("{}: {what}", path.display()))
-}
-
-/// Candle errors as matup's.
-pub(crate) fn candle(e: candle_core::Error) -> Error {
-    Error::Invalid(format!("candle: {e}"))
+    Error::file(path, what.to_string())
 }
 
 impl TrainableNet {
@@ -78,7 +73,7 @@ impl TrainableNet {
                     ));
                 }
             }
-            convs.push(Some(conv_weights(conv, device).map_err(candle)?));
+            convs.push(Some(conv_weights(conv, device)?));
         }
         Ok(TrainableNet {
             graph,
@@ -116,10 +111,9 @@ impl TrainableNet {
         }
         let w = self.convs[entry].as_ref().expect("a conv step has weights");
         let (kh, kw) = w.kernel;
-        let cout = w.weights.dim(0).map_err(candle)?;
+        let cout = w.weights.dim(0)?;
         let device = w.weights.device().clone();
-        let zeros =
-            Var::zeros((cout, kh * kw), candle_core::DType::F32, &device).map_err(candle)?;
+        let zeros = Var::zeros((cout, kh * kw), candle_core::DType::F32, &device)?;
         self.height_guide = Some((
             entry,
             ConvWeights {
@@ -277,7 +271,7 @@ impl TrainableNet {
             let (Op::Conv(conv, _), Some(w)) = (&step.op, weights) else {
                 continue;
             };
-            let onnx = onnx_layout(w).map_err(candle)?;
+            let onnx = onnx_layout(w)?;
             let bias = w
                 .bias
                 .as_ref()
@@ -294,7 +288,7 @@ impl TrainableNet {
                 t.float_data.clear();
             };
             write(&conv.weights_name, onnx);
-            if let Some(bias) = bias.map_err(candle)? {
+            if let Some(bias) = bias? {
                 write(&conv.bias_name, bias);
             }
         }

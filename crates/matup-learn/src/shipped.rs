@@ -1,6 +1,6 @@
 //! What `matup upscale` does with the network's outputs by default, as differentiable candle
 //! operations, so that training sees what users get: each map decoded as the per-map upsampler
-//! decodes it (`matup_eval::baseline::upscale_per_map`), the 7 features back-projected onto the
+//! decodes it (`matup_method::per_map::upscale_per_map`), the 7 features back-projected onto the
 //! LR features (`matup_method::residual::back_project`), decoded to shading parameters
 //! (`matup_method::filter::decode`), rendered with the shading model's tensor form and shown
 //! through the display transform. The tests hold each step equal to matup's own code.

@@ -446,8 +446,7 @@ fn save_checkpoint(
     }
     let tmp = files.dir.join(".checkpoint.safetensors.tmp");
     candle_core::safetensors::save(&tensors, &tmp)?;
-    std::fs::rename(&tmp, files.checkpoint())
-        .map_err(|e| Error::Invalid(format!("{}: {e}", files.checkpoint().display())))?;
+    std::fs::rename(&tmp, files.checkpoint()).map_err(|e| Error::io(&files.checkpoint(), e))?;
     write_atomic(
         &files.checkpoint_info(),
         serde_json::to_string_pretty(&CheckpointInfo {
@@ -472,7 +471,7 @@ fn load_checkpoint(
         return Ok(None);
     };
     let info: CheckpointInfo = serde_json::from_str(&text)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", files.checkpoint_info().display())))?;
+        .map_err(|e| Error::file(&files.checkpoint_info(), e.to_string()))?;
     // The step count may change between calls (a run is extended by asking for more).
     let settings = |c: &LearnConfig| LearnConfig {
         iterations: 0,
@@ -524,14 +523,13 @@ fn append(path: &Path, header: &str, line: &str) -> Result<()> {
         .create(true)
         .append(true)
         .open(path)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        .map_err(|e| Error::io(path, e))?;
     let text = if new {
         format!("{header}\n{line}\n")
     } else {
         format!("{line}\n")
     };
-    f.write_all(text.as_bytes())
-        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+    f.write_all(text.as_bytes()).map_err(|e| Error::io(path, e))
 }
 
 fn iteration_of(line: &str) -> usize {
@@ -792,7 +790,7 @@ pub fn train(
     let start = Instant::now();
     // The data and network first: a run that cannot start leaves no folder behind.
     let trainer = Trainer::new(config, device)?;
-    std::fs::create_dir_all(dir).map_err(|e| Error::Invalid(format!("{}: {e}", dir.display())))?;
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let files = RunFiles {
         dir: dir.to_path_buf(),
     };
