@@ -24,8 +24,8 @@ use std::time::Instant;
 use matup::bands::default_memory_limit;
 use matup::folder::upscale_to_folder;
 use matup::material::Material;
-use matup::pipeline::peak_memory_mib;
 use matup::progress::Progress;
+use matup::report::peak_memory_mib;
 use matup::{load_material, Config, LoadOptions, Map, SaveOptions};
 
 /// The allocator `matup` links (mimalloc), counting the bytes live and the most live since the
@@ -339,7 +339,7 @@ fn plot_growth(
     let _ = plotters::style::register_font(
         "sans-serif",
         plotters::style::FontStyle::Normal,
-        matup::text::FONT,
+        matup::draw::text::FONT,
     );
     let root = BitMapBackend::new(path, (1200, 500)).into_drawing_area();
     root.fill(&WHITE)?;

@@ -9,6 +9,7 @@ pub use matup_method::*;
 
 pub use matup_apps as apps;
 pub use matup_core as core;
+pub use matup_draw as draw;
 pub use matup_eval as eval;
 pub use matup_method as method;
 pub use matup_shading as shading_models;

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::anyhow;
 use matup_apps::experiment::Row;
-use matup_core::text::FONT; // shipped, so that a machine without fonts can plot
+use matup_draw::text::FONT; // shipped, so that a machine without fonts can plot
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 

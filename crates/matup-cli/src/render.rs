@@ -5,8 +5,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Args;
 use matup_core::io::{check_output_folder, save_png};
-use matup_core::render::{contact_sheet, render, RenderOptions};
+use matup_core::render::{render, RenderOptions};
 use matup_core::{shading_model, LightSetSpec, PluginSpec};
+use matup_draw::contact_sheet;
 
 use crate::material_args::MaterialArgs;
 

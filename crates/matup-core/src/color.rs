@@ -1,6 +1,6 @@
 //! Colour transfer functions: sRGB encoding and the display transform renders are compared in.
 
-use crate::simd::{fast_exp, fast_ln};
+use matup_kernels::simd::{fast_exp, fast_ln};
 
 /// sRGB-encoded value in [0, 1] → linear.
 #[inline]

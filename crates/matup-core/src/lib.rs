@@ -11,7 +11,6 @@
 
 pub mod color;
 mod error;
-pub mod gemm;
 pub mod io;
 pub mod lights;
 pub mod loss;
@@ -22,10 +21,8 @@ pub mod progress;
 pub mod render;
 pub mod resample;
 pub mod shading;
-pub mod simd;
 pub mod svbrdf;
 pub mod tensor;
-pub mod text;
 pub mod tileable;
 pub mod upsample;
 

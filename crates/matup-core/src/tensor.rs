@@ -158,7 +158,7 @@ pub fn parse_device(spec: &str) -> Result<Device> {
     };
     if !candle_core::utils::cuda_is_available() {
         return Err(Error::Invalid(format!(
-            "device '{spec}': this build has no CUDA support; build with --features cuda (see the README)"
+            "device '{spec}': this build has no CUDA support; build with --features cuda (see docs/cuda.md)"
         )));
     }
     Device::new_cuda(ordinal).map_err(|e| Error::Invalid(format!("device '{spec}': {e}")))

@@ -7,7 +7,8 @@ use matup_core::color::display_with_derivative;
 use matup_core::material::MIN_ALPHA;
 use matup_core::shading::{texel_loss, ShadingModel, ShadingModelRegistration, Svbrdf, Texel};
 use matup_core::tensor::TensorShading;
-use matup_core::{with_avx2, Light, LightSample, LossNorm, Result};
+use matup_core::{Light, LightSample, LossNorm, Result};
+use matup_kernels::with_avx2;
 
 use glam::Vec3;
 

@@ -8,7 +8,7 @@ use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::op::{contiguous_f32, storage_f32};
-use matup_core::gemm::gemm;
+use matup_kernels::gemm::gemm;
 
 /// How a layer's `O × I` weight matrix is stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

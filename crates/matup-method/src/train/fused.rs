@@ -15,7 +15,8 @@ use crate::filter::{Filter, FEATURES};
 use crate::op::{contiguous_f32, storage_f32, TexelLossOp, TexelObjective};
 use matup_core::material::texel_position;
 use matup_core::shading::{Svbrdf, Texel};
-use matup_core::{with_avx2, Error, Result};
+use matup_core::{Error, Result};
+use matup_kernels::with_avx2;
 
 /// Steps on the CPU with the fused kernels, training the filter's own weights.
 pub(super) struct FusedStepper<'a> {

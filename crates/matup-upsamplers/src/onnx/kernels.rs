@@ -4,8 +4,8 @@
 
 use rayon::prelude::*;
 
-use matup_core::simd::fast_exp;
-use matup_core::with_avx2;
+use matup_kernels::simd::fast_exp;
+use matup_kernels::with_avx2;
 
 /// `height × width` texels of `channels` values each, texel-major.
 #[derive(Clone, Debug, PartialEq)]

@@ -4,7 +4,7 @@
 
 use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
 
-use crate::map::Map;
+use matup_core::map::Map;
 
 /// DejaVu Sans (its licence beside it in `assets/`), also the plots' font.
 pub static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
