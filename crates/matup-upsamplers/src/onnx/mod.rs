@@ -150,8 +150,13 @@ fn sidecar_path(model: &Path) -> PathBuf {
 
 /// The sidecar `NAME.toml` of `NAME.onnx`.
 pub fn read_sidecar(model: &Path) -> Result<ModelInfo> {
-    let path = sidecar_path(model);
-    let text = std::fs::read_to_string(&path).map_err(|e| Error::Plugin {
+    read_sidecar_file(&sidecar_path(model))
+}
+
+/// A sidecar read from `path`, wherever it is (`onnx:MODEL,sidecar=PATH`: a network in a
+/// folder the user cannot write to, described from elsewhere).
+pub fn read_sidecar_file(path: &Path) -> Result<ModelInfo> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::Plugin {
         plugin: "onnx".into(),
         message: format!(
             "{}: cannot read the model's sidecar ({e}); it states the scale and value ranges",
@@ -260,10 +265,19 @@ fn executor(threads: usize) -> Executor {
 impl OnnxUpsampler {
     /// Loads `path` and its sidecar, picks the engine, and probes the real scale.
     pub fn load(path: &Path, choice: EngineChoice) -> Result<OnnxUpsampler> {
+        OnnxUpsampler::load_with_sidecar(path, &sidecar_path(path), choice)
+    }
+
+    /// [`OnnxUpsampler::load`] with the sidecar read from `sidecar`.
+    pub fn load_with_sidecar(
+        path: &Path,
+        sidecar: &Path,
+        choice: EngineChoice,
+    ) -> Result<OnnxUpsampler> {
         if !path.is_file() {
             return Err(model_error(path, "cannot open", "no such file"));
         }
-        let info = read_sidecar(path)?;
+        let info = read_sidecar_file(sidecar)?;
         if info.scale == 0
             || info.tile == 0
             || info.batch == 0
@@ -750,9 +764,14 @@ const OPTIONS: &[PluginOption] = &[
         default: "auto",
         help: "what runs the network: matup (its own executor), tract, or auto (matup where the graph allows)",
     },
+    PluginOption {
+        key: "sidecar",
+        default: "",
+        help: "the model's sidecar TOML (default: NAME.toml beside NAME.onnx)",
+    },
 ];
 
-/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E]`, MODEL a path to a `.onnx` file or a name in the
+/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E,sidecar=PATH]`, MODEL a path to a `.onnx` file or a name in the
 /// model folders.
 fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let argument = argument.unwrap_or("");
@@ -775,7 +794,12 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
             })
         }
     };
-    let mut upsampler = OnnxUpsampler::load(&resolve(model)?, choice)?;
+    let path = resolve(model)?;
+    let sidecar = match values["sidecar"].as_str() {
+        "" => sidecar_path(&path),
+        given => PathBuf::from(given),
+    };
+    let mut upsampler = OnnxUpsampler::load_with_sidecar(&path, &sidecar, choice)?;
     for (key, slot) in [
         ("tile", &mut upsampler.info.tile),
         ("overlap", &mut upsampler.info.overlap),
