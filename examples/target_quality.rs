@@ -7,8 +7,8 @@
 //! `cargo run --release --example target_quality -- CROP UPSAMPLER MATERIAL...`
 //! (e.g. `512 onnx:span_x4_ch48 ../shared/materials/ambientcg_Metal053C`).
 
-use matup::baseline::upscale_per_map;
 use matup::config::{FilterConfig, ResidualBase};
+use matup::per_map::upscale_per_map;
 use matup::pipeline::{detect_tileable, features};
 use matup::residual::residual_base;
 use matup::targets::{base_renders, DetailBase};

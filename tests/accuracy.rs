@@ -183,7 +183,7 @@ fn back_projection_makes_the_per_map_base_consistent_with_its_input() {
     // Without back-projection the result is exactly per-map upsampling.
     let bicubic = upsampler(&PluginSpec::new("bicubic")).unwrap();
     let border = Border::for_tiling(report.tileable);
-    let baseline = matup::baseline::upscale_per_map(&lr, bicubic.as_ref(), 4, border).unwrap();
+    let baseline = matup::per_map::upscale_per_map(&lr, bicubic.as_ref(), 4, border).unwrap();
     assert!(common::max_abs_diff(&per_map.base_color, &baseline.base_color) < 1e-5);
     let (before, after) = (inconsistency(&per_map, &lr), inconsistency(&projected, &lr));
     println!("LR inconsistency: per-map {before:.5}, back-projected {after:.5}");
@@ -267,10 +267,10 @@ fn self_validation_picks_per_map_upsampling_when_it_is_best() {
 #[test]
 fn selection_among_upsamplers_runs_the_one_that_validates_best() {
     // The use it is for: a network fine-tuned on the corpus (which has no tiles) beside stock
-    // SPAN, on a tiled floor's 128² LR crop, where the fine-tune loses (README, Learned
-    // upsampling); validated at 32².
+    // SPAN, on a tiled floor's 128² LR crop, where the fine-tune loses (docs/experiments/
+    // 2026-11-25-tiles-in-data.md); validated at 32².
     let tuned = format!(
-        "onnx:{}/runs/span_x4_materials_normals/best.onnx",
+        "onnx:{}/runs/span_x4_normals_batch24/best.onnx",
         env!("CARGO_MANIFEST_DIR")
     );
     let m = matup::load_material(
@@ -361,7 +361,7 @@ fn a_crop_of_a_tileable_material_is_not_called_tileable() {
 #[test]
 fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
     // A corpus validation set (never trained on) at 256² → 64² → ×4, scored as `matup sweep`
-    // scores (16 held-out lights): what the README's learned-upsampling table measures at 512².
+    // scores (16 held-out lights): what docs/experiments/2026-11-25-zoomed-out-crops.md measures at 512².
     let truth = matup::load_material(
         Some(&common::corpus_material("ambientcg_Rock035")),
         &Default::default(),
@@ -402,7 +402,7 @@ fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
     let mut unprojected = Config::default();
     unprojected.filter.back_project = false;
     for config in [trained, unprojected] {
-        let (used, _) = matup::pipeline::choose_upsampler(&config).unwrap();
+        let (used, _) = matup::config::choose_upsampler(&config).unwrap();
         assert_eq!(used, "onnx:span_x4_ch48");
     }
 }

@@ -20,10 +20,12 @@ use matup_core::resample::Border;
 use matup_core::shading::shading_model;
 use matup_core::upsample::{check_scale, upsampler};
 use matup_core::{Error, PluginSpec, Result};
-use matup_eval::baseline::upscale_per_map;
 use matup_eval::metrics::{evaluate, Evaluation};
+use matup_method::config::choose_upsampler;
 use matup_method::config::{check_supported_scale, Config};
-use matup_method::pipeline::{choose_upsampler, detect_tileable, upscale, RunOptions};
+use matup_method::per_map::upscale_per_map;
+use matup_method::pipeline::{detect_tileable, upscale};
+use matup_method::RunOptions;
 
 /// An experiment file (`matup sweep FILE.toml`); `matup bench` builds one from its arguments.
 #[derive(Clone, Debug, Default, Deserialize)]

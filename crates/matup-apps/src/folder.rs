@@ -8,11 +8,11 @@ use matup_core::io::{check_output_folder, save_png, write_atomic, MaterialWriter
 use matup_core::material::Material;
 use matup_core::progress::Progress;
 use matup_core::{Error, Result};
-use matup_method::pipeline::{
-    output_size, peak_memory_mib, preview_of_centre, upscale_streamed, PreviewWindow, RunOptions,
-    RunReport,
-};
+use matup_method::pipeline::{output_size, upscale_streamed};
+use matup_method::preview::{preview_of_centre, PreviewWindow};
+use matup_method::report::{peak_memory_mib, RunReport};
 use matup_method::Config;
+use matup_method::RunOptions;
 
 /// The checkpoint folder of a run inside its output folder (removed once the run finishes).
 pub const CHECKPOINT_FOLDER: &str = ".matup-checkpoint";

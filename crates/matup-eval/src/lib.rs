@@ -1,7 +1,6 @@
 //! matup's evaluation: how close an upsampled material comes to the truth (render PSNR,
-//! FLIP, sharpness and per-map errors under held-out lights), and the per-map baselines
-//! (each map through an RGB upsampler) that the method and experiments compare against.
-//! Built on `matup-core` only.
+//! FLIP, sharpness and per-map errors under held-out lights). Built on `matup-core` only, so
+//! that the method's self-validation can score its candidates with it; the per-map baselines
+//! it is used to compare against are `matup_method::per_map`.
 
-pub mod baseline;
 pub mod metrics;

@@ -14,14 +14,13 @@ use matup_core::{Error, Result};
 /// Heap bytes a band needs per output texel it makes, context rows included: the residual
 /// base's 7 features, an upsampled map and the upsampler's accumulators, the 8 decoded maps,
 /// and the height solve's two f64 buffers with its blurs. `cargo bench --bench memory`
-/// measured 64 at 2K² and 4K² → ×4 (2 and 4 bands) and 73 at 1K² (3 small bands; README
-/// "Memory of large outputs"); the rest is headroom for what the process holds beside the heap.
+/// measured 64 at 2K² and 4K² → ×4 (2 and 4 bands) and 73 at 1K² (3 small bands;
+/// docs/experiments/2026-11-24-memory-of-large-outputs.md); the rest is headroom for what the process holds beside the heap.
 pub const BYTES_PER_BAND_TEXEL: u64 = 80;
 
 /// Heap bytes per output texel a self-ensemble adds to a band: the sum of a colour map's
 /// passes (3 × f32) beside the pass being made. The 1K² → 4K² run in 3 bands at 1 GiB peaked
-/// at 757 MiB with two passes against 655 MiB with one (README "The self-ensemble as the
-/// default").
+/// at 757 MiB with two passes against 655 MiB with one (docs/experiments/2026-11-25-self-ensemble.md).
 pub const ENSEMBLE_BYTES_PER_BAND_TEXEL: u64 = 12;
 
 /// Heap bytes per LR texel that do not shrink with the band: the level's input (36 bytes a
@@ -207,8 +206,7 @@ pub fn plan_bands(
 
 /// The default memory limit: a quarter of the machine's memory (Linux's `MemTotal`; 16 GiB
 /// elsewhere), between 1 and 16 GiB. A share, not all: the machine runs other things; and
-/// not less, because narrow bands repeat their context's work (README "Memory of large
-/// outputs").
+/// not less, because narrow bands repeat their context's work (docs/experiments/2026-11-24-memory-of-large-outputs.md).
 pub fn default_memory_limit() -> u64 {
     const GIB: u64 = 1 << 30;
     let total = std::fs::read_to_string("/proc/meminfo")

@@ -7,10 +7,11 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
+pub use crate::per_map::{EnsembleMaps, SelfEnsemble};
 use matup_core::loss::LossNorm;
 use matup_core::resample::Kernel;
-use matup_core::{Error, Result};
-pub use matup_eval::baseline::{EnsembleMaps, SelfEnsemble};
+use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
+use matup_core::{Error, PluginSpec, Result};
 
 /// Serde through `Display` / `FromStr`, so values read the same in TOML as on the CLI.
 macro_rules! serde_as_string {
@@ -411,7 +412,7 @@ impl Default for FilterConfig {
             input: Interpolation(Kernel::Bilinear),
             residual_base: ResidualBase::Upsampler,
             back_project: true,
-            // Measured (README, "The self-ensemble as the default"): the half turn's pair
+            // Measured (docs/experiments/2026-11-25-self-ensemble.md): the half turn's pair
             // lifts the val sets past the bar at twice the upsampler's time; the time
             // budgets (2 s for the main job, 60 s for 1K² → 4K²) hold two passes, not four.
             self_ensemble: 2,
@@ -533,7 +534,7 @@ pub struct TrainConfig {
     /// Passes over every output texel; 0 (the default) trains no filter, and the residual
     /// base is the result. Measured on the shared materials, a filter trained on renders
     /// upsampled by the shipped SPAN network does not improve on a back-projected per-map
-    /// base (see the README).
+    /// base (docs/experiments/2026-11-21-quality-against-per-map.md).
     pub epochs: usize,
     /// Texels per step.
     pub batch_size: usize,
@@ -585,7 +586,7 @@ impl Default for EarlyStopConfig {
             validation_texels: 8192,
             checks_per_epoch: 4,
             // Chosen on 256² and 512² crops of the four shared materials with the paper's
-            // settings (README, "Stopping when converged"): 2 checks or a 0.2–0.5% gain
+            // settings (docs/experiments/2026-11-23-early-stopping.md): 2 checks or a 0.2–0.5% gain
             // stopped too soon (−0.04 to −0.08 dB on average).
             patience: 4,
             min_gain: 1e-3,
@@ -665,7 +666,7 @@ impl Default for Config {
 
 /// SPAN tuned for material maps (models/README.md has its card). It was trained and measured
 /// through the per-map base back-projected onto the LR maps, and only there beats stock SPAN:
-/// each map on its own it loses (README, Learned upsampling), and renders are not what it
+/// each map on its own it loses (docs/experiments/2026-11-25-blend-default.md), and renders are not what it
 /// learned. So `auto` runs it first only where [`Config::upsamples_maps_only`].
 pub const MATERIAL_NETWORK: &str = "onnx:span_x4_materials";
 
@@ -810,6 +811,32 @@ impl Config {
         }
         Ok(())
     }
+}
+
+/// The configured upsampler, or for `auto` the first that loads and supports every level's
+/// scale: [`MATERIAL_NETWORK`] where the configuration only upsamples maps, then
+/// [`AUTO_UPSAMPLERS`].
+pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
+    let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
+        let spec: PluginSpec = spec.parse()?;
+        let up = upsampler(&spec)?;
+        for &s in &config.levels() {
+            check_scale(&spec.name, up.as_ref(), s)?;
+        }
+        Ok(up)
+    };
+    if config.upsampler != "auto" {
+        return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
+    }
+    let material = config.upsamples_maps_only().then_some(MATERIAL_NETWORK);
+    let mut last = None;
+    for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
+        match fits(spec) {
+            Ok(up) => return Ok((spec.to_string(), up)),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.expect("AUTO_UPSAMPLERS is not empty"))
 }
 
 #[cfg(test)]

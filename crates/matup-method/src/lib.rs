@@ -1,19 +1,27 @@
 //! matup's method: the configuration and the pipeline's stages, run as one straight line by
-//! `pipeline::upscale`: the residual base, the upsampled render targets, the per-material
-//! filter and its training backends, height reconstruction, and self-validation among
-//! candidates (`select`). Built on `matup-core` and `matup-eval`.
+//! `pipeline::upscale`: the per-map path (`per_map`, the defaults' upsampling), the residual
+//! base, the per-material fit (`fit`: targets, filter, training backends), height
+//! reconstruction, self-validation among candidates (`select`), the preview and the run's
+//! report. Built on `matup-core` and `matup-eval`.
 
 pub mod bands;
 pub mod config;
+pub mod context;
 pub mod features;
 pub mod filter;
+mod fit;
 pub mod height;
 pub mod op;
+pub mod per_map;
 pub mod pipeline;
+pub mod preview;
+pub mod report;
 pub mod residual;
 pub mod select;
 pub mod targets;
 pub mod train;
 
 pub use config::Config;
-pub use pipeline::{upscale, upscale_streamed, RunOptions, RunReport};
+pub use context::RunOptions;
+pub use pipeline::{upscale, upscale_streamed};
+pub use report::{LevelReport, RunReport};

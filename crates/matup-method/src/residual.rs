@@ -8,12 +8,12 @@ use rayon::prelude::*;
 use crate::config::{FilterConfig, ResidualBase};
 use crate::features::FEATURES;
 use crate::features::{features, pack_features};
+use crate::per_map::upscale_each_map;
 use matup_core::map::Map;
 use matup_core::material::{Material, MIN_ALPHA};
 use matup_core::resample::{box_downsample, upsample, Border, Kernel};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
-use matup_eval::baseline::upscale_each_map;
 
 /// Rounds of back-projection: each removes most of the mismatch that remains (a bilinear
 /// spread does not invert the box filter in one round), so three leave little.

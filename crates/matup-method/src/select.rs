@@ -191,3 +191,33 @@ impl Progress for Cancellable<'_> {
         self.0.cancelled()
     }
 }
+
+/// The settings to run: `config` itself, or with `select` on the best of its candidates
+/// validated one scale down, each upsampled by `upscale` (the pipeline). Not for the oracle
+/// (`oracle`), whose targets are the truth's.
+pub fn choose_settings(
+    material: &Material,
+    config: &Config,
+    oracle: bool,
+    tileable: bool,
+    upscale: Upscale,
+    progress: &dyn Progress,
+) -> Result<(Config, Option<SelectionReport>)> {
+    if config.select == Selection::Off || oracle {
+        return Ok((config.clone(), None));
+    }
+    let scale = config.levels()[0];
+    if let Some(why) = too_small(material, scale) {
+        progress.note(&format!(
+            "select: settings as configured; no validation one scale down ({why})"
+        ));
+        return Ok((config.clone(), None));
+    }
+    let candidates = candidates(config);
+    let (best, report) = select(material, &candidates, scale, tileable, upscale, progress)?;
+    progress.note(&format!(
+        "select: {} (validated at {}×{})",
+        report.chosen, report.validation_size[0], report.validation_size[1]
+    ));
+    Ok((candidates[best].config.clone(), Some(report)))
+}

@@ -21,7 +21,7 @@ use matup_core::lights::Light;
 use matup_core::map::Map;
 use matup_core::material::{Material, NormalConvention, DISPLACEMENT, MIN_ALPHA};
 use matup_core::{Error, Result};
-use matup_method::pipeline::bilinear_baseline;
+use matup_method::preview::bilinear_baseline;
 use matup_method::Config;
 
 /// One material the page shows.

@@ -1,5 +1,8 @@
-//! What users do without matup: every map upsampled on its own by an RGB upsampler, the way
-//! an artist runs each texture file through Lanczos or an SR network.
+//! The per-map path, the first stage of matup's defaults: every map upsampled on its own by an
+//! RGB upsampler as a picture (the way an artist runs each texture file through Lanczos or an
+//! SR network), under the self-ensemble's symmetries, with flat maps skipping the upsampler.
+//! One pass of it, not back-projected, is the per-map baseline that evaluations compare with
+//! ([`upscale_per_map`]).
 
 use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::io::{decode_normals, encode_normals};

@@ -1,0 +1,86 @@
+//! What a run did: the report written as `run.json` and printed as the CLI's summary, with
+//! the stage timings and the memory it is made of.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::config::Config;
+use crate::select::SelectionReport;
+use crate::train::TrainStats;
+use matup_core::Result;
+
+/// What a run did, for `run.json` and the CLI summary.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    pub matup_version: &'static str,
+    /// The folder the input was loaded from, when it came from one.
+    pub input_folder: Option<PathBuf>,
+    pub input_size: [usize; 2],
+    pub output_size: [usize; 2],
+    pub config: Config,
+    /// The RGB upsampler that ran (what `auto` chose).
+    pub upsampler_used: String,
+    pub tileable: bool,
+    /// The seam ratio the tileability was detected from (absent when it was given).
+    pub seam_ratio: Option<f32>,
+    /// How the settings were chosen, with `select = "auto"` (`config` is the chosen one).
+    pub selection: Option<SelectionReport>,
+    pub levels: Vec<LevelReport>,
+    /// Seconds per stage, in order.
+    pub timings: Vec<(String, f64)>,
+    pub total_seconds: f64,
+    /// Mean training loss of the last epoch of the last level.
+    pub final_loss: Option<f64>,
+    /// Work skipped because the material could not use it.
+    pub skipped: Vec<String>,
+    /// The heap the output's bands were planned within (`--memory-limit`), in MiB; none: one
+    /// band per level.
+    pub memory_limit_mib: Option<f64>,
+    /// Peak resident memory of the process (Linux), in MiB.
+    pub peak_memory_mib: Option<f64>,
+    pub threads: usize,
+    /// A digest of the settings and input files, written by `matup batch` to tell a finished
+    /// material from one to redo.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settings_fingerprint: Option<String>,
+}
+
+/// One level (one ×s step) of a run.
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelReport {
+    pub scale: usize,
+    pub input_size: [usize; 2],
+    pub output_size: [usize; 2],
+    pub lights_used: usize,
+    /// Features held constant instead of learned.
+    pub constant_features: Vec<&'static str>,
+    pub training: TrainStats,
+    /// The bands of rows the output was made in (1: whole).
+    pub bands: usize,
+}
+
+pub(crate) fn timed<T>(
+    timings: &mut Vec<(String, f64)>,
+    name: String,
+    f: impl FnOnce() -> Result<T>,
+) -> Result<T> {
+    let start = Instant::now();
+    let out = f()?;
+    let seconds = start.elapsed().as_secs_f64();
+    // A stage run once per band adds up under one name.
+    match timings.iter_mut().find(|(n, _)| *n == name) {
+        Some((_, total)) => *total += seconds,
+        None => timings.push((name, seconds)),
+    }
+    Ok(out)
+}
+
+/// Peak resident memory from `/proc/self/status` (VmHWM), where there is one.
+pub fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
