@@ -13,8 +13,10 @@ use matup_core::resample::Kernel;
 use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
 use matup_core::{Error, PluginSpec, Result};
 
-/// Serde through `Display` / `FromStr`, so values read the same in TOML as on the CLI.
-macro_rules! serde_as_string {
+/// Settings with a parameter or aliases (`leaky-relu:0.1`, a kernel's name as a residual base)
+/// parse and print by hand; serde goes through those (and their messages), so values read the
+/// same in TOML as on the CLI.
+macro_rules! serde_through_strings {
     ($($t:ty),*) => {$(
         impl Serialize for $t {
             fn serialize<S: Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
@@ -26,6 +28,18 @@ macro_rules! serde_as_string {
                 as_string::deserialize(d)
             }
         }
+    )*};
+}
+
+/// Settings that are plain names take their string forms from serde (kebab-case), the same
+/// in TOML, on the CLI and in messages: an unknown name is refused with the names known.
+macro_rules! strings_through_serde {
+    ($($t:ty: $what:literal),*) => {$(
+        serde_plain::derive_display_from_serialize!($t);
+        serde_plain::derive_fromstr_from_deserialize!(
+            $t,
+            |e| -> Error { Error::Invalid(format!("{}: {e}", $what)) }
+        );
     )*};
 }
 
@@ -56,15 +70,13 @@ mod as_string {
     }
 }
 
-serde_as_string!(
-    Activation,
-    Schedule,
-    Chain,
-    Interpolation,
-    ResidualBase,
-    TargetKind,
-    Selection,
-    Backend
+serde_through_strings!(Activation, Interpolation, ResidualBase);
+strings_through_serde!(
+    Schedule: "schedule",
+    Chain: "chain",
+    TargetKind: "targets",
+    Selection: "selection",
+    Backend: "backend"
 );
 
 /// The hidden layers' nonlinearity.
@@ -114,7 +126,8 @@ impl fmt::Display for Activation {
 }
 
 /// Learning-rate schedule over the run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Schedule {
     /// The paper's: the same rate throughout.
     Constant,
@@ -122,57 +135,14 @@ pub enum Schedule {
     Cosine,
 }
 
-impl FromStr for Schedule {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "constant" => Ok(Schedule::Constant),
-            "cosine" => Ok(Schedule::Cosine),
-            _ => Err(Error::Invalid(format!(
-                "unknown schedule '{s}'; use constant or cosine"
-            ))),
-        }
-    }
-}
-
-impl fmt::Display for Schedule {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Schedule::Constant => "constant",
-            Schedule::Cosine => "cosine",
-        })
-    }
-}
-
 /// How ×16 is reached.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Chain {
     /// Run the whole method again on the ×4 result (sharper; the default).
     TwoLevel,
     /// Apply the trained ×4 filter again to its own output.
     Single,
-}
-
-impl FromStr for Chain {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "two-level" => Ok(Chain::TwoLevel),
-            "single" => Ok(Chain::Single),
-            _ => Err(Error::Invalid(format!(
-                "unknown chain '{s}'; use two-level or single"
-            ))),
-        }
-    }
-}
-
-impl fmt::Display for Chain {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Chain::TwoLevel => "two-level",
-            Chain::Single => "single",
-        })
-    }
 }
 
 /// An interpolation kernel named in a configuration: `bilinear`, `bicubic`, `lanczos3`.
@@ -238,7 +208,8 @@ impl fmt::Display for ResidualBase {
 }
 
 /// The renders the filter is trained to reproduce.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum TargetKind {
     /// The paper's: each LR render upsampled by the RGB upsampler S, `S(r_ω)`.
     Direct,
@@ -250,30 +221,9 @@ pub enum TargetKind {
     Detail,
 }
 
-impl FromStr for TargetKind {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "direct" => Ok(TargetKind::Direct),
-            "detail" => Ok(TargetKind::Detail),
-            _ => Err(Error::Invalid(format!(
-                "unknown targets '{s}'; use direct or detail"
-            ))),
-        }
-    }
-}
-
-impl fmt::Display for TargetKind {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            TargetKind::Direct => "direct",
-            TargetKind::Detail => "detail",
-        })
-    }
-}
-
 /// Whether a run chooses its settings by validating candidates one scale down.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Selection {
     /// Run the configuration as given.
     Off,
@@ -283,30 +233,6 @@ pub enum Selection {
     /// As `Auto`, with only the upsampler as candidates: the configured one and each of
     /// [`Config::select_upsamplers`], the settings otherwise as given.
     Upsampler,
-}
-
-impl FromStr for Selection {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "off" => Ok(Selection::Off),
-            "auto" => Ok(Selection::Auto),
-            "upsampler" => Ok(Selection::Upsampler),
-            _ => Err(Error::Invalid(format!(
-                "unknown selection '{s}'; use auto, upsampler or off"
-            ))),
-        }
-    }
-}
-
-impl fmt::Display for Selection {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Selection::Off => "off",
-            Selection::Auto => "auto",
-            Selection::Upsampler => "upsampler",
-        })
-    }
 }
 
 /// The light set the renders are made under.
@@ -481,7 +407,8 @@ impl PriorConfig {
 pub(crate) const FUSED_ONLY_TERMS: &str = "train.lr_consistency (β) and train.cross_scale (γ) are trained by the fused backend only (train.backend = fused, on the CPU)";
 
 /// How training steps are computed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Backend {
     /// `fused` on the CPU, `tensor` on any other device.
     Auto,
@@ -500,30 +427,6 @@ impl Backend {
             Backend::Auto => Backend::Tensor,
             other => other,
         }
-    }
-}
-
-impl FromStr for Backend {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "auto" => Ok(Backend::Auto),
-            "fused" => Ok(Backend::Fused),
-            "tensor" => Ok(Backend::Tensor),
-            _ => Err(Error::Invalid(format!(
-                "unknown backend '{s}'; use auto, fused or tensor"
-            ))),
-        }
-    }
-}
-
-impl fmt::Display for Backend {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Backend::Auto => "auto",
-            Backend::Fused => "fused",
-            Backend::Tensor => "tensor",
-        })
     }
 }
 
@@ -924,6 +827,24 @@ mod tests {
         for s in ["direct", "detail"] {
             assert_eq!(s.parse::<TargetKind>().unwrap().to_string(), s);
         }
+        assert_eq!("two-level".parse::<Chain>().unwrap(), Chain::TwoLevel);
+        assert_eq!(Chain::TwoLevel.to_string(), "two-level");
+        assert_eq!(Backend::Fused.to_string(), "fused");
+        assert_eq!(
+            "normal".parse::<EnsembleMaps>().unwrap(),
+            EnsembleMaps::Normal
+        );
+        // An unknown name is refused with the setting and the names it takes, from serde.
+        let e = "fast".parse::<Backend>().unwrap_err().to_string();
+        assert!(
+            e.contains("backend") && e.contains("`fused`") && e.contains("`tensor`"),
+            "{e}"
+        );
+        let e = "Cosine".parse::<Schedule>().unwrap_err().to_string();
+        assert!(e.contains("`constant` or `cosine`"), "{e}");
+        // TOML reads the same names.
+        let c = Config::from_toml("[train]\nschedule = \"cosine\"\n", "t.toml").unwrap();
+        assert_eq!(c.train.schedule, Schedule::Cosine);
         assert!("upscaler".parse::<ResidualBase>().is_err());
         let mut p = PriorConfig::default();
         p.set("normal=2, roughness=0.5").unwrap();

@@ -193,18 +193,10 @@ pub enum EnsembleMaps {
     Normal,
 }
 
-impl std::str::FromStr for EnsembleMaps {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "all" => Ok(EnsembleMaps::All),
-            "normal" => Ok(EnsembleMaps::Normal),
-            _ => Err(Error::Invalid(format!(
-                "the self-ensemble covers \"all\" maps or the \"normal\" map, not \"{s}\""
-            ))),
-        }
-    }
-}
+serde_plain::derive_display_from_serialize!(EnsembleMaps);
+serde_plain::derive_fromstr_from_deserialize!(EnsembleMaps, |e| -> Error {
+    Error::Invalid(format!("the maps of the self-ensemble: {e}"))
+});
 
 /// The symmetries of a self-ensemble, in the order its size takes them: the identity, the half
 /// turn (it reverses both axes, so a shift the network makes along either cancels), the two
