@@ -42,15 +42,15 @@ fn print_list(out: &mut impl Write) -> anyhow::Result<()> {
     #[cfg(feature = "onnx")]
     {
         writeln!(out)?;
-        writeln!(out, "Models for onnx:NAME (folders: --models-dir, $MATUP_MODELS, ./models, matup's models/):")?;
-        for (name, path, info) in matup_upsamplers::onnx::available_models() {
+        writeln!(
+            out,
+            "Models for onnx:NAME (searched in --models-dir, $MATUP_MODELS, ./models, then those built into matup):"
+        )?;
+        for (name, source, info) in matup_upsamplers::onnx::available_models() {
             writeln!(
                 out,
-                "  {name:<20} ×{} {} [{}] {}",
-                info.scale,
-                info.description,
-                info.licence,
-                path.display()
+                "  {name:<20} ×{} {} [{}]\n  {:<20} from {source}",
+                info.scale, info.description, info.licence, ""
             )?;
         }
     }

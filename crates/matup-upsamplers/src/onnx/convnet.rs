@@ -3,7 +3,7 @@
 //! SR networks are chains of stride-1 convolutions, per-texel activations and arithmetic,
 //! channel concatenations and a final pixel shuffle or nearest resize. tract runs them, but its
 //! 3×3 convolutions reach about a fifth of onnxruntime's speed on our CPUs (see
-//! `shared/models/README.md`), and no pure-Rust runtime does better (candle-onnx needs protoc
+//! docs/experiments/2026-11-21-onnx-executor-speed.md), and no pure-Rust runtime does better (candle-onnx needs protoc
 //! to build). This executor reads the ONNX graph itself and runs those few operators on
 //! texel-major feature maps ([`super::kernels`]): 3×3 convolutions by Winograd's algorithm
 //! ([`super::winograd`]), all matrix products on the `gemm` crate's SIMD kernels. Graphs with any other operator or attribute are refused

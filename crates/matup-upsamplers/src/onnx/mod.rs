@@ -16,6 +16,7 @@
 mod conv;
 mod convnet;
 mod kernels;
+mod source;
 mod winograd;
 
 use std::collections::HashMap;
@@ -35,6 +36,10 @@ use convnet::ConvNet;
 pub use convnet::{Graph, Op, RawConv, Step, Unsupported};
 pub use kernels::{Arith, PerTexel};
 use kernels::{Features, Padding};
+pub use source::{
+    available_models, model_dirs, read_sidecar, read_sidecar_file, resolve, BuiltIn, ModelSource,
+    BUILT_IN,
+};
 pub use tract_onnx::pb::ModelProto;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
@@ -75,110 +80,15 @@ fn default_batch() -> usize {
     4
 }
 
-/// The folders searched for `onnx:NAME`: `$MATUP_MODELS` (`:`-separated), `./models`, and the
-/// `models/` folder of the matup source tree this was built from.
-pub fn model_dirs() -> Vec<PathBuf> {
-    let mut dirs: Vec<PathBuf> = std::env::var("MATUP_MODELS")
-        .map(|v| std::env::split_paths(&v).collect())
-        .unwrap_or_default();
-    dirs.push(PathBuf::from("models"));
-    dirs.push(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../models"));
-    dirs
-}
-
-/// Every `NAME.onnx` with a sidecar in the model folders: (name, path, sidecar).
-pub fn available_models() -> Vec<(String, PathBuf, ModelInfo)> {
-    let mut found: Vec<(String, PathBuf, ModelInfo)> = Vec::new();
-    for dir in model_dirs() {
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        let mut paths: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
-        paths.sort();
-        for path in paths {
-            if path.extension().is_some_and(|e| e == "onnx") {
-                let name = path
-                    .file_stem()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .into_owned();
-                if found.iter().any(|f| f.0 == name) {
-                    continue; // an earlier folder wins
-                }
-                if let Ok(info) = read_sidecar(&path) {
-                    found.push((name, path, info));
-                }
-            }
-        }
-    }
-    found
-}
-
-/// A path (`…/x.onnx`) as given, or a model name looked up in the model folders.
-fn resolve(model: &str) -> Result<PathBuf> {
-    if model.ends_with(".onnx") || model.contains(std::path::MAIN_SEPARATOR) {
-        return Ok(PathBuf::from(model));
-    }
-    for dir in model_dirs() {
-        let path = dir.join(format!("{model}.onnx"));
-        if path.is_file() {
-            return Ok(path);
-        }
-    }
-    let known: Vec<String> = available_models().into_iter().map(|m| m.0).collect();
-    Err(Error::Plugin {
-        plugin: "onnx".into(),
-        message: format!(
-            "no model '{model}' in {}; known models: {}",
-            model_dirs()
-                .iter()
-                .map(|d| d.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
-            if known.is_empty() {
-                "none".into()
-            } else {
-                known.join(", ")
-            }
-        ),
-    })
-}
-
-fn sidecar_path(model: &Path) -> PathBuf {
-    model.with_extension("toml")
-}
-
-/// The sidecar `NAME.toml` of `NAME.onnx`.
-pub fn read_sidecar(model: &Path) -> Result<ModelInfo> {
-    read_sidecar_file(&sidecar_path(model))
-}
-
-/// A sidecar read from `path`, wherever it is (`onnx:MODEL,sidecar=PATH`: a network in a
-/// folder the user cannot write to, described from elsewhere).
-pub fn read_sidecar_file(path: &Path) -> Result<ModelInfo> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::Plugin {
-        plugin: "onnx".into(),
-        message: format!(
-            "{}: cannot read the model's sidecar ({e}); it states the scale and value ranges",
-            path.display()
-        ),
-    })?;
-    toml::from_str(&text).map_err(|e| Error::Plugin {
-        plugin: "onnx".into(),
-        message: format!("{}: {e}", path.display()),
-    })
-}
-
 type Plan = Arc<TypedRunnableModel>;
 
 /// The ONNX file at `path` and its graph, if matup's executor runs it (what a trainer can
 /// rebuild and write back).
 pub fn read_graph(path: &Path) -> Result<(ModelProto, Graph)> {
-    let proto = tract_onnx::onnx()
-        .proto_model_for_path(path)
-        .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
-    let graph = Graph::from_model(&proto)
-        .map_err(|e| model_error(path, "matup's executor cannot run it", e))?;
+    let source = ModelSource::File(path.to_path_buf());
+    let proto = source.proto()?;
+    let graph =
+        Graph::from_model(&proto).map_err(|e| source.error("matup's executor cannot run it", e))?;
     Ok((proto, graph))
 }
 
@@ -209,7 +119,7 @@ enum Engine {
 
 /// A loaded network.
 pub struct OnnxUpsampler {
-    path: PathBuf,
+    source: ModelSource,
     pub info: ModelInfo,
     engine: Engine,
     /// The input's batch, height and width where the network fixes them.
@@ -244,13 +154,6 @@ fn fixed_input(model: &ModelProto) -> [Option<usize>; 3] {
     }
 }
 
-fn model_error(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
-    Error::Plugin {
-        plugin: "onnx".into(),
-        message: format!("{}: {what}: {e}", path.display()),
-    }
-}
-
 /// tract's matrix products split across `threads` threads (measured on 2 cores: SPAN ×4 on a
 /// 128² render took 0.74 s on one thread, 0.35 s on two). Running tiles concurrently on
 /// single-threaded plans measured the same, so the simpler multithreaded product is used.
@@ -265,33 +168,28 @@ fn executor(threads: usize) -> Executor {
 impl OnnxUpsampler {
     /// Loads `path` and its sidecar, picks the engine, and probes the real scale.
     pub fn load(path: &Path, choice: EngineChoice) -> Result<OnnxUpsampler> {
-        OnnxUpsampler::load_with_sidecar(path, &sidecar_path(path), choice)
+        OnnxUpsampler::load_source(ModelSource::File(path.to_path_buf()), None, choice)
     }
 
-    /// [`OnnxUpsampler::load`] with the sidecar read from `sidecar`.
-    pub fn load_with_sidecar(
-        path: &Path,
-        sidecar: &Path,
+    /// Loads the network `source`, described by `sidecar` where given (else its own sidecar),
+    /// picks the engine, and probes the real scale.
+    pub fn load_source(
+        source: ModelSource,
+        sidecar: Option<&Path>,
         choice: EngineChoice,
     ) -> Result<OnnxUpsampler> {
-        if !path.is_file() {
-            return Err(model_error(path, "cannot open", "no such file"));
-        }
-        let info = read_sidecar_file(sidecar)?;
+        let proto = source.proto()?;
+        let info = source.info(sidecar)?;
         if info.scale == 0
             || info.tile == 0
             || info.batch == 0
             || !matches!(info.channel_order.as_str(), "rgb" | "bgr")
         {
-            return Err(model_error(
-                path,
+            return Err(source.error(
                 "invalid sidecar",
                 "scale, tile and batch must be positive, channel_order rgb or bgr",
             ));
         }
-        let proto = tract_onnx::onnx()
-            .proto_model_for_path(path)
-            .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
         let native = match choice {
             EngineChoice::Tract => Err("engine=tract was asked for".to_string()),
             _ => ConvNet::from_model(&proto).map_err(|e| e.to_string()),
@@ -299,12 +197,12 @@ impl OnnxUpsampler {
         let engine = match native {
             Ok(net) => Engine::Matup { net, pool: None },
             Err(why) if choice == EngineChoice::Matup => {
-                return Err(model_error(path, "matup's executor cannot run it", why))
+                return Err(source.error("matup's executor cannot run it", why))
             }
-            Err(why) => tract_engine(path, why)?,
+            Err(why) => tract_engine(&source, why)?,
         };
         let upsampler = OnnxUpsampler {
-            path: path.to_path_buf(),
+            source,
             info,
             engine,
             fixed: fixed_input(&proto),
@@ -317,8 +215,7 @@ impl OnnxUpsampler {
             upsampler.run_batch(&vec![probe; fixed[0].unwrap_or(1)], ph, pw, Padding::Zero)?;
         let got = out[0].width() / pw;
         if got != upsampler.info.scale || out[0].height() != ph * got {
-            return Err(model_error(
-                path,
+            return Err(upsampler.source.error(
                 "scale mismatch",
                 format!(
                     "the sidecar says ×{}, the network upsamples a {pw}×{ph} probe to {}×{}",
@@ -347,7 +244,7 @@ impl OnnxUpsampler {
                     .num_threads(threads)
                     .thread_name(|i| format!("matup-onnx-{i}"))
                     .build()
-                    .map_err(|e| model_error(&self.path, "threads", e))?;
+                    .map_err(|e| self.source.error("threads", e))?;
                 *pool = Some(built);
             }
             Engine::Tract { executor: e, .. } => *e = executor(threads),
@@ -370,8 +267,7 @@ impl OnnxUpsampler {
             .and_then(|m| m.into_optimized())
             .and_then(|m| m.into_runnable())
             .map_err(|e| {
-                model_error(
-                    &self.path,
+                self.source.error(
                     "cannot run on [batch, 3, height, width] RGB input",
                     format!("{e:#}"),
                 )
@@ -433,21 +329,18 @@ impl OnnxUpsampler {
                 }
                 let input: Tensor =
                     tract_ndarray::Array4::from_shape_vec((tiles.len(), 3, h, w), data)
-                        .map_err(|e| model_error(&self.path, "input", e))?
+                        .map_err(|e| self.source.error("input", e))?
                         .into();
                 let plan = self.plan(tiles.len(), h, w)?;
                 let outputs =
                     multithread_tract_scope(executor.clone(), || plan.run(tvec!(input.into())))
-                        .map_err(|e| {
-                            model_error(&self.path, "inference failed", format!("{e:#}"))
-                        })?;
+                        .map_err(|e| self.source.error("inference failed", format!("{e:#}")))?;
                 let view = outputs[0]
                     .to_plain_array_view::<f32>()
-                    .map_err(|e| model_error(&self.path, "output", e))?;
+                    .map_err(|e| self.source.error("output", e))?;
                 let shape = view.shape().to_vec();
                 if shape.len() != 4 || shape[0] != tiles.len() || shape[1] != 3 {
-                    return Err(model_error(
-                        &self.path,
+                    return Err(self.source.error(
                         "unsupported output",
                         format!("shape {shape:?}, want [batch, 3, height, width]"),
                     ));
@@ -461,14 +354,11 @@ impl OnnxUpsampler {
     }
 }
 
-/// tract's engine for the network in `path`, which matup's executor does not run `because`.
-fn tract_engine(path: &Path, because: String) -> Result<Engine> {
-    let model = tract_onnx::onnx()
-        .model_for_path(path)
-        .map_err(|e| model_error(path, "not a readable ONNX model", format!("{e:#}")))?;
+/// tract's engine for the network `source`, which matup's executor does not run `because`.
+fn tract_engine(source: &ModelSource, because: String) -> Result<Engine> {
+    let model = source.tract_model()?;
     if model.inputs.len() != 1 || model.outputs.len() != 1 {
-        return Err(model_error(
-            path,
+        return Err(source.error(
             "unsupported network",
             format!(
                 "{} inputs and {} outputs (want 1 and 1)",
@@ -608,8 +498,7 @@ impl OnnxUpsampler {
                     window,
                 })
             }
-            Some(window) => Err(model_error(
-                &self.path,
+            Some(window) => Err(self.source.error(
                 "cannot tile",
                 format!(
                     "the network takes fixed {window}-texel tiles, too small for {o} texels \
@@ -653,7 +542,7 @@ impl RgbUpsampler for OnnxUpsampler {
         let s = self.info.scale;
         if scale != s {
             return Err(Error::Unsupported {
-                plugin: format!("onnx:{}", self.path.display()),
+                plugin: format!("onnx:{}", self.source),
                 what: format!("scale ×{scale} (the network upsamples ×{s})"),
             });
         }
@@ -794,12 +683,11 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
             })
         }
     };
-    let path = resolve(model)?;
     let sidecar = match values["sidecar"].as_str() {
-        "" => sidecar_path(&path),
-        given => PathBuf::from(given),
+        "" => None,
+        given => Some(PathBuf::from(given)),
     };
-    let mut upsampler = OnnxUpsampler::load_with_sidecar(&path, &sidecar, choice)?;
+    let mut upsampler = OnnxUpsampler::load_source(resolve(model)?, sidecar.as_deref(), choice)?;
     for (key, slot) in [
         ("tile", &mut upsampler.info.tile),
         ("overlap", &mut upsampler.info.overlap),
