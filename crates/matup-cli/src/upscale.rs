@@ -172,7 +172,8 @@ pub struct SettingsArgs {
     /// Train on this many random texels per epoch.
     #[arg(long)]
     pub texels_per_epoch: Option<usize>,
-    /// Output format of every map (png, png16, jpg, exr-half, exr-float); default: the input's.
+    /// Output format of every map (png, png16, jpg, exr-half, exr-float, tiff, tiff16,
+    /// tiff-float, tga); default: the input's.
     #[arg(long)]
     pub format: Option<FileFormat>,
     /// Heap the output is made within, e.g. 4G or 512M (binary units; a bare number is MiB).

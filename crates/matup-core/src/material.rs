@@ -108,6 +108,12 @@ pub enum FileFormat {
     Jpeg,
     ExrHalf,
     ExrFloat,
+    Tiff8,
+    Tiff16,
+    /// 32-bit float TIFF: linear values, as EXR.
+    TiffFloat,
+    /// 8-bit TGA (game engines' format).
+    Tga,
 }
 
 impl FileFormat {
@@ -116,12 +122,18 @@ impl FileFormat {
             FileFormat::Png8 | FileFormat::Png16 => "png",
             FileFormat::Jpeg => "jpg",
             FileFormat::ExrHalf | FileFormat::ExrFloat => "exr",
+            FileFormat::Tiff8 | FileFormat::Tiff16 | FileFormat::TiffFloat => "tif",
+            FileFormat::Tga => "tga",
         }
     }
 
-    /// Whether values are stored linearly (EXR) rather than display-encoded integers.
+    /// Whether values are stored linearly as floats (EXR, float TIFF) rather than
+    /// display-encoded integers.
     pub fn is_float(self) -> bool {
-        matches!(self, FileFormat::ExrHalf | FileFormat::ExrFloat)
+        matches!(
+            self,
+            FileFormat::ExrHalf | FileFormat::ExrFloat | FileFormat::TiffFloat
+        )
     }
 }
 
@@ -134,8 +146,13 @@ impl FromStr for FileFormat {
             "jpg" | "jpeg" => Ok(FileFormat::Jpeg),
             "exr" | "exr-half" | "exr16" => Ok(FileFormat::ExrHalf),
             "exr-float" | "exr32" => Ok(FileFormat::ExrFloat),
+            "tif" | "tiff" | "tiff8" => Ok(FileFormat::Tiff8),
+            "tiff16" => Ok(FileFormat::Tiff16),
+            "tiff-float" | "tiff32" => Ok(FileFormat::TiffFloat),
+            "tga" => Ok(FileFormat::Tga),
             _ => Err(Error::Invalid(format!(
-                "unknown format '{s}'; use png, png16, jpg, exr-half or exr-float"
+                "unknown format '{s}'; use png, png16, jpg, exr-half, exr-float, tiff, \
+                 tiff16, tiff-float or tga"
             ))),
         }
     }
@@ -149,6 +166,10 @@ impl fmt::Display for FileFormat {
             FileFormat::Jpeg => "jpg",
             FileFormat::ExrHalf => "exr-half",
             FileFormat::ExrFloat => "exr-float",
+            FileFormat::Tiff8 => "tiff",
+            FileFormat::Tiff16 => "tiff16",
+            FileFormat::TiffFloat => "tiff-float",
+            FileFormat::Tga => "tga",
         })
     }
 }

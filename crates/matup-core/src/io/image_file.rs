@@ -1,5 +1,5 @@
-//! Reading and writing single image files (PNG 8/16-bit, JPEG, EXR half/float): formats live
-//! at this edge; everything inside is a planar f32 [`Map`].
+//! Reading and writing single image files (PNG 8/16-bit, JPEG, EXR half/float, TIFF 8/16-bit
+//! and float, TGA): formats live at this edge; everything inside is a planar f32 [`Map`].
 
 use std::io::Cursor;
 use std::path::Path;
@@ -20,7 +20,7 @@ pub(crate) struct ImageFile {
 }
 
 /// The file extensions matup reads.
-pub const IMAGE_EXTENSIONS: [&str; 4] = ["png", "jpg", "jpeg", "exr"];
+pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "exr", "tif", "tiff", "tga"];
 
 /// Whether `path` names a file of a format matup reads (by its extension, any case).
 pub fn is_image_file(path: &Path) -> bool {
@@ -29,10 +29,11 @@ pub fn is_image_file(path: &Path) -> bool {
         .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
 }
 
-fn is_exr(path: &Path) -> bool {
+/// Whether `path`'s extension is one of `extensions` (any case).
+fn has_extension(path: &Path, extensions: &[&str]) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+        .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))
 }
 
 /// Reads an image, refusing (from the header, before decoding) images with more than
@@ -41,10 +42,12 @@ pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
     if !path.is_file() {
         return Err(Error::file(path, "no such file"));
     }
-    if is_exr(path) {
+    if has_extension(path, &["exr"]) {
         read_exr(path, max_texels)
+    } else if has_extension(path, &["tif", "tiff"]) {
+        read_tiff(path, max_texels)
     } else {
-        read_png_or_jpeg(path, max_texels)
+        read_with_image_crate(path, max_texels)
     }
 }
 
@@ -68,7 +71,8 @@ fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Resu
     Ok(())
 }
 
-fn read_png_or_jpeg(path: &Path, max_texels: u64) -> Result<ImageFile> {
+/// PNG, JPEG and TGA.
+fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
     let open = || -> Result<ImageReader<_>> {
         ImageReader::open(path)
             .map_err(|e| Error::io(path, e))?
@@ -98,10 +102,11 @@ fn read_png_or_jpeg(path: &Path, max_texels: u64) -> Result<ImageFile> {
         Some(ImageFormat::Jpeg) => FileFormat::Jpeg,
         Some(ImageFormat::Png) if sixteen => FileFormat::Png16,
         Some(ImageFormat::Png) => FileFormat::Png8,
+        Some(ImageFormat::Tga) if !sixteen => FileFormat::Tga,
         other => {
             return Err(Error::file(
                 path,
-                format!("unsupported image format {other:?}; use PNG, JPEG or EXR"),
+                format!("unsupported image format {other:?}; use PNG, JPEG, EXR, TIFF or TGA"),
             ))
         }
     };
@@ -191,18 +196,13 @@ fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
     for channel in &picked {
         let start = data.len();
         data.extend(channel.sample_data.values_as_f32());
-        if let Some(i) = data[start..].iter().position(|v| !v.is_finite()) {
-            return Err(Error::file(
-                path,
-                format!(
-                    "channel {} holds a non-finite value ({}) at texel ({}, {})",
-                    channel.name,
-                    data[start + i],
-                    i % w,
-                    i / w
-                ),
-            ));
-        }
+        check_finite(
+            path,
+            &data[start..],
+            w,
+            1,
+            &format!("channel {}", channel.name),
+        )?;
     }
     Ok(ImageFile {
         map: Map::from_planar(w, h, picked.len(), data),
@@ -212,6 +212,109 @@ fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
             FileFormat::ExrFloat
         },
     })
+}
+
+/// Refuses `values` (`channels` interleaved, rows `width` texels long) if one is NaN or
+/// infinite, naming the texel.
+fn check_finite(
+    path: &Path,
+    values: &[f32],
+    width: usize,
+    channels: usize,
+    what: &str,
+) -> Result<()> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(Error::file(
+            path,
+            format!(
+                "{what} holds a non-finite value ({}) at texel ({}, {})",
+                values[i],
+                (i / channels) % width,
+                (i / channels) / width
+            ),
+        )),
+    }
+}
+
+/// TIFF through the tiff crate: grey or RGB (alpha dropped), 8 or 16-bit integers, or 16, 32 or
+/// 64-bit floats (read as float, linear); strips or tiles, chunky or planar.
+fn read_tiff(path: &Path, max_texels: u64) -> Result<ImageFile> {
+    use tiff::decoder::{Decoder, DecodingResult, Limits};
+    use tiff::tags::{PlanarConfiguration, Tag};
+    use tiff::ColorType;
+
+    let bad = |e: tiff::TiffError| Error::file(path, format!("not a readable TIFF file: {e}"));
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    // The texel limit below is ours; the decoder's would refuse big maps.
+    let mut decoder = Decoder::new(std::io::BufReader::new(file))
+        .map_err(bad)?
+        .with_limits(Limits::unlimited());
+    let (w, h) = decoder.dimensions().map_err(bad)?;
+    let (w, h) = (w as usize, h as usize);
+    check_size(path, w, h, max_texels)?;
+    let (channels, keep) = match decoder.colortype().map_err(bad)? {
+        ColorType::Gray(_) => (1, 1),
+        ColorType::GrayA(_) => (2, 1),
+        ColorType::RGB(_) => (3, 3),
+        ColorType::RGBA(_) => (4, 3),
+        other => {
+            return Err(Error::file(
+                path,
+                format!("unsupported TIFF colour type {other:?}; use grey or RGB"),
+            ))
+        }
+    };
+    let planar = decoder
+        .find_tag(Tag::PlanarConfiguration)
+        .map_err(bad)?
+        .and_then(|v| v.into_u16().ok())
+        == Some(PlanarConfiguration::Planar.to_u16());
+    // Every plane of a planar image (`read_image` would give the first alone).
+    let mut decoded = DecodingResult::U8(Vec::new());
+    decoder
+        .read_image_to_buffer(&mut decoded)
+        .map_err(|e| Error::file(path, format!("cannot decode: {e}")))?;
+    let (values, format): (Vec<f32>, FileFormat) = match decoded {
+        DecodingResult::U8(v) => (
+            v.iter().map(|&x| x as f32 / 255.0).collect(),
+            FileFormat::Tiff8,
+        ),
+        DecodingResult::U16(v) => (
+            v.iter().map(|&x| x as f32 / 65535.0).collect(),
+            FileFormat::Tiff16,
+        ),
+        DecodingResult::F16(v) => (
+            v.iter().map(|x| x.to_f32()).collect(),
+            FileFormat::TiffFloat,
+        ),
+        DecodingResult::F32(v) => (v, FileFormat::TiffFloat),
+        DecodingResult::F64(v) => (v.iter().map(|&x| x as f32).collect(), FileFormat::TiffFloat),
+        _ => {
+            return Err(Error::file(
+                path,
+                "unsupported TIFF samples; use 8 or 16-bit unsigned integers or floats",
+            ))
+        }
+    };
+    if values.len() < w * h * channels {
+        return Err(Error::file(
+            path,
+            format!(
+                "the TIFF decodes to {} samples, fewer than {w}×{h}×{channels}",
+                values.len()
+            ),
+        ));
+    }
+    if format.is_float() {
+        check_finite(path, &values[..w * h * channels], w, channels, "the image")?;
+    }
+    let n = w * h;
+    let map = Map::from_fn(w, h, keep, |c, y, x| {
+        let i = y * w + x;
+        values[if planar { c * n + i } else { i * channels + c }]
+    });
+    Ok(ImageFile { map, format })
 }
 
 /// Writes a 1- or 3-channel map (values already in the file's encoding: [0, 1] for integer

@@ -1,9 +1,10 @@
 //! Image files written in bands of rows, top to bottom, so an output never has to be whole in
 //! memory: PNG through the `png` crate's stream writer, EXR block by block through `exr`'s
 //! block writer (on a thread of its own, because `exr` pulls the blocks from a closure while
-//! matup pushes bands). JPEG has no row-wise encoder among the chosen crates: its 8-bit
-//! samples are gathered (3 bytes per texel) and encoded at the end. Every file goes to a
-//! temporary file beside its path, renamed over it once complete.
+//! matup pushes bands). JPEG, TGA and TIFF have no row-wise encoder among the chosen crates
+//! (the `tiff` crate writes strips one by one, but compresses only whole images): their
+//! samples are gathered at the file's bit depth (3 bytes a texel for 8-bit RGB) and encoded at
+//! the end. Every file goes to a temporary file beside its path, renamed over it once complete.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -30,6 +31,7 @@ pub struct ImageWriter {
     width: usize,
     height: usize,
     channels: usize,
+    format: FileFormat,
     rows_written: usize,
     temporary: NamedTempFile,
     encoder: Encoder,
@@ -41,11 +43,19 @@ enum Encoder {
         sixteen_bits: bool,
         error: Arc<Mutex<Option<std::io::Error>>>,
     },
-    Jpeg(Vec<u8>),
+    /// JPEG, TGA or TIFF: samples gathered for an encoder of whole images.
+    Gathered(Samples),
     Exr {
         bands: Option<SyncSender<Map>>,
         thread: Option<JoinHandle<std::result::Result<(), String>>>,
     },
+}
+
+/// Interleaved samples at a file's bit depth.
+enum Samples {
+    U8(Vec<u8>),
+    U16(Vec<u16>),
+    F32(Vec<f32>),
 }
 
 /// The temporary file as the PNG encoder's output, keeping the first I/O error: the encoder
@@ -125,7 +135,15 @@ impl ImageWriter {
                     error,
                 }
             }
-            FileFormat::Jpeg => Encoder::Jpeg(Vec::with_capacity(width * height * channels)),
+            FileFormat::Jpeg | FileFormat::Tga | FileFormat::Tiff8 => {
+                Encoder::Gathered(Samples::U8(Vec::with_capacity(width * height * channels)))
+            }
+            FileFormat::Tiff16 => {
+                Encoder::Gathered(Samples::U16(Vec::with_capacity(width * height * channels)))
+            }
+            FileFormat::TiffFloat => {
+                Encoder::Gathered(Samples::F32(Vec::with_capacity(width * height * channels)))
+            }
             FileFormat::ExrHalf | FileFormat::ExrFloat => {
                 let (bands, receive) = sync_channel::<Map>(1);
                 let output = BufWriter::new(file()?);
@@ -144,6 +162,7 @@ impl ImageWriter {
             width,
             height,
             channels,
+            format,
             rows_written: 0,
             temporary,
             encoder,
@@ -180,8 +199,12 @@ impl ImageWriter {
                     .write_all(&bytes)
                     .map_err(|e| Error::io(&self.path, e))
             }
-            Encoder::Jpeg(samples) => {
-                samples.extend(interleaved().map(to_u8));
+            Encoder::Gathered(samples) => {
+                match samples {
+                    Samples::U8(s) => s.extend(interleaved().map(to_u8)),
+                    Samples::U16(s) => s.extend(interleaved().map(to_u16)),
+                    Samples::F32(s) => s.extend(interleaved()),
+                }
                 Ok(())
             }
             Encoder::Exr { bands, .. } => {
@@ -220,24 +243,23 @@ impl ImageWriter {
                     return Err(Error::io(&self.path, e));
                 }
             }
-            Encoder::Jpeg(samples) => {
-                let (w, h) = (self.width as u32, self.height as u32);
-                let raw = std::mem::take(samples);
-                let image = if self.channels == 1 {
-                    DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap())
-                } else {
-                    DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, raw).unwrap())
-                };
-                let mut out = std::io::BufWriter::new(
+            Encoder::Gathered(samples) => {
+                let samples = std::mem::replace(samples, Samples::U8(Vec::new()));
+                let mut out = BufWriter::new(
                     self.temporary
                         .as_file()
                         .try_clone()
                         .map_err(|e| Error::io(&self.path, e))?,
                 );
-                let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95);
-                image
-                    .write_with_encoder(encoder)
-                    .map_err(|e| Error::file(&self.path, e.to_string()))?;
+                encode_whole(
+                    &mut out,
+                    self.width,
+                    self.height,
+                    self.channels,
+                    self.format,
+                    samples,
+                )
+                .map_err(|e| Error::file(&self.path, e))?;
                 out.flush().map_err(|e| Error::io(&self.path, e))?;
             }
             Encoder::Exr { bands, .. } => {
@@ -354,6 +376,62 @@ fn write_exr(
     .map_err(|e| e.to_string())
 }
 
+/// Encodes a whole image of gathered samples: JPEG (quality 95) or TGA from 8-bit samples,
+/// TIFF (LZW, as image editors write it) at its depth.
+fn encode_whole(
+    out: &mut BufWriter<File>,
+    width: usize,
+    height: usize,
+    channels: usize,
+    format: FileFormat,
+    samples: Samples,
+) -> std::result::Result<(), String> {
+    use tiff::encoder::{colortype, Compression, TiffEncoder};
+    let (w, h) = (width as u32, height as u32);
+    let grey = channels == 1;
+    fn tiff<W: Write + std::io::Seek>(out: W) -> tiff::TiffResult<TiffEncoder<W>> {
+        Ok(TiffEncoder::new(out)?.with_compression(Compression::Lzw))
+    }
+    let written = match samples {
+        Samples::U8(raw) if format == FileFormat::Tiff8 => tiff(out).and_then(|mut e| {
+            if grey {
+                e.write_image::<colortype::Gray8>(w, h, &raw)
+            } else {
+                e.write_image::<colortype::RGB8>(w, h, &raw)
+            }
+        }),
+        Samples::U16(raw) => tiff(out).and_then(|mut e| {
+            if grey {
+                e.write_image::<colortype::Gray16>(w, h, &raw)
+            } else {
+                e.write_image::<colortype::RGB16>(w, h, &raw)
+            }
+        }),
+        Samples::F32(raw) => tiff(out).and_then(|mut e| {
+            if grey {
+                e.write_image::<colortype::Gray32Float>(w, h, &raw)
+            } else {
+                e.write_image::<colortype::RGB32Float>(w, h, &raw)
+            }
+        }),
+        Samples::U8(raw) => {
+            let image = if grey {
+                DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap())
+            } else {
+                DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, raw).unwrap())
+            };
+            return if format == FileFormat::Tga {
+                image.write_with_encoder(image::codecs::tga::TgaEncoder::new(out))
+            } else {
+                let jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(out, 95);
+                image.write_with_encoder(jpeg)
+            }
+            .map_err(|e| e.to_string());
+        }
+    };
+    written.map_err(|e| e.to_string())
+}
+
 /// A temporary file in `path`'s folder (so the rename that completes it stays on one disk).
 pub(crate) fn temporary_beside(path: &Path) -> Result<NamedTempFile> {
     let dir = match path.parent() {
@@ -433,6 +511,10 @@ mod tests {
             FileFormat::Jpeg,
             FileFormat::ExrHalf,
             FileFormat::ExrFloat,
+            FileFormat::Tiff8,
+            FileFormat::Tiff16,
+            FileFormat::TiffFloat,
+            FileFormat::Tga,
         ] {
             for channels in [1, 3] {
                 let map = image(channels);
@@ -447,12 +529,14 @@ mod tests {
                 assert!(bands == whole, "{format} ×{channels}");
                 // And what was written, to the format's precision (JPEG is lossy).
                 let tolerance = match format {
-                    FileFormat::Png8 => 0.5 / 255.0,
-                    FileFormat::Png16 => 0.5 / 65535.0,
+                    FileFormat::Png8 | FileFormat::Tiff8 | FileFormat::Tga => 0.5 / 255.0,
+                    FileFormat::Png16 | FileFormat::Tiff16 => 0.5 / 65535.0,
                     FileFormat::Jpeg => 0.1,
                     FileFormat::ExrHalf => 1e-3,
-                    FileFormat::ExrFloat => 0.0,
+                    FileFormat::ExrFloat | FileFormat::TiffFloat => 0.0,
                 };
+                let read_as = read_image(&name("whole"), u64::MAX).unwrap().format;
+                assert_eq!(read_as, format, "read back as the format written");
                 let worst = (whole.data().iter().zip(map.data()))
                     .map(|(a, b)| (a - b).abs())
                     .fold(0.0, f32::max);
@@ -464,7 +548,7 @@ mod tests {
     #[test]
     fn an_unfinished_file_is_an_error_and_leaves_nothing() {
         let dir = tempfile::tempdir().unwrap();
-        for format in [FileFormat::Png8, FileFormat::ExrHalf] {
+        for format in [FileFormat::Png8, FileFormat::ExrHalf, FileFormat::Tiff16] {
             let path = dir.path().join(format!("short.{}", format.extension()));
             let map = image(3);
             let mut writer = ImageWriter::create(&path, 37, 23, 3, format).unwrap();
