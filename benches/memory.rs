@@ -176,6 +176,14 @@ fn main() {
         .split(',')
         .filter_map(|n| n.trim().parse().ok())
         .collect();
+    if !folder.is_dir() {
+        eprintln!(
+            "{} is missing: put the shared material sets (../shared/materials) beside the \
+             repository, or name a material with MATUP_MEMORY_MATERIAL",
+            folder.display()
+        );
+        std::process::exit(2);
+    }
     let source = load_material(Some(&folder), &LoadOptions::default())
         .unwrap_or_else(|e| panic!("{}: {e}", folder.display()));
     let out = tempfile::tempdir().expect("a temporary folder");

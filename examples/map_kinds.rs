@@ -5,7 +5,7 @@
 //! under 16 held-out lights, as `matup sweep` scores.
 //!
 //! `cargo run --release --example map_kinds -- CROP A B MATERIAL...`
-//! (e.g. `512 onnx:span_x4_ch48 onnx:runs/span_x4_normals_batch24/best.onnx ../shared/materials/ambientcg_Tiles036`).
+//! (e.g. `256 onnx:span_x4_ch48 onnx:runs/span_x4_normals_batch24/best.onnx tests/data/materials/ambientcg_Tiles036`).
 
 use matup::metrics::evaluate;
 use matup::{

@@ -5,7 +5,7 @@
 //! or on maps, which decides whether fitting a filter to S's renders can pay.
 //!
 //! `cargo run --release --example target_quality -- CROP UPSAMPLER MATERIAL...`
-//! (e.g. `512 onnx:span_x4_ch48 ../shared/materials/ambientcg_Metal053C`).
+//! (e.g. `256 onnx:span_x4_ch48 tests/data/materials/ambientcg_Metal053C`).
 
 use matup::config::{FilterConfig, ResidualBase};
 use matup::per_map::upscale_per_map;

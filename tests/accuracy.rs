@@ -16,10 +16,9 @@ use matup::{
     RgbUpsampler, RunOptions,
 };
 
-/// A whole shared material box-filtered down to `size`² (a tileable input stays tileable).
+/// A whole test material box-filtered down to `size`² (a tileable input stays tileable).
 fn lr_material(name: &str, size: usize) -> Material {
-    let m =
-        matup::load_material(Some(&common::shared_material(name)), &Default::default()).unwrap();
+    let m = matup::load_material(Some(&common::test_material(name)), &Default::default()).unwrap();
     m.box_downsample(m.width() / size)
 }
 
@@ -273,13 +272,13 @@ fn selection_among_upsamplers_runs_the_one_that_validates_best() {
         "onnx:{}/runs/span_x4_normals_batch24/best.onnx",
         env!("CARGO_MANIFEST_DIR")
     );
+    // The top-left quarter of the 256² copy: the 1024² set's 512² crop box-filtered ×4.
     let m = matup::load_material(
-        Some(&common::shared_material("ambientcg_Tiles036")),
+        Some(&common::test_material("ambientcg_Tiles036")),
         &Default::default(),
     )
     .unwrap()
-    .crop(0, 0, 512, 512)
-    .box_downsample(4);
+    .crop(0, 0, 128, 128);
     let config = Config {
         upsampler: tuned.clone(),
         select: Selection::Upsampler,
@@ -305,10 +304,11 @@ fn selection_among_upsamplers_runs_the_one_that_validates_best() {
         ]
     );
     assert_eq!(selection.validation_size, [32, 32]);
-    // Stock SPAN validates better by a clear margin (measured: 22.88 against 22.57 dB) …
+    // Stock SPAN validates better (measured with the defaults' two passes: score 33.80
+    // against 33.63, render PSNR 22.90 against 22.93 dB but FLIP 0.0810 against 0.0848) …
     let [tuned_score, stock_score] = [selection.candidates[0].score, selection.candidates[1].score];
     assert!(
-        stock_score > tuned_score + 0.3,
+        stock_score > tuned_score + 0.1,
         "{stock_score} vs {tuned_score}"
     );
     assert_eq!(selection.chosen, "upsampler onnx:span_x4_ch48");
@@ -348,11 +348,13 @@ fn selection_among_upsamplers_runs_the_one_that_validates_best() {
 #[test]
 fn a_crop_of_a_tileable_material_is_not_called_tileable() {
     for name in ["polyhaven_denim_fabric", "polyhaven_wood_cabinet_worn_long"] {
-        let m = matup::load_material(Some(&common::shared_material(name)), &Default::default())
-            .unwrap();
-        let (whole, whole_ratio) = detect_tileable(&m.box_downsample(8));
-        let (crop, crop_ratio) = detect_tileable(&m.crop(0, 0, 512, 512).box_downsample(4));
-        println!("{name}: whole 128² {whole_ratio:.2}, 512² crop → 128² {crop_ratio:.2}");
+        let m =
+            matup::load_material(Some(&common::test_material(name)), &Default::default()).unwrap();
+        // The 256² copies: the whole set at 128², and its top-left quarter (a 512² crop of
+        // the 1024² set, box-filtered to 128²).
+        let (whole, whole_ratio) = detect_tileable(&m.box_downsample(2));
+        let (crop, crop_ratio) = detect_tileable(&m.crop(0, 0, 128, 128));
+        println!("{name}: whole 128² {whole_ratio:.2}, quarter crop 128² {crop_ratio:.2}");
         assert!(whole, "{name}: the whole material tiles ({whole_ratio})");
         assert!(!crop, "{name}: a crop does not tile ({crop_ratio})");
     }
@@ -360,14 +362,14 @@ fn a_crop_of_a_tileable_material_is_not_called_tileable() {
 
 #[test]
 fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
-    // A corpus validation set (never trained on) at 256² → 64² → ×4, scored as `matup sweep`
-    // scores (16 held-out lights): what docs/experiments/2026-11-25-zoomed-out-crops.md measures at 512².
+    // A corpus validation set (never trained on), the whole set at 256² → 64² → ×4, scored as
+    // `matup sweep` scores (16 held-out lights): what docs/experiments/2026-11-25-zoomed-out-crops.md
+    // measures on 512² crops.
     let truth = matup::load_material(
-        Some(&common::corpus_material("ambientcg_Rock035")),
+        Some(&common::test_material("ambientcg_Rock035")),
         &Default::default(),
     )
-    .unwrap()
-    .crop(0, 0, 256, 256);
+    .unwrap();
     let lr = truth.box_downsample(4);
     let lights = LightSetSpec::held_out(16);
     let ggx = shading_model(&"ggx".parse().unwrap()).unwrap();

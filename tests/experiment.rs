@@ -3,7 +3,6 @@
 mod common;
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use matup::experiment::{read_journal, run_experiment, Experiment, Method};
 use matup::material::Material;
@@ -13,7 +12,7 @@ use matup::{shading_model, LightSetSpec, PluginSpec};
 
 fn denim(size: usize) -> Material {
     let m = matup::load_material(
-        Some(&common::shared_material("polyhaven_denim_fabric")),
+        Some(&common::test_material("polyhaven_denim_fabric")),
         &Default::default(),
     )
     .unwrap();
@@ -195,9 +194,19 @@ fn bad_experiment_files_say_what_and_where() {
 #[test]
 fn experiments_record_failures_and_resume_without_rerunning() {
     let out = tempfile::tempdir().unwrap();
-    let denim = common::shared_material("polyhaven_denim_fabric");
+    let denim = common::test_material("polyhaven_denim_fabric");
+    // A material whose base colour is cut short: its runs fail, recorded.
+    let broken = out.path().join("broken");
+    std::fs::create_dir(&broken).unwrap();
+    for entry in std::fs::read_dir(&denim).unwrap() {
+        let path = entry.unwrap().path();
+        std::fs::copy(&path, broken.join(path.file_name().unwrap())).unwrap();
+    }
+    let base = broken.join("baseColor.png");
+    let bytes = std::fs::read(&base).unwrap();
+    std::fs::write(&base, &bytes[..bytes.len() / 2]).unwrap();
     let mut exp = Experiment {
-        materials: vec![denim.clone(), Path::new("/no/such/material").into()],
+        materials: vec![denim.clone(), broken.clone()],
         factor: 4,
         crop: Some(64),
         eval_lights: 4,
@@ -217,13 +226,25 @@ fn experiments_record_failures_and_resume_without_rerunning() {
     };
     let runs = exp.runs().unwrap();
     assert_eq!(runs.len(), 2 * 4);
+    // A material folder that is not there stops the sweep before anything runs.
+    let mut absent = exp.clone();
+    absent.materials.push("/no/such/wood".into());
+    let e = run_experiment(&absent, &absent.runs().unwrap(), out.path(), &Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("1 of the experiment's 3 material folders are missing: /no/such/wood")
+            && e.contains("put each"),
+        "{e}"
+    );
+    assert!(!out.path().join("results.jsonl").exists());
     let rows = run_experiment(&exp, &runs, out.path(), &Silent).unwrap();
     assert_eq!(rows.len(), 8);
     let (ok, failed): (Vec<_>, Vec<_>) = rows.iter().partition(|r| r.error.is_none());
     assert_eq!(ok.len(), 4, "every run on the real material finished");
     assert!(failed
         .iter()
-        .all(|r| r.error.as_ref().unwrap().contains("/no/such/material")));
+        .all(|r| r.error.as_ref().unwrap().contains("baseColor.png")));
     // Per-map lanczos3 beats per-map bilinear on denim's fine weave.
     let psnr = |id: &str| {
         ok.iter()

@@ -61,16 +61,19 @@ fn error_of(result: matup::Result<Material>) -> String {
 }
 
 #[test]
-fn loads_every_shared_material_with_method_conventions() {
+fn loads_real_materials_with_method_conventions() {
     for name in [
         "ambientcg_Metal053C",
         "ambientcg_PavingStones092",
         "polyhaven_denim_fabric",
         "polyhaven_wood_cabinet_worn_long",
-        "matup_victorian_wood",
+        "victorian_wood",
     ] {
-        let m = load(&common::shared_material(name)).unwrap();
-        let size = if name.starts_with("matup") { 128 } else { 1024 };
+        let (folder, size) = match name {
+            "victorian_wood" => (common::sample_material(), 128),
+            _ => (common::test_material(name), 256),
+        };
+        let m = load(&folder).unwrap();
         assert_eq!((m.width(), m.height_px()), (size, size), "{name}");
         assert!(m.base_color.data().iter().all(|v| (0.0..=1.0).contains(v)));
         assert!(
@@ -88,14 +91,14 @@ fn loads_every_shared_material_with_method_conventions() {
             NormalConvention::DirectX
         );
     }
-    // The metallic statistics ../shared/materials/README.md gives.
-    let metal = load(&common::shared_material("ambientcg_Metal053C")).unwrap();
+    // The metallic statistics the set's source.txt gives (a box filter keeps the mean).
+    let metal = load(&common::test_material("ambientcg_Metal053C")).unwrap();
     assert!(
         (metal.metallic.mean(0) - 0.54).abs() < 0.01,
         "{}",
         metal.metallic.mean(0)
     );
-    let denim = load(&common::shared_material("polyhaven_denim_fabric")).unwrap();
+    let denim = load(&common::test_material("polyhaven_denim_fabric")).unwrap();
     assert!(denim.metallic.data().iter().all(|&v| v == 0.0));
 }
 
@@ -340,6 +343,10 @@ fn formats_round_trip_and_are_kept_on_save() {
         (FileFormat::Png16, 1e-4, "png"),
         (FileFormat::ExrHalf, 1e-3, "exr"),
         (FileFormat::ExrFloat, 1e-6, "exr"),
+        (FileFormat::Tiff8, 0.5 / 255.0 * 1.2, "tif"),
+        (FileFormat::Tiff16, 1e-4, "tif"),
+        (FileFormat::TiffFloat, 1e-6, "tif"),
+        (FileFormat::Tga, 0.5 / 255.0 * 1.2, "tga"),
     ];
     for (format, tolerance, extension) in cases {
         let dir = saved(&m, format, NormalConvention::DirectX);
@@ -369,6 +376,51 @@ fn formats_round_trip_and_are_kept_on_save() {
             reread.origin.as_ref().unwrap().files[&MapKind::BaseColor].1,
             format
         );
+    }
+}
+
+#[test]
+fn a_16_bit_tiff_and_a_tga_material_upscale_into_their_own_formats() {
+    use matup::config::Config;
+    use matup::progress::Silent;
+    let m = sample();
+    let config = Config {
+        upsampler: "bicubic".into(),
+        ..Config::default()
+    };
+    // Each against the same run written as the PNG of its bit depth: the same values.
+    for (format, extension, png) in [
+        (FileFormat::Tiff16, "tif", FileFormat::Png16),
+        (FileFormat::Tga, "tga", FileFormat::Png8),
+    ] {
+        let input = saved(&m, format, NormalConvention::DirectX);
+        let lr = load(input.path()).unwrap();
+        let out = tempfile::tempdir().unwrap();
+        matup::folder::upscale_to_folder(
+            &lr,
+            &config,
+            out.path(),
+            &SaveOptions::default(),
+            false,
+            None,
+            None,
+            &Silent,
+        )
+        .unwrap();
+        let back = load(out.path()).unwrap();
+        assert_eq!((back.width(), back.height_px()), (512, 512), "{format}");
+        let (upscaled, _) = matup::upscale(&lr, &config, &Default::default(), &Silent).unwrap();
+        let reference = load(saved(&upscaled, png, NormalConvention::DirectX).path()).unwrap();
+        for kind in MapKind::ALL {
+            let Some(map) = back.map(kind) else {
+                continue;
+            };
+            let file = &back.origin.as_ref().unwrap().files[&kind];
+            assert_eq!(file.1, format, "{format} {kind}: kept");
+            assert_eq!(file.0.extension().unwrap(), extension);
+            let worst = common::max_abs_diff(map, reference.map(kind).unwrap());
+            assert!(worst < 1e-6, "{format} {kind}: {worst} from {png}");
+        }
     }
 }
 

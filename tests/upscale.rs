@@ -19,10 +19,9 @@ use matup::{
     Map, PluginSpec, RunOptions, RunReport,
 };
 
-/// A whole shared material box-filtered down to `size`² (a tileable input stays tileable).
+/// A whole test material box-filtered down to `size`² (a tileable input stays tileable).
 fn lr_material(name: &str, size: usize) -> Material {
-    let m =
-        matup::load_material(Some(&common::shared_material(name)), &Default::default()).unwrap();
+    let m = matup::load_material(Some(&common::test_material(name)), &Default::default()).unwrap();
     m.box_downsample(m.width() / size)
 }
 
@@ -379,7 +378,7 @@ fn as_stored(kind: MapKind, map: &Map) -> Map {
 #[test]
 fn bands_equal_the_whole_image() {
     let truth = matup::load_material(
-        Some(&common::shared_material("polyhaven_coast_sand_rocks_02")),
+        Some(&common::test_material("polyhaven_coast_sand_rocks_02")),
         &Default::default(),
     )
     .unwrap();

@@ -9,26 +9,15 @@ use matup::material::Material;
 use matup::progress::Progress;
 use matup::{Map, RunOptions};
 
-/// `../shared/materials/<name>` (CI checks the repository out with `shared/` beside it).
-pub fn shared_material(name: &str) -> PathBuf {
-    beside_repository("materials", name)
-}
+pub mod nets;
 
-/// `../shared/corpus/<name>`, the training corpus beside the shared materials.
-pub fn corpus_material(name: &str) -> PathBuf {
-    beside_repository("corpus", name)
-}
-
-fn beside_repository(set: &str, name: &str) -> PathBuf {
+/// A real material the repository ships for its tests: `tests/data/materials/<name>`, 256²
+/// box-filtered from the 1024² set of that name (`tests/data/README.md`).
+pub fn test_material(name: &str) -> PathBuf {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared")
-        .join(set)
+        .join("tests/data/materials")
         .join(name);
-    assert!(
-        path.is_dir(),
-        "{} is missing: the tests read ../shared/{set} beside the repository",
-        path.display()
-    );
+    assert!(path.is_dir(), "{} is missing", path.display());
     path
 }
 

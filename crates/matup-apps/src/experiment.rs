@@ -389,6 +389,21 @@ pub fn run_experiment(
     out: &Path,
     progress: &dyn Progress,
 ) -> Result<Vec<Row>> {
+    // Checked before anything runs: a sweep of absent materials would record every run
+    // as failed.
+    let missing: Vec<String> = (experiment.materials.iter())
+        .filter(|m| !m.is_dir())
+        .map(|m| m.display().to_string())
+        .collect();
+    if !missing.is_empty() {
+        return Err(Error::Invalid(format!(
+            "{} of the experiment's {} material folders are missing: {}; put each true \
+                 material's folder of maps at its path (relative to the experiment file)",
+            missing.len(),
+            experiment.materials.len(),
+            missing.join(", ")
+        )));
+    }
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let journal = out.join("results.jsonl");
     let mut rows: Vec<Row> = read_journal(&journal)?

@@ -56,13 +56,18 @@ fn run(name: &str, material: &Path, output: usize, extra: &[&str]) -> Row {
     }
 }
 
-/// A shared material box-filtered to `size`², saved as PNG in a temporary folder.
+/// A shared material (`../shared/materials/NAME`) box-filtered to `size`², saved as PNG in a temporary folder.
 fn downsampled(name: &str, size: usize) -> tempfile::TempDir {
-    let m = load_material(
-        Some(&repo().join("../shared/materials").join(name)),
-        &LoadOptions::default(),
-    )
-    .unwrap();
+    let folder = repo().join("../shared/materials").join(name);
+    if !folder.is_dir() {
+        eprintln!(
+            "{} is missing: the 1K² rows read the shared material sets; put them \
+             (../shared/materials) beside the repository",
+            folder.display()
+        );
+        std::process::exit(2);
+    }
+    let m = load_material(Some(&folder), &LoadOptions::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     save_material(
         &m.box_downsample(m.width() / size),

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::Value;
 
-/// The good materials of the test library: shared materials box-filtered ×16 to 64².
+/// The good materials of the test library: test materials box-filtered ×4 to 64².
 const GOOD: [(&str, &str); 5] = [
     ("tiles/Tiles012", "ambientcg_Tiles012"),
     ("wood/floor 040", "ambientcg_WoodFloor040"),
@@ -48,12 +48,13 @@ fn library() -> &'static Path {
     static LIBRARY: OnceLock<PathBuf> = OnceLock::new();
     LIBRARY.get_or_init(|| {
         let root = scratch("library");
-        let shared = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/materials");
+        let materials =
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/materials");
         for (folder, source) in GOOD {
             let o = Command::new(env!("CARGO_BIN_EXE_matup"))
-                .args(["downsample", "--factor", "16", "-o"])
+                .args(["downsample", "--factor", "4", "-o"])
                 .arg(root.join(folder))
-                .arg(shared.join(source))
+                .arg(materials.join(source))
                 .output()
                 .unwrap();
             assert!(o.status.success(), "{}", stderr(&o));

@@ -39,6 +39,64 @@ fn list_shows_every_builtin_plugin_with_options() {
     assert!(text.contains("option a=-0.5"), "{text}");
 }
 
+/// `matup ARGS` run in `folder`, with no model folder named in the environment.
+#[cfg(feature = "onnx")]
+fn matup_in(folder: &std::path::Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_matup"))
+        .args(args)
+        .current_dir(folder)
+        .env_remove("MATUP_MODELS")
+        .output()
+        .unwrap()
+}
+
+#[cfg(feature = "onnx")]
+#[test]
+fn the_default_networks_are_inside_the_binary() {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let elsewhere = tempfile::tempdir().unwrap();
+    // From another folder, out of reach of the repository's models/, `list` finds both default
+    // networks in the binary; inside the repository, the files.
+    let o = matup_in(elsewhere.path(), &["list"]);
+    let listed = String::from_utf8_lossy(&o.stdout);
+    for name in ["span_x4_materials", "span_x4_ch48"] {
+        assert!(
+            listed.contains(&format!("from {name} (built into matup)")),
+            "{listed}"
+        );
+    }
+    let o = matup_in(&repo, &["list"]);
+    let listed = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        listed.contains("from models/span_x4_materials.onnx"),
+        "{listed}"
+    );
+    // The defaults run from either, to the same bytes.
+    let run = |folder: &std::path::Path, out: &std::path::Path| {
+        let o = matup_in(
+            folder,
+            &["upscale", &sample(), "-o", out.to_str().unwrap(), "--json"],
+        );
+        assert!(o.status.success(), "{}", stderr(&o));
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(report["upsampler_used"], "onnx:span_x4_materials");
+    };
+    let (inside, outside) = (elsewhere.path().join("in"), elsewhere.path().join("out"));
+    run(&repo, &inside);
+    run(elsewhere.path(), &outside);
+    for map in ["baseColor", "normal", "roughness", "metallic", "height"] {
+        let file = format!("{map}.png");
+        let (a, b) = (
+            std::fs::read(inside.join(&file)).unwrap(),
+            std::fs::read(outside.join(&file)).unwrap(),
+        );
+        assert!(
+            a == b,
+            "{file}: the built-in network gives the file's bytes"
+        );
+    }
+}
+
 #[test]
 fn render_writes_a_contact_sheet_and_a_single_light() {
     let dir = tempfile::tempdir().unwrap();
@@ -235,9 +293,10 @@ fn upscale_writes_maps_preview_and_run_json() {
     );
 }
 
-fn shared(name: &str) -> String {
+/// A real material the repository ships for its tests (`tests/data/README.md`).
+fn test_material(name: &str) -> String {
     format!(
-        "{}/../../../shared/materials/{name}",
+        "{}/../../tests/data/materials/{name}",
         env!("CARGO_MANIFEST_DIR")
     )
 }
@@ -304,8 +363,8 @@ fn downsample_then_eval_reports_a_table_and_json() {
         stderr(&o)
     );
 
-    let denim = shared("polyhaven_denim_fabric");
-    let metal = shared("ambientcg_Metal053C");
+    let denim = test_material("polyhaven_denim_fabric");
+    let metal = test_material("ambientcg_Metal053C");
     let o = matup(&[
         "eval",
         "--reference",
@@ -348,7 +407,7 @@ fn sweep_rejects_bad_files_before_running() {
     );
     let o = matup(&["sweep", dir.path().join("missing.toml").to_str().unwrap()]);
     assert!(stderr(&o).contains("missing.toml"), "{}", stderr(&o));
-    // A missing material fails its runs with its own reason, listed at the end.
+    // A missing material stops the bench before anything runs, naming it.
     let out = dir.path().join("bench");
     let o = matup(&[
         "bench",
@@ -362,10 +421,12 @@ fn sweep_rejects_bad_files_before_running() {
         "--quiet",
     ]);
     let e = stderr(&o);
+    assert!(!o.status.success());
     assert!(
-        e.contains("2 run(s) failed") && e.contains("/no/such/material"),
+        e.contains("material folders are missing: /no/such/material"),
         "{e}"
     );
+    assert!(!out.join("results.jsonl").exists(), "nothing ran");
 }
 
 #[test]
@@ -392,7 +453,7 @@ fn bench_view_keeps_every_method_and_writes_a_page_per_material() {
     let out = dir.path().join("bench");
     let o = matup(&[
         "bench",
-        &shared("matup_victorian_wood"),
+        &sample(),
         "-o",
         out.to_str().unwrap(),
         "--crop",
@@ -407,10 +468,10 @@ fn bench_view_keeps_every_method_and_writes_a_page_per_material() {
     assert!(o.status.success(), "{}", stderr(&o));
     let index = std::fs::read_to_string(out.join("outputs/index.html")).unwrap();
     assert!(
-        index.contains(r#"<a href="./matup_victorian_wood/view.html">"#),
+        index.contains(r#"<a href="./victorian_wood/view.html">"#),
         "{index}"
     );
-    let folder = out.join("outputs/matup_victorian_wood");
+    let folder = out.join("outputs/victorian_wood");
     let page = std::fs::read_to_string(folder.join("view.html")).unwrap();
     let data = page
         .split(r#"<script id="data" type="application/json">"#)
@@ -443,10 +504,7 @@ fn bench_view_keeps_every_method_and_writes_a_page_per_material() {
 #[test]
 fn learn_trains_on_pairs_equal_to_what_matup_downsample_writes() {
     use matup_core::{load_material, LoadOptions};
-    let truth_folder = format!(
-        "{}/../../../shared/corpus/ambientcg_Rock029",
-        env!("CARGO_MANIFEST_DIR")
-    );
+    let truth_folder = test_material("ambientcg_Rock029");
     let dir = tempfile::tempdir().unwrap();
     let lr_folder = dir.path().join("lr");
     let o = matup(&[

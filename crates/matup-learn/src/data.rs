@@ -24,6 +24,13 @@ impl Corpus {
     /// Loads `names` from `folder` (each a material folder), each at least `extent` texels
     /// wide and high (what its crops need).
     pub fn load(folder: &Path, names: &[String], extent: usize) -> Result<Corpus> {
+        if !folder.is_dir() {
+            return Err(Error::file(
+                folder,
+                "no such corpus folder: put the training materials there, one folder of maps \
+                 each, named as the configuration's train and val lists name them",
+            ));
+        }
         let materials = names
             .iter()
             .map(|name| {

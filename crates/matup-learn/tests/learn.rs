@@ -29,17 +29,13 @@ fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-/// A crop of a real corpus material (CI has `../shared` beside the repository).
+/// A crop of a real corpus material, from the 256² copy the repository ships
+/// (`tests/data/README.md`).
 fn corpus_crop(name: &str, size: usize) -> Material {
-    let folder = repo().join("../shared/corpus").join(name);
-    assert!(
-        folder.is_dir(),
-        "{} is missing: the tests read the shared corpus",
-        folder.display()
-    );
-    load_material(Some(&folder), &LoadOptions::default())
-        .unwrap()
-        .crop(100, 200, size, size)
+    let folder = repo().join("tests/data/materials").join(name);
+    let material = load_material(Some(&folder), &LoadOptions::default()).unwrap();
+    let at = (material.width() - size) / 2;
+    material.crop(at, at, size, size)
 }
 
 fn max_difference(a: &[f32], b: &[f32]) -> f32 {
@@ -272,7 +268,9 @@ fn a_turned_material_renders_as_the_turned_render() {
 fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
     let corpus = dir.join("corpus");
     if !corpus.exists() {
-        for (name, source) in [("a", "ambientcg_Fabric032"), ("b", "ambientcg_Rock029")] {
+        // Bricks: mortar lines and chipped edges a few steps can learn to sharpen (on the
+        // 256² copies, a woven fabric's weave is finer than a texel and barely moves).
+        for (name, source) in [("a", "ambientcg_Bricks059"), ("b", "ambientcg_Rock029")] {
             save_material(
                 &corpus_crop(source, 32),
                 &corpus.join(name),

@@ -1,0 +1,199 @@
+//! Bad input, as users meet it: 1,000 damaged map files (truncated, bytes flipped, header fields
+//! changed, junk appended) in every format matup reads go through the material loader and
+//! `matup upscale`'s folder-to-folder run. Each either loads and upscales, or is refused with
+//! an error that names the file; nothing panics, and the input folder is never touched.
+//! `.ci/run` runs this test with its output shown, so CI prints the counts.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use matup::config::Config;
+use matup::folder::upscale_to_folder;
+use matup::material::{FileFormat, MapKind};
+use matup::progress::Silent;
+use matup::{load_material, save_material, LoadOptions, SaveOptions};
+use rand::{Rng, SeedableRng};
+
+const FORMATS: [FileFormat; 5] = [
+    FileFormat::Png8,
+    FileFormat::Jpeg,
+    FileFormat::ExrHalf,
+    FileFormat::Tiff16,
+    FileFormat::Tga,
+];
+
+/// How a file is damaged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Damage {
+    /// Cut short at a random length.
+    Truncated,
+    /// One to eight bytes anywhere set to random values.
+    BytesFlipped,
+    /// One to four bytes of the first 64 (where every format keeps its header: sizes, bit
+    /// depths, channel counts, offsets) set to random values.
+    HeaderChanged,
+    /// 1 to 4096 random bytes added at the end.
+    JunkAppended,
+}
+
+const DAMAGES: [Damage; 4] = [
+    Damage::Truncated,
+    Damage::BytesFlipped,
+    Damage::HeaderChanged,
+    Damage::JunkAppended,
+];
+
+fn damaged(bytes: &[u8], damage: Damage, rng: &mut impl Rng) -> Vec<u8> {
+    let mut out = bytes.to_vec();
+    match damage {
+        Damage::Truncated => out.truncate(rng.random_range(0..bytes.len())),
+        Damage::BytesFlipped => {
+            for _ in 0..rng.random_range(1..=8) {
+                let i = rng.random_range(0..out.len());
+                out[i] = rng.random();
+            }
+        }
+        Damage::HeaderChanged => {
+            for _ in 0..rng.random_range(1..=4) {
+                let i = rng.random_range(0..out.len().min(64));
+                out[i] = rng.random();
+            }
+        }
+        Damage::JunkAppended => {
+            let n = rng.random_range(1..=4096);
+            out.extend((0..n).map(|_| rng.random::<u8>()));
+        }
+    }
+    out
+}
+
+/// Every file of a folder and its bytes.
+fn snapshot(folder: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    std::fs::read_dir(folder)
+        .unwrap()
+        .map(|e| {
+            let path = e.unwrap().path();
+            let bytes = std::fs::read(&path).unwrap();
+            (path, bytes)
+        })
+        .collect()
+}
+
+/// What happened to one damaged file.
+enum Outcome {
+    Upscaled,
+    Refused,
+}
+
+#[test]
+fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
+    // A 16² crop of the sample, saved in each format: five maps, each a file to damage.
+    let sample = load_material(Some(&common::sample_material()), &Default::default())
+        .unwrap()
+        .crop(40, 40, 16, 16);
+    let scratch = tempfile::tempdir().unwrap();
+    let config = Config {
+        upsampler: "bilinear".into(),
+        tileable: Some(false),
+        ..Config::default()
+    };
+    // A texel limit a damaged header's size meets quickly (it is checked before decoding).
+    let load_options = LoadOptions {
+        max_texels: 1 << 16,
+        ..LoadOptions::default()
+    };
+    let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+    let mut counts: BTreeMap<(String, Damage), [usize; 2]> = BTreeMap::new();
+    let mut panics = Vec::new();
+    for format in FORMATS {
+        let template = scratch.path().join(format!("template-{format}"));
+        let options = SaveOptions {
+            format: Some(format),
+            ..SaveOptions::default()
+        };
+        save_material(&sample, &template, &options).unwrap();
+        let files: Vec<PathBuf> = snapshot(&template).into_keys().collect();
+        assert_eq!(files.len(), 5, "{format}: five maps");
+        for damage in DAMAGES {
+            for case in 0..50 {
+                let folder = scratch.path().join(format!("input-{format}"));
+                let out = scratch.path().join(format!("output-{format}"));
+                let _ = std::fs::remove_dir_all(&folder);
+                let _ = std::fs::remove_dir_all(&out);
+                std::fs::create_dir(&folder).unwrap();
+                let victim = &files[case % files.len()];
+                let name = victim.file_name().unwrap().to_string_lossy().into_owned();
+                for file in &files {
+                    let bytes = std::fs::read(file).unwrap();
+                    let bytes = if file == victim {
+                        damaged(&bytes, damage, &mut rng)
+                    } else {
+                        bytes
+                    };
+                    std::fs::write(folder.join(file.file_name().unwrap()), bytes).unwrap();
+                }
+                let before = snapshot(&folder);
+                let run = std::panic::catch_unwind(|| {
+                    let material = load_material(Some(&folder), &load_options)?;
+                    upscale_to_folder(
+                        &material,
+                        &config,
+                        &out,
+                        &SaveOptions::default(),
+                        false,
+                        None,
+                        None,
+                        &Silent,
+                    )
+                });
+                let what = format!("{format} {damage:?} #{case} ({name})");
+                let outcome = match run {
+                    Err(_) => {
+                        panics.push(what.clone());
+                        continue;
+                    }
+                    Ok(Ok(_)) => {
+                        let maps = out.join(format!(
+                            "{}.{}",
+                            MapKind::BaseColor.file_stem(),
+                            format.extension()
+                        ));
+                        assert!(maps.is_file(), "{what}: upscaled, so written");
+                        Outcome::Upscaled
+                    }
+                    Ok(Err(e)) => {
+                        let message = e.to_string();
+                        assert!(message.contains(&name), "{what}: '{message}' names no file");
+                        Outcome::Refused
+                    }
+                };
+                assert!(
+                    snapshot(&folder) == before,
+                    "{what}: the input folder changed"
+                );
+                let tally = counts.entry((format.to_string(), damage)).or_default();
+                tally[matches!(outcome, Outcome::Refused) as usize] += 1;
+            }
+        }
+    }
+    println!("damaged files: upscaled / refused by name");
+    for ((format, damage), [upscaled, refused]) in &counts {
+        let damage = format!("{damage:?}");
+        println!("  {format:<9} {damage:<14} {upscaled:>3} / {refused:>3}");
+    }
+    let (upscaled, refused) = counts
+        .values()
+        .fold((0, 0), |(u, r), [a, b]| (u + a, r + b));
+    println!(
+        "{} files: {upscaled} upscaled, {refused} refused by name, {} panics",
+        upscaled + refused + panics.len(),
+        panics.len()
+    );
+    assert!(panics.is_empty(), "panics: {panics:?}");
+    assert_eq!(upscaled + refused, 1000);
+    // Both happen: damage a decoder cannot see (a flipped JPEG byte) upscales, a truncated
+    // file is refused.
+    assert!(upscaled > 0 && refused > 0);
+}
