@@ -43,9 +43,11 @@ fn the_tensor_backend_trains_to_the_fused_loss() {
         ("fused", "tensor")
     );
     assert_eq!(a.steps, b.steps);
-    // Same start, same batches: the losses agree to the last epoch.
+    // Same start, same batches: the losses agree to the last epoch, as far as sums taken in
+    // different orders let them (candle picks its matrix kernels by CPU: 1.3·10⁻³ apart on an
+    // AVX-512 EPYC, 0.0187024 against 0.0187272).
     let (x, y) = (a.epoch_losses[2], b.epoch_losses[2]);
-    assert!(((x - y) / x).abs() <= 1e-3, "fused {x}, tensor {y}");
+    assert!(((x - y) / x).abs() <= 3e-3, "fused {x}, tensor {y}");
     assert!(
         y < b.epoch_losses[0],
         "the tensor backend trains: {:?}",
