@@ -30,6 +30,11 @@ pub struct EdgeStats {
     /// How closely the pair (last row, first row) repeats an interior pair of neighbours
     /// (row k, row k + 1), the best k: the mean of their two differences.
     pub repeat: f32,
+    /// The correlation of the rows' structure (their differences along the row) across the
+    /// edge, and its median between interior neighbours and between rows half the map apart.
+    pub structure_edge: f32,
+    pub structure_neighbour_median: f32,
+    pub structure_far_median: f32,
 }
 
 /// Mean |difference| between rows `a` and `b` of `map`, over columns and channels.
@@ -48,6 +53,27 @@ fn row_difference(map: &Map, a: usize, b: usize) -> f32 {
     (sum / (w * map.channels()) as f64) as f32
 }
 
+/// The correlation of rows `a` and `b`'s differences along the row (where structures such as
+/// joints and edges cross them), over channels.
+fn structure_correlation(map: &Map, a: usize, b: usize) -> f32 {
+    let w = map.width();
+    let (mut ab, mut aa, mut bb) = (0.0f64, 0.0f64, 0.0f64);
+    for c in 0..map.channels() {
+        let plane = map.plane(c);
+        let (ra, rb) = (&plane[a * w..(a + 1) * w], &plane[b * w..(b + 1) * w]);
+        for x in 0..w - 1 {
+            let (da, db) = ((ra[x + 1] - ra[x]) as f64, (rb[x + 1] - rb[x]) as f64);
+            ab += da * db;
+            aa += da * da;
+            bb += db * db;
+        }
+    }
+    if aa * bb <= 1e-20 {
+        return 0.0;
+    }
+    (ab / (aa * bb).sqrt()) as f32
+}
+
 fn quantile(sorted: &[f32], q: f32) -> f32 {
     sorted[((sorted.len() - 1) as f32 * q).round() as usize]
 }
@@ -64,7 +90,18 @@ fn row_statistics(map: &Map) -> EdgeStats {
     let repeat = (3..h.saturating_sub(4))
         .map(|k| 0.5 * (row_difference(map, h - 1, k) + row_difference(map, 0, k + 1)))
         .fold(f32::INFINITY, f32::min);
+    let mut structure_neighbours: Vec<f32> = (0..h - 1)
+        .map(|k| structure_correlation(map, k, k + 1))
+        .collect();
+    let mut structure_far: Vec<f32> = (0..h)
+        .map(|k| structure_correlation(map, k, (k + h / 2) % h))
+        .collect();
+    structure_neighbours.sort_by(f32::total_cmp);
+    structure_far.sort_by(f32::total_cmp);
     EdgeStats {
+        structure_edge: structure_correlation(map, h - 1, 0),
+        structure_neighbour_median: quantile(&structure_neighbours, 0.5),
+        structure_far_median: quantile(&structure_far, 0.5),
         repeat,
         edge: row_difference(map, h - 1, 0),
         neighbour_median: quantile(&neighbours, 0.5),
@@ -210,14 +247,14 @@ fn write_features(path: &Path, samples: &[(Sample, (bool, f32))]) -> std::io::Re
     let mut file = std::io::BufWriter::new(std::fs::File::create(path)?);
     writeln!(
         file,
-        "material,category,size,tileable,map,axis,edge,neighbour_median,neighbour_p90,neighbour_max,far_median,repeat"
+        "material,category,size,tileable,map,axis,edge,neighbour_median,neighbour_p90,neighbour_max,far_median,repeat,s_edge,s_neighbour,s_far"
     )?;
     for (s, _) in samples {
         for (map, stats) in edge_statistics(&s.material) {
             for (axis, e) in [("rows", stats[0]), ("cols", stats[1])] {
                 writeln!(
                     file,
-                    "{},{},{},{},{map:?},{axis},{},{},{},{},{},{}",
+                    "{},{},{},{},{map:?},{axis},{},{},{},{},{},{},{},{},{}",
                     s.name,
                     s.category,
                     s.size,
@@ -227,7 +264,10 @@ fn write_features(path: &Path, samples: &[(Sample, (bool, f32))]) -> std::io::Re
                     e.neighbour_p90,
                     e.neighbour_max,
                     e.far_median,
-                    e.repeat
+                    e.repeat,
+                    e.structure_edge,
+                    e.structure_neighbour_median,
+                    e.structure_far_median
                 )?;
             }
         }

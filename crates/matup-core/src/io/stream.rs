@@ -392,29 +392,29 @@ fn encode_whole(
     fn tiff<W: Write + std::io::Seek>(out: W) -> tiff::TiffResult<TiffEncoder<W>> {
         Ok(TiffEncoder::new(out)?.with_compression(Compression::Lzw))
     }
-    let written = match samples {
-        Samples::U8(raw) if format == FileFormat::Tiff8 => tiff(out).and_then(|mut e| {
+    let written = match (format, samples) {
+        (FileFormat::Tiff8, Samples::U8(raw)) => tiff(out).and_then(|mut e| {
             if grey {
                 e.write_image::<colortype::Gray8>(w, h, &raw)
             } else {
                 e.write_image::<colortype::RGB8>(w, h, &raw)
             }
         }),
-        Samples::U16(raw) => tiff(out).and_then(|mut e| {
+        (FileFormat::Tiff16, Samples::U16(raw)) => tiff(out).and_then(|mut e| {
             if grey {
                 e.write_image::<colortype::Gray16>(w, h, &raw)
             } else {
                 e.write_image::<colortype::RGB16>(w, h, &raw)
             }
         }),
-        Samples::F32(raw) => tiff(out).and_then(|mut e| {
+        (FileFormat::TiffFloat, Samples::F32(raw)) => tiff(out).and_then(|mut e| {
             if grey {
                 e.write_image::<colortype::Gray32Float>(w, h, &raw)
             } else {
                 e.write_image::<colortype::RGB32Float>(w, h, &raw)
             }
         }),
-        Samples::U8(raw) => {
+        (FileFormat::Jpeg | FileFormat::Tga, Samples::U8(raw)) => {
             let image = if grey {
                 DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap())
             } else {
@@ -428,6 +428,7 @@ fn encode_whole(
             }
             .map_err(|e| e.to_string());
         }
+        _ => unreachable!("ImageWriter::create gathers each format at its own depth"),
     };
     written.map_err(|e| e.to_string())
 }
