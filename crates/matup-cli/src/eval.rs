@@ -1,14 +1,18 @@
-//! `matup eval`: how close a material is to a reference, in renders and in maps.
+//! `matup eval`: how close a material is to a reference, in renders and in maps; without a
+//! reference, whether each of its maps tiles.
+
+use std::collections::BTreeMap;
 
 use clap::Args;
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, PluginSpec};
-use matup_eval::metrics::{evaluate, Evaluation};
+use matup_eval::metrics::{evaluate, map_seams, Evaluation};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// The reference (true) material's folder.
+    /// The reference (true) material's folder. Without one, only the candidate's seams are
+    /// reported.
     #[arg(long)]
-    pub reference: std::path::PathBuf,
+    pub reference: Option<std::path::PathBuf>,
     /// The material to judge, of the same size.
     #[arg(long)]
     pub candidate: std::path::PathBuf,
@@ -25,8 +29,18 @@ pub struct EvalArgs {
 
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.lights > 0, "--lights must be at least 1");
-    let reference = load_material(Some(&args.reference), &LoadOptions::default())?;
     let candidate = load_material(Some(&args.candidate), &LoadOptions::default())?;
+    let Some(reference) = &args.reference else {
+        let seams = map_seams(&candidate);
+        if args.json {
+            let report = serde_json::json!({ "map_seams": seams });
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            print_seams(&seams, None);
+        }
+        return Ok(());
+    };
+    let reference = load_material(Some(reference), &LoadOptions::default())?;
     let model = shading_model(&args.shading)?;
     let e = evaluate(
         &reference,
@@ -72,5 +86,19 @@ fn print_table(e: &Evaluation) {
     println!("{} held-out lights", e.lights);
     for (name, value) in rows {
         println!("{name:<28} {value:>12}");
+    }
+    print_seams(&e.map_seams, Some(&e.reference_map_seams));
+}
+
+/// Each map's wrap-around seam ratio (and the reference's): about 1 where copies join
+/// without a seam.
+fn print_seams(seams: &BTreeMap<String, f64>, reference: Option<&BTreeMap<String, f64>>) {
+    println!("wrap-around seam ratio per map (about 1: tiles without a seam)");
+    for (map, ratio) in seams {
+        let value = match reference.and_then(|r| r.get(map)) {
+            Some(r) => format!("{ratio:.2} ({r:.2})"),
+            None => format!("{ratio:.2}"),
+        };
+        println!("  {map:<26} {value:>12}");
     }
 }

@@ -382,6 +382,47 @@ fn downsample_then_eval_reports_a_table_and_json() {
         e["metallic_rmse"].as_f64().unwrap() > 0.1,
         "metal against cloth"
     );
+    assert!(e["map_seams"]["normal"].as_f64().unwrap() > 0.0);
+
+    // Without a reference: each map's wrap-around seam. The whole denim tiles; a crop of it
+    // at an odd offset does not.
+    let crop = dir.path().join("crop");
+    let whole = matup_core::load_material(
+        Some(std::path::Path::new(&denim)),
+        &matup_core::LoadOptions::default(),
+    )
+    .unwrap();
+    matup_core::save_material(
+        &whole.crop(37, 53, 128, 128),
+        &crop,
+        &matup_core::SaveOptions::default(),
+    )
+    .unwrap();
+    let seams = |folder: &str| {
+        let o = matup(&["eval", "--candidate", folder, "--json"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let seams = report["map_seams"].as_object().unwrap().clone();
+        let names: Vec<&str> = seams.keys().map(String::as_str).collect();
+        assert_eq!(
+            names,
+            ["baseColor", "height", "metallic", "normal", "roughness"]
+        );
+        let ratio = |map: &str| seams[map].as_f64().unwrap();
+        (ratio("baseColor"), ratio("normal"))
+    };
+    let (whole_colour, whole_normal) = seams(&denim);
+    let (crop_colour, crop_normal) = seams(crop.to_str().unwrap());
+    println!("denim seams: whole {whole_colour:.2} / {whole_normal:.2}, crop {crop_colour:.2} / {crop_normal:.2}");
+    // Measured: whole 0.98 / 1.29, crop 1.64 / 3.02 (base colour / normal).
+    assert!(whole_colour < 1.5 && whole_normal < 1.5);
+    assert!(crop_colour > 1.5 * whole_colour && crop_normal > 2.0 * whole_normal);
+    let o = matup(&["eval", "--candidate", &denim]);
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        table.contains("seam ratio per map") && table.contains("baseColor"),
+        "{table}"
+    );
 }
 
 #[test]

@@ -1,15 +1,17 @@
 //! How close a material is to a reference: its renders under a held-out light set (PSNR, SSIM,
 //! FLIP), its maps (base colour, normal, roughness and metallic errors) and its seam.
 
+use std::collections::BTreeMap;
+
 use rayon::prelude::*;
 use serde::Serialize;
 
 use matup_core::color::to_u8;
 use matup_core::lights::{Light, LightSetSpec};
 use matup_core::map::Map;
-use matup_core::material::Material;
+use matup_core::material::{MapKind, Material};
 use matup_core::render::{render, RenderOptions};
-use matup_core::resample::{gaussian_blur, Border};
+use matup_core::resample::{gaussian_blur, seam_ratio, Border};
 use matup_core::shading::ShadingModel;
 use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
 use matup_core::{Error, Result};
@@ -41,6 +43,9 @@ pub struct Evaluation {
     /// Wrap-around seam ratio of the candidate (1 is seamless) and of the reference.
     pub seam_ratio: f64,
     pub reference_seam_ratio: f64,
+    /// Each map's wrap-around seam ratio ([`map_seams`]), the candidate's and the reference's.
+    pub map_seams: BTreeMap<String, f64>,
+    pub reference_map_seams: BTreeMap<String, f64>,
     /// Sharpness of the candidate's and the reference's renders: the mean gradient magnitude
     /// ([`sharpness`]), averaged over the lights. A blurry result reads below the reference,
     /// an oversharpened one above.
@@ -114,9 +119,25 @@ pub fn evaluate(
         metallic_rmse: rmse(&reference.metallic, &candidate.metallic),
         seam_ratio: wrap_seam_ratio(candidate) as f64,
         reference_seam_ratio: reference_seam as f64,
+        map_seams: map_seams(candidate),
+        reference_map_seams: map_seams(reference),
         render_sharpness: mean(3),
         reference_render_sharpness: mean(4),
     })
+}
+
+/// Each map's wrap-around seam ratio, by file name (`baseColor`, `normal`, …): the mean
+/// |difference| across the wrap-around edges over that between interior neighbours, the
+/// larger of rows and columns. About 1 where copies laid side by side join without a seam;
+/// a tileable input's maps show what its output's should be. Needs no reference.
+pub fn map_seams(material: &Material) -> BTreeMap<String, f64> {
+    MapKind::ALL
+        .into_iter()
+        .filter_map(|kind| {
+            let map = material.map(kind)?;
+            Some((kind.file_stem().to_string(), seam_ratio(map) as f64))
+        })
+        .collect()
 }
 
 /// Sharpness of an image: the gradient magnitude `√(dx² + dy²)` from forward differences
