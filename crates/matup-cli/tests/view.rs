@@ -184,4 +184,19 @@ fn the_page_relights_splits_and_matches_matups_render() {
         band > 2.0,
         "bilinear and matup differ between the splits: {band}"
     );
+
+    // Laid 2×2, one texel a pixel, centred where the four copies meet: each quarter of the
+    // canvas is the opposite quarter of the single material.
+    let tiled = screenshot(
+        &browser,
+        &page,
+        &format!("light={x},{y},{z}&split=0&tiles=2&zoom=1&center=512,512"),
+        dir.path(),
+    );
+    let half = CANVAS / 2;
+    let moved = RgbImage::from_fn(CANVAS, CANVAS, |px, py| {
+        *shots[0].get_pixel((px + half) % CANVAS, (py + half) % CANVAS)
+    });
+    let diff = mean_diff(&tiled, &moved, 0..CANVAS);
+    assert!(diff < 0.05, "the 2×2 tiling differs by {diff:.3} steps");
 }
