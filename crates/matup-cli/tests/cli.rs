@@ -490,7 +490,7 @@ fn the_shipped_sweeps_parse_and_expand() {
     // Expanding checks the plugins each point names: link the built-in ones.
     use matup_shading as _;
     use matup_upsamplers as _;
-    // Their materials are the shared sets beside the repository (`../shared`, which a clone
+    // Their materials are the shared sets in the folder beside the repository (which a clone
     // alone lacks: the sweep then stops and says so), named as such.
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let beside = |set: &str, name: &std::ffi::OsStr| {

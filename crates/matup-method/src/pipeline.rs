@@ -76,8 +76,11 @@ pub fn upscale_streamed(
         }
     };
     progress.note(&match seam {
+        // The guess is often wrong (docs/experiments/2026-11-25-tileability-detection.md):
+        // say how it was made and how to overrule it.
         Some(r) => format!(
-            "tileable: {} (wrap-around seam ratio {r:.2})",
+            "tileable: {} (a guess from the edges: wrap-around seam ratio {r:.2}, tileable \
+             below {TILEABLE_SEAM_RATIO}; --tileable or --no-tileable decides)",
             if tileable { "yes" } else { "no" }
         ),
         None => format!(

@@ -102,7 +102,7 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
         Some(ImageFormat::Jpeg) => FileFormat::Jpeg,
         Some(ImageFormat::Png) if sixteen => FileFormat::Png16,
         Some(ImageFormat::Png) => FileFormat::Png8,
-        Some(ImageFormat::Tga) if !sixteen => FileFormat::Tga,
+        Some(ImageFormat::Tga) => FileFormat::Tga,
         other => {
             return Err(Error::file(
                 path,
