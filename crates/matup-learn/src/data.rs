@@ -298,5 +298,16 @@ mod tests {
             "{message}"
         );
         assert!(Corpus::load(folder.path(), &["small".into()], 48).is_ok());
+        // A corpus folder that is not there (the shared corpus of a configuration, on a clone
+        // without it) says so, and what to put there.
+        let absent = folder.path().join("corpus");
+        let message = Corpus::load(&absent, &["small".into()], 48)
+            .err()
+            .expect("no folder")
+            .to_string();
+        assert!(
+            message.contains("corpus") && message.contains("put the training materials there"),
+            "{message}"
+        );
     }
 }
