@@ -180,8 +180,8 @@ pub fn resolve(model: &str) -> Result<ModelSource> {
     })
 }
 
-/// The sidecar `NAME.toml` of `NAME.onnx`.
-pub fn sidecar_path(model: &Path) -> PathBuf {
+/// Where `NAME.onnx`'s sidecar lies: `NAME.toml` beside it.
+fn sidecar_path(model: &Path) -> PathBuf {
     model.with_extension("toml")
 }
 
