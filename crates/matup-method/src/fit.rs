@@ -61,24 +61,15 @@ pub(crate) fn learn_level(
             report.constant_features.join(", ")
         ));
     }
-    if fixed.iter().all(Option::is_some) {
-        skipped.push(format!(
-            "level {}: training: every feature is constant",
-            level + 1
-        ));
-        return Ok((
-            TrainedFilter {
-                filter: None,
-                fixed,
-            },
-            None,
-        ));
-    }
-    if config.train.epochs == 0 {
-        skipped.push(format!(
-            "level {}: training: 0 epochs, the residual base is the result",
-            level + 1
-        ));
+    let untrained = if fixed.iter().all(Option::is_some) {
+        Some("every feature is constant")
+    } else if config.train.epochs == 0 {
+        Some("0 epochs, the residual base is the result")
+    } else {
+        None
+    };
+    if let Some(why) = untrained {
+        skipped.push(format!("level {}: training: {why}", level + 1));
         return Ok((
             TrainedFilter {
                 filter: None,

@@ -386,34 +386,19 @@ fn encode_whole(
     format: FileFormat,
     samples: Samples,
 ) -> std::result::Result<(), String> {
-    use tiff::encoder::{colortype, Compression, TiffEncoder};
+    use tiff::encoder::colortype;
     let (w, h) = (width as u32, height as u32);
     let grey = channels == 1;
-    fn tiff<W: Write + std::io::Seek>(out: W) -> tiff::TiffResult<TiffEncoder<W>> {
-        Ok(TiffEncoder::new(out)?.with_compression(Compression::Lzw))
-    }
     let written = match (format, samples) {
-        (FileFormat::Tiff8, Samples::U8(raw)) => tiff(out).and_then(|mut e| {
-            if grey {
-                e.write_image::<colortype::Gray8>(w, h, &raw)
-            } else {
-                e.write_image::<colortype::RGB8>(w, h, &raw)
-            }
-        }),
-        (FileFormat::Tiff16, Samples::U16(raw)) => tiff(out).and_then(|mut e| {
-            if grey {
-                e.write_image::<colortype::Gray16>(w, h, &raw)
-            } else {
-                e.write_image::<colortype::RGB16>(w, h, &raw)
-            }
-        }),
-        (FileFormat::TiffFloat, Samples::F32(raw)) => tiff(out).and_then(|mut e| {
-            if grey {
-                e.write_image::<colortype::Gray32Float>(w, h, &raw)
-            } else {
-                e.write_image::<colortype::RGB32Float>(w, h, &raw)
-            }
-        }),
+        (FileFormat::Tiff8, Samples::U8(raw)) => {
+            write_tiff::<colortype::Gray8, colortype::RGB8>(out, w, h, grey, &raw)
+        }
+        (FileFormat::Tiff16, Samples::U16(raw)) => {
+            write_tiff::<colortype::Gray16, colortype::RGB16>(out, w, h, grey, &raw)
+        }
+        (FileFormat::TiffFloat, Samples::F32(raw)) => {
+            write_tiff::<colortype::Gray32Float, colortype::RGB32Float>(out, w, h, grey, &raw)
+        }
         (FileFormat::Jpeg | FileFormat::Tga, Samples::U8(raw)) => {
             let image = if grey {
                 DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap())
@@ -431,6 +416,29 @@ fn encode_whole(
         _ => unreachable!("ImageWriter::create gathers each format at its own depth"),
     };
     written.map_err(|e| e.to_string())
+}
+
+/// A whole TIFF (LZW, as image editors write it), grey as `Grey`, else RGB as `Rgb`, the two
+/// of one sample type.
+fn write_tiff<Grey, Rgb>(
+    out: &mut BufWriter<File>,
+    width: u32,
+    height: u32,
+    grey: bool,
+    samples: &[Grey::Inner],
+) -> tiff::TiffResult<()>
+where
+    Grey: tiff::encoder::colortype::ColorType,
+    Rgb: tiff::encoder::colortype::ColorType<Inner = Grey::Inner>,
+    [Grey::Inner]: tiff::encoder::TiffValue,
+{
+    use tiff::encoder::{Compression, TiffEncoder};
+    let mut encoder = TiffEncoder::new(out)?.with_compression(Compression::Lzw);
+    if grey {
+        encoder.write_image::<Grey>(width, height, samples)
+    } else {
+        encoder.write_image::<Rgb>(width, height, samples)
+    }
 }
 
 /// A temporary file in `path`'s folder (so the rename that completes it stays on one disk).
