@@ -41,6 +41,7 @@ fn saved(
         &SaveOptions {
             format: Some(format),
             normal_convention: Some(convention),
+            ..SaveOptions::default()
         },
     )
     .unwrap();
@@ -455,22 +456,35 @@ fn folder_without(skip: &[&str]) -> tempfile::TempDir {
 }
 
 #[test]
-fn missing_required_maps_list_the_names_looked_for() {
-    let e = error_of(load(folder_without(&["baseColor.png"]).path()));
-    assert!(
-        e.contains("no base colour map") && e.contains("albedo") && e.contains("basecolor"),
-        "{e}"
-    );
-    let e = error_of(load(folder_without(&["normal.png"]).path()));
-    assert!(e.contains("no normal map") && e.contains("nor"), "{e}");
-    let e = error_of(load(folder_without(&["roughness.png"]).path()));
-    assert!(
-        e.contains("no roughness map") && e.contains("gloss") && e.contains("arm"),
-        "{e}"
-    );
-    // Metallic and height are optional.
+fn missing_maps_stand_in_and_a_folder_without_maps_lists_the_names_looked_for() {
+    // Any map may be missing: a flat stand-in takes its place, and the material says which.
+    for (missing, kind) in [
+        ("baseColor.png", MapKind::BaseColor),
+        ("normal.png", MapKind::Normal),
+        ("roughness.png", MapKind::Roughness),
+    ] {
+        let m = load(folder_without(&[missing]).path()).unwrap();
+        assert_eq!(m.stand_ins(), [kind], "{missing}");
+        let map = m.map(kind).unwrap();
+        let value = kind.stand_in().unwrap();
+        assert_eq!((map.width(), map.height()), (128, 128));
+        for (c, &v) in value.iter().enumerate() {
+            assert!(map.plane(c).iter().all(|&x| x == v), "{missing}");
+        }
+    }
     let m = load(folder_without(&["metallic.png", "height.png"]).path()).unwrap();
     assert!(m.height.is_none() && m.metallic.data().iter().all(|&v| v == 0.0));
+    assert!(m.stand_ins().is_empty(), "metallic and height are optional");
+    // A folder of images none of which is a map.
+    let dir = tempfile::tempdir().unwrap();
+    image::GrayImage::new(8, 8)
+        .save(dir.path().join("preview.png"))
+        .unwrap();
+    let e = error_of(load(dir.path()));
+    assert!(
+        e.contains("no material maps found") && e.contains("albedo") && e.contains("rough"),
+        "{e}"
+    );
 }
 
 #[test]

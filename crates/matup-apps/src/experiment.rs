@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::html::{escape, href};
 use crate::view::write_view;
-use matup_core::io::{load_material, save_material, write_atomic, LoadOptions, SaveOptions};
+use matup_core::io::{load_material, save_material, write_atomic, LoadOptions, Names, SaveOptions};
 use matup_core::lights::LightSetSpec;
 use matup_core::material::{FileFormat, Material, NormalConvention};
 use matup_core::progress::Progress;
@@ -508,6 +508,7 @@ fn keep_output(out: &Path, run: &Run, name: &str, material: &Material) -> Result
     let save = SaveOptions {
         format: Some(FileFormat::Png8),
         normal_convention: Some(NormalConvention::DirectX),
+        names: Names::Matup,
     };
     let mut material = material.clone();
     material.origin = None; // its own files, not the input's formats

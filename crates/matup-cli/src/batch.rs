@@ -65,6 +65,7 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
         save: SaveOptions {
             format: args.settings.format,
             normal_convention: None,
+            names: args.settings.names,
         },
         load: args.load.options(Default::default()),
         shard,

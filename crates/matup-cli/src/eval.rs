@@ -30,7 +30,7 @@ pub struct EvalArgs {
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.lights > 0, "--lights must be at least 1");
     let candidate = load_material(Some(&args.candidate), &LoadOptions::default())?;
-    let Some(reference) = &args.reference else {
+    let Some(reference_folder) = &args.reference else {
         let seams = map_seams(&candidate);
         if args.json {
             let report = serde_json::json!({ "map_seams": seams });
@@ -40,7 +40,20 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     };
-    let reference = load_material(Some(reference), &LoadOptions::default())?;
+    let reference = load_material(Some(reference_folder), &LoadOptions::default())?;
+    // Renders need every map: say which ones stood in.
+    for (folder, material) in [
+        (reference_folder, &reference),
+        (&args.candidate, &candidate),
+    ] {
+        for kind in material.stand_ins() {
+            eprintln!(
+                "{}: no {kind} map; {} stands in for it in the renders",
+                folder.display(),
+                kind.stand_in_words()
+            );
+        }
+    }
     let model = shading_model(&args.shading)?;
     let e = evaluate(
         &reference,

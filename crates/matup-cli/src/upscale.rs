@@ -6,6 +6,7 @@ use anyhow::Context;
 use clap::Args;
 use matup_apps::folder::{upscale_to_folder, FolderRun};
 use matup_apps::view::write_run_view;
+use matup_core::io::Names;
 use matup_core::{FileFormat, LossNorm, SaveOptions};
 use matup_method::bands::default_memory_limit;
 use matup_method::config::{
@@ -176,6 +177,12 @@ pub struct SettingsArgs {
     /// tiff-float, tga); default: the input's.
     #[arg(long)]
     pub format: Option<FileFormat>,
+    /// The names maps are written under: keep (the input's own, a resolution tag such as _1K
+    /// rewritten to the output's size; packed and gloss files come back as such) or matup
+    /// (baseColor, normal, roughness, metallic, height). Maps matup does not render with
+    /// always keep theirs.
+    #[arg(long, default_value_t = Names::Keep)]
+    pub names: Names,
     /// Heap the output is made within, e.g. 4G or 512M (binary units; a bare number is MiB).
     /// Larger outputs are made in bands of rows and written as they finish. Default: a
     /// quarter of the machine's memory, between 1G and 16G.
@@ -298,6 +305,7 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
     let save = SaveOptions {
         format: args.settings.format,
         normal_convention: None,
+        names: args.settings.names,
     };
     let FolderRun {
         report,

@@ -72,6 +72,30 @@ impl MapKind {
         MapKind::AnisotropyAngle,
     ];
 
+    /// The value a material without this map has in its place (linear): mid grey (sRGB 0.5)
+    /// base colour, a flat normal, roughness 0.5 (Blender's default), no metal; none for the
+    /// optional maps.
+    pub fn stand_in(self) -> Option<&'static [f32]> {
+        match self {
+            MapKind::BaseColor => Some(&[0.214_041_14; 3]),
+            MapKind::Normal => Some(&[0.0, 0.0, 1.0]),
+            MapKind::Roughness => Some(&[0.5]),
+            MapKind::Metallic => Some(&[0.0]),
+            _ => None,
+        }
+    }
+
+    /// [`MapKind::stand_in`] in words, for messages.
+    pub fn stand_in_words(self) -> &'static str {
+        match self {
+            MapKind::BaseColor => "mid grey (sRGB 0.5)",
+            MapKind::Normal => "a flat normal",
+            MapKind::Roughness => "roughness 0.5",
+            MapKind::Metallic => "no metal",
+            _ => "nothing",
+        }
+    }
+
     /// The file stem matup writes this map under.
     pub fn file_stem(self) -> &'static str {
         match self {
@@ -182,6 +206,15 @@ pub struct MaterialOrigin {
     /// The file and format each map was read from.
     pub files: BTreeMap<MapKind, (PathBuf, FileFormat)>,
     pub normal_convention: NormalConvention,
+    /// The size of its maps: [width, height].
+    pub size: [usize; 2],
+    /// The packed occlusion/roughness/metallic file that supplied maps, if one did (its
+    /// occlusion channel is the extra map of that source).
+    pub packed: Option<PathBuf>,
+    /// Whether roughness came from a glossiness file (roughness = 1 − gloss).
+    pub roughness_from_gloss: bool,
+    /// Images of the folder that were not loaded, and why (a size of their own).
+    pub left_out: Vec<String>,
 }
 
 /// A physically based material: planar f32 maps of one size, conventions resolved.
@@ -202,7 +235,69 @@ pub struct Material {
     pub anisotropy: Option<Map>,
     /// Anisotropy direction in radians from +x, if any.
     pub anisotropy_angle: Option<Map>,
+    /// Alpha channels and the folder's other maps, carried through unrendered.
+    pub carried: Carried,
     pub origin: Option<MaterialOrigin>,
+}
+
+/// What a material carries beside the maps it is rendered with: matup upsamples these as
+/// pictures and writes them back, so nothing of the input is left behind.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Carried {
+    /// The alpha channel of a map's file (cutouts, decals), by the map it came with.
+    pub alpha: BTreeMap<MapKind, Map>,
+    /// Every other map of the folder (occlusion, opacity, emission, …).
+    pub extras: Vec<Extra>,
+}
+
+/// A map matup does not render with, as its file holds it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Extra {
+    /// The stem of the file it is written to: its own file's.
+    pub name: String,
+    /// The file it came from.
+    pub source: PathBuf,
+    pub format: FileFormat,
+    /// Grey or RGB; RGB as linear colour (decoded from sRGB when the file stores integers, as
+    /// base colour is), grey as stored.
+    pub map: Map,
+    /// Its alpha channel, if the file has one.
+    pub alpha: Option<Map>,
+}
+
+impl Carried {
+    /// Every map through `f`.
+    pub fn map_maps(&self, f: impl Fn(&Map) -> Map) -> Carried {
+        Carried {
+            alpha: self.alpha.iter().map(|(k, m)| (*k, f(m))).collect(),
+            extras: (self.extras.iter())
+                .map(|e| Extra {
+                    map: f(&e.map),
+                    alpha: e.alpha.as_ref().map(&f),
+                    ..e.clone()
+                })
+                .collect(),
+        }
+    }
+
+    /// Every map, in a fixed order (that of [`Carried::maps_mut`]).
+    pub fn maps(&self) -> impl Iterator<Item = &Map> {
+        (self.alpha.values()).chain(
+            (self.extras.iter()).flat_map(|e| std::iter::once(&e.map).chain(e.alpha.as_ref())),
+        )
+    }
+
+    /// Every map, in the order of [`Carried::maps`].
+    pub fn maps_mut(&mut self) -> impl Iterator<Item = &mut Map> {
+        (self.alpha.values_mut()).chain(
+            (self.extras.iter_mut())
+                .flat_map(|e| std::iter::once(&mut e.map).chain(e.alpha.as_mut())),
+        )
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.alpha.is_empty() && self.extras.is_empty()
+    }
 }
 
 impl Material {
@@ -216,6 +311,7 @@ impl Material {
             height: None,
             anisotropy: None,
             anisotropy_angle: None,
+            carried: Carried::default(),
             origin: None,
         }
     }
@@ -298,8 +394,43 @@ impl Material {
             height: self.height.as_ref().map(&f),
             anisotropy: self.anisotropy.as_ref().map(&f),
             anisotropy_angle: self.anisotropy_angle.as_ref().map(&f),
+            carried: self.carried.map_maps(&f),
             origin: self.origin.clone(),
         }
+    }
+
+    /// Every map the material has, carried ones included, in a fixed order (that of
+    /// [`Material::maps_mut`]).
+    pub fn maps(&self) -> impl Iterator<Item = &Map> {
+        (MapKind::ALL.into_iter().filter_map(|k| self.map(k))).chain(self.carried.maps())
+    }
+
+    /// Every map, in the order of [`Material::maps`].
+    pub fn maps_mut(&mut self) -> impl Iterator<Item = &mut Map> {
+        [
+            Some(&mut self.base_color),
+            Some(&mut self.normal),
+            Some(&mut self.roughness),
+            Some(&mut self.metallic),
+            self.height.as_mut(),
+            self.anisotropy.as_mut(),
+            self.anisotropy_angle.as_mut(),
+        ]
+        .into_iter()
+        .flatten()
+        .chain(self.carried.maps_mut())
+    }
+
+    /// The maps the input did not have, which stand in with [`MapKind::stand_in`] values (a
+    /// material without an origin has every map).
+    pub fn stand_ins(&self) -> Vec<MapKind> {
+        let Some(origin) = &self.origin else {
+            return Vec::new();
+        };
+        [MapKind::BaseColor, MapKind::Normal, MapKind::Roughness]
+            .into_iter()
+            .filter(|k| !origin.files.contains_key(k))
+            .collect()
     }
 
     /// Upsamples every map by `scale` with `kernel` (normals renormalised, values clamped

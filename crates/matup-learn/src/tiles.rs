@@ -199,6 +199,7 @@ impl TileLayout {
             height,
             anisotropy: tile.anisotropy.clone(),
             anisotropy_angle: tile.anisotropy_angle.clone(),
+            carried: Default::default(),
             origin: None,
         }
     }

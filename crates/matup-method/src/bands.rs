@@ -59,18 +59,7 @@ impl Band {
     pub fn keep(&self, out: &mut Material, scale: usize) {
         let skip = (self.first as isize - self.read_first) as usize * scale;
         let rows = self.rows * scale;
-        out.base_color.keep_rows(skip, rows);
-        out.normal.keep_rows(skip, rows);
-        out.roughness.keep_rows(skip, rows);
-        out.metallic.keep_rows(skip, rows);
-        for map in [
-            &mut out.height,
-            &mut out.anisotropy,
-            &mut out.anisotropy_angle,
-        ]
-        .into_iter()
-        .flatten()
-        {
+        for map in out.maps_mut() {
             map.keep_rows(skip, rows);
         }
     }
@@ -242,18 +231,8 @@ impl Assembler {
         let whole = self.material.get_or_insert_with(|| {
             band.map_maps(|m| Map::filled(m.width(), height, m.channels(), 0.0))
         });
-        whole.base_color.paste_rows(first, &band.base_color);
-        whole.normal.paste_rows(first, &band.normal);
-        whole.roughness.paste_rows(first, &band.roughness);
-        whole.metallic.paste_rows(first, &band.metallic);
-        for (into, from) in [
-            (&mut whole.height, &band.height),
-            (&mut whole.anisotropy, &band.anisotropy),
-            (&mut whole.anisotropy_angle, &band.anisotropy_angle),
-        ] {
-            if let (Some(into), Some(from)) = (into.as_mut(), from.as_ref()) {
-                into.paste_rows(first, from);
-            }
+        for (into, from) in whole.maps_mut().zip(band.maps()) {
+            into.paste_rows(first, from);
         }
     }
 

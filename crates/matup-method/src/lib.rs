@@ -5,6 +5,7 @@
 //! report. Built on `matup-core` and `matup-eval`.
 
 pub mod bands;
+pub mod carried;
 pub mod config;
 pub mod context;
 pub mod features;

@@ -19,7 +19,8 @@ use serde::{Deserialize, Serialize};
 /// Upsamples each map of `material` by `scale` with `upsampler`, as the map's file would be:
 /// base colour sRGB-encoded, normals as `(n + 1) / 2` colours (io's own encoding), grey maps
 /// as grey RGB images (the three results averaged back). Normals are renormalised and values
-/// clamped after.
+/// clamped after. The maps a material carries unrendered (alpha, occlusion, …) are no part of
+/// this baseline: they are left out.
 pub fn upscale_per_map(
     material: &Material,
     upsampler: &dyn RgbUpsampler,
@@ -27,6 +28,7 @@ pub fn upscale_per_map(
     border: Border,
 ) -> Result<Material> {
     let mut out = material.clone();
+    out.carried = Default::default();
     upscale_each_map(
         material,
         upsampler,
@@ -57,16 +59,30 @@ pub fn upscale_each_map(
         let Some(map) = material.map(kind) else {
             continue;
         };
-        let up = if let Some(flat) = flat_upsampled(map, scale) {
-            flat
-        } else if ensemble.covers(kind) {
-            upscale_map_ensemble(kind, map, upsampler, scale, border, ensemble.symmetries()?)?
-        } else {
-            upscale_map(kind, map, upsampler, scale, border)?
-        };
-        each(kind, up)?;
+        each(
+            kind,
+            upscale_one_map(kind, map, upsampler, scale, border, ensemble)?,
+        )?;
     }
     Ok(())
+}
+
+/// One map of `kind` upsampled as [`upscale_each_map`] upsamples it.
+pub fn upscale_one_map(
+    kind: MapKind,
+    map: &Map,
+    upsampler: &dyn RgbUpsampler,
+    scale: usize,
+    border: Border,
+    ensemble: SelfEnsemble,
+) -> Result<Map> {
+    if let Some(flat) = flat_upsampled(map, scale) {
+        Ok(flat)
+    } else if ensemble.covers(kind) {
+        upscale_map_ensemble(kind, map, upsampler, scale, border, ensemble.symmetries()?)
+    } else {
+        upscale_map(kind, map, upsampler, scale, border)
+    }
 }
 
 /// A map of `kind` upsampled once, as [`upscale_per_map`] upsamples it.

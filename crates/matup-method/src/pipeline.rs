@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::bands::{plan_bands, Assembler, BYTES_PER_BAND_TEXEL, ENSEMBLE_BYTES_PER_BAND_TEXEL};
+use crate::carried::{describe_carried, upscale_carried, CarriedUpsampling};
 use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
 use crate::context::{Context, RunOptions};
 use crate::fit::{infer_material, learn_level, TrainedFilter};
@@ -20,6 +21,7 @@ use matup_core::material::Material;
 use matup_core::progress::{Progress, Silent};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
+use matup_core::upsample::RgbUpsampler;
 use matup_core::{PluginSpec, Result};
 
 pub use crate::features::{constant_features, features};
@@ -88,6 +90,17 @@ pub fn upscale_streamed(
             if tileable { "yes" } else { "no" }
         ),
     });
+    let stand_ins = stand_in_notes(material, config);
+    for note in &stand_ins {
+        progress.note(note);
+    }
+    let left_out = material
+        .origin
+        .as_ref()
+        .map_or_else(Vec::new, |o| o.left_out.clone());
+    for why in &left_out {
+        progress.note(&format!("left out (not upscaled): {why}"));
+    }
     let run = |m: &Material, c: &Config, p: &dyn Progress| {
         upscale(m, c, &RunOptions::default(), p).map(|(result, _)| result)
     };
@@ -114,6 +127,11 @@ pub fn upscale_streamed(
     if material.anisotropy.is_some() || material.anisotropy_angle.is_some() {
         skipped.push("anisotropy maps: upsampled bilinearly, not learned".to_string());
     }
+    let carried = describe_carried(
+        material,
+        &upsampler_used,
+        carried_upsampling(config, upsampler.as_ref(), 1, Border::for_tiling(tileable)),
+    );
     let lights = config.lights.build();
     let ctx = Context {
         config,
@@ -177,6 +195,9 @@ pub fn upscale_streamed(
         total_seconds: start.elapsed().as_secs_f64(),
         final_loss,
         skipped,
+        carried,
+        stand_ins,
+        left_out,
         memory_limit_mib: options.memory_limit.map(|b| b as f64 / (1024.0 * 1024.0)),
         peak_memory_mib: peak_memory_mib(),
         threads: rayon::current_num_threads(),
@@ -309,6 +330,12 @@ fn run_level(
             })?);
             inner.advance(1, None);
         }
+        if !lr_band.carried.is_empty() {
+            let how = carried_upsampling(config, ctx.upsampler.as_ref(), scale, ctx.border);
+            hr.carried = timed(timings, tag("carried maps"), || {
+                upscale_carried(&lr_band.carried, how)
+            })?;
+        }
         if !whole {
             band.keep(&mut hr, scale);
         }
@@ -321,4 +348,42 @@ fn run_level(
         *single_filter = Some(t);
     }
     Ok(report)
+}
+
+/// How a run upsamples the maps a material carries: with its upsampler and self-ensemble,
+/// back-projected when its residual base is.
+fn carried_upsampling<'a>(
+    config: &Config,
+    upsampler: &'a dyn RgbUpsampler,
+    scale: usize,
+    border: Border,
+) -> CarriedUpsampling<'a> {
+    CarriedUpsampling {
+        upsampler,
+        ensemble: config.filter.self_ensemble(),
+        back_project: config.filter.back_project,
+        scale,
+        border,
+    }
+}
+
+/// A note for each map the input lacks: what stands in for it, where renders use it, and that
+/// it is not written.
+fn stand_in_notes(material: &Material, config: &Config) -> Vec<String> {
+    let renders = config.train.epochs > 0 || config.select != crate::config::Selection::Off;
+    material
+        .stand_ins()
+        .into_iter()
+        .map(|kind| {
+            format!(
+                "the input has no {kind} map: {} stands in for it{}; none is written",
+                kind.stand_in_words(),
+                if renders {
+                    " in the renders this run fits to"
+                } else {
+                    ""
+                }
+            )
+        })
+        .collect()
 }

@@ -35,6 +35,13 @@ pub struct RunReport {
     pub final_loss: Option<f64>,
     /// Work skipped because the material could not use it.
     pub skipped: Vec<String>,
+    /// The maps carried beside the rendered ones (alpha channels, occlusion, opacity, …) and
+    /// how each was upsampled.
+    pub carried: Vec<String>,
+    /// Maps the input lacks, and what stood in for them.
+    pub stand_ins: Vec<String>,
+    /// Images of the input folder that were not upscaled, and why.
+    pub left_out: Vec<String>,
     /// The heap the output's bands were planned within (`--memory-limit`), in MiB; none: one
     /// band per level.
     pub memory_limit_mib: Option<f64>,

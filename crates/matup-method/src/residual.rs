@@ -56,6 +56,17 @@ pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
 /// mismatch is spread back over the output texels bilinearly, a few times. Values are kept in
 /// their ranges.
 pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
+    back_project_within(hr, lr, scale, border, feature_range);
+}
+
+/// [`back_project`] for any map, channel `c`'s values kept in `range(c)`.
+pub fn back_project_within(
+    hr: &mut Map,
+    lr: &Map,
+    scale: usize,
+    border: Border,
+    range: impl Fn(usize) -> (f32, f32),
+) {
     for _ in 0..BACK_PROJECTIONS {
         let seen = box_downsample(hr, scale);
         // One feature at a time: the correction of all of them at once, at the output size,
@@ -66,7 +77,7 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
                 .collect();
             let mismatch = Map::from_planar(lr.width(), lr.height(), 1, mismatch);
             let correction = upsample(&mismatch, scale, Kernel::Bilinear, border);
-            let (lo, hi) = feature_range(c);
+            let (lo, hi) = range(c);
             hr.plane_mut(c)
                 .par_iter_mut()
                 .zip(correction.data())
@@ -123,6 +134,7 @@ fn feature_maps(lr: &Material) -> Material {
         height: None,
         anisotropy: None,
         anisotropy_angle: None,
+        carried: Default::default(),
         ..lr.clone()
     }
 }

@@ -42,8 +42,9 @@ impl fmt::Display for Role {
     }
 }
 
-/// Name parts that mark a file as something matup does not use (it is skipped).
-const IGNORED: &[&str] = &[
+/// Name parts of maps that matup does not render with: such files are carried along (upsampled
+/// and written back, see [`Discovered::extras`]), never read as one of the roles.
+const CARRIED: &[&str] = &[
     "ao",
     "ambientocclusion",
     "occlusion",
@@ -53,9 +54,6 @@ const IGNORED: &[&str] = &[
     "emissive",
     "specular",
     "spec",
-    "preview",
-    "thumbnail",
-    "thumb",
     "sheen",
     "subsurface",
     "sss",
@@ -66,6 +64,9 @@ const IGNORED: &[&str] = &[
     "idmask",
     "curvature",
 ];
+
+/// Name parts of images that are no maps (pictures of the material): skipped.
+const NOT_MAPS: &[&str] = &["preview", "thumbnail", "thumb", "swatch", "icon"];
 
 /// The name parts of each role, checked in this order (specific before generic).
 pub const ROLE_WORDS: &[(Role, &[&str])] = &[
@@ -134,15 +135,38 @@ pub struct Recognised {
     pub convention: Option<NormalConvention>,
 }
 
-/// The role of a file whose name parts (shared material-name prefix removed) are `parts`.
-fn recognise(parts: &[String]) -> Option<Recognised> {
+/// What a file of a material folder is, from its name.
+#[derive(Clone, Debug, PartialEq)]
+enum Kind {
+    Role(Recognised),
+    /// A map matup carries along: a known kind it does not render with, or an unknown name.
+    Carried,
+    /// A picture of the material, no map.
+    NotAMap,
+}
+
+/// What a file whose name parts (shared material-name prefix removed) are `parts` holds.
+fn classify(parts: &[String]) -> Kind {
     // Words and adjacent pairs glued together, so "base_color" reads as "basecolor" too.
     let mut candidates: Vec<String> = parts.to_vec();
     candidates.extend(parts.windows(2).map(|w| format!("{}{}", w[0], w[1])));
     let has = |list: &[&str]| candidates.iter().any(|c| list.contains(&c.as_str()));
-    if has(IGNORED) {
-        return None;
+    // A file named after the material alone is its picture (ambientCG's `Leather025.png`).
+    if parts.is_empty() || has(NOT_MAPS) {
+        return Kind::NotAMap;
     }
+    if has(CARRIED) {
+        return Kind::Carried;
+    }
+    match recognise(&candidates) {
+        Some(r) => Kind::Role(r),
+        None => Kind::Carried,
+    }
+}
+
+/// The role named by `candidates` (name parts and adjacent pairs), if any.
+fn recognise(candidates: &[String]) -> Option<Recognised> {
+    let has = |list: &[&str]| candidates.iter().any(|c| list.contains(&c.as_str()));
     let (role, _) = ROLE_WORDS.iter().find(|(_, list)| has(list))?;
     let role = if *role == Role::Anisotropy && has(ANISOTROPY_DIRECTION_WORDS) {
         Role::AnisotropyAngle
@@ -167,6 +191,9 @@ fn recognise(parts: &[String]) -> Option<Recognised> {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Discovered {
     pub files: BTreeMap<Role, (PathBuf, Option<NormalConvention>)>,
+    /// The other images that are maps (occlusion, opacity, emission, unknown names), sorted:
+    /// carried along. Previews and thumbnails are not among them.
+    pub extras: Vec<PathBuf>,
 }
 
 /// Assigns the image files of `folder` to roles. When a normal map exists in both
@@ -208,13 +235,16 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
     };
 
     let mut claims: BTreeMap<Role, Vec<(PathBuf, Option<NormalConvention>)>> = BTreeMap::new();
+    let mut extras = Vec::new();
     for (path, parts) in images.iter().zip(&stems) {
         let parts = &parts[shared.min(parts.len())..];
-        if let Some(r) = recognise(parts) {
-            claims
+        match classify(parts) {
+            Kind::Role(r) => claims
                 .entry(r.role)
                 .or_default()
-                .push((path.clone(), r.convention));
+                .push((path.clone(), r.convention)),
+            Kind::Carried => extras.push(path.clone()),
+            Kind::NotAMap => {}
         }
     }
 
@@ -253,7 +283,7 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         }
         files.insert(role, candidates.pop().unwrap());
     }
-    Ok(Discovered { files })
+    Ok(Discovered { files, extras })
 }
 
 /// The name parts matup looks for, for an error message about a missing map.
@@ -271,7 +301,10 @@ mod tests {
     use super::*;
 
     fn role_of(name: &str) -> Option<(Role, Option<NormalConvention>)> {
-        recognise(&words(name)).map(|r| (r.role, r.convention))
+        match classify(&words(name)) {
+            Kind::Role(r) => Some((r.role, r.convention)),
+            _ => None,
+        }
     }
 
     #[test]
@@ -315,11 +348,28 @@ mod tests {
             ("x_AmbientOcclusion", None),
             ("x_ao_1k", None),
             ("x_Opacity", None),
+            ("x_preview", None),
             ("x_anisotropy", Some((Anisotropy, None))),
             ("x_anisotropy_direction", Some((AnisotropyAngle, None))),
         ];
         for (name, want) in cases {
             assert_eq!(role_of(name), want, "{name}");
+        }
+    }
+
+    #[test]
+    fn maps_without_a_role_are_carried_and_pictures_are_not() {
+        for name in [
+            "x_AmbientOcclusion",
+            "x_ao_1k",
+            "x_Opacity",
+            "x_Emission",
+            "x_wear",
+        ] {
+            assert_eq!(classify(&words(name)), Kind::Carried, "{name}");
+        }
+        for name in ["x_preview", "Thumbnail", "x_swatch_1k", ""] {
+            assert_eq!(classify(&words(name)), Kind::NotAMap, "{name}");
         }
     }
 }

@@ -13,10 +13,25 @@ use crate::map::Map;
 use crate::material::FileFormat;
 use crate::{Error, Result};
 
-/// An image as stored: its values (integers scaled to [0, 1], EXR as is) and its format.
+/// An image as stored: its values (integers scaled to [0, 1], EXR as is), grey or RGB with
+/// or without alpha (the last channel), and its format.
 pub(crate) struct ImageFile {
     pub map: Map,
     pub format: FileFormat,
+}
+
+impl ImageFile {
+    /// The colour channels (grey or RGB) and the alpha channel, if the file has one.
+    pub fn split_alpha(self) -> (Map, Option<Map>) {
+        match self.map.channels() {
+            2 | 4 => {
+                let colour: Vec<usize> = (0..self.map.channels() - 1).collect();
+                let alpha = self.map.select_channels(&[self.map.channels() - 1]);
+                (self.map.select_channels(&colour), Some(alpha))
+            }
+            _ => (self.map, None),
+        }
+    }
 }
 
 /// The file extensions matup reads.
@@ -37,7 +52,7 @@ fn has_extension(path: &Path, extensions: &[&str]) -> bool {
 }
 
 /// Reads an image, refusing (from the header, before decoding) images with more than
-/// `max_texels` texels. Alpha channels are dropped; grey stays one channel.
+/// `max_texels` texels. Channels as stored: grey, grey + alpha, RGB or RGBA.
 pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
     if !path.is_file() {
         return Err(Error::file(path, "no such file"));
@@ -111,16 +126,6 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
         }
     };
     let channels = image.color().channel_count() as usize;
-    let keep = match channels {
-        1 | 2 => 1, // grey, grey + alpha
-        3 | 4 => 3, // RGB, RGBA
-        n => {
-            return Err(Error::file(
-                path,
-                format!("unsupported channel layout ({n} channels)"),
-            ))
-        }
-    };
     let (w, h) = (w as usize, h as usize);
     let interleaved: Vec<f32> = match &image {
         DynamicImage::ImageLuma8(b) => b.as_raw().iter().map(|&v| v as f32 / 255.0).collect(),
@@ -138,7 +143,7 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
             ))
         }
     };
-    let map = Map::from_fn(w, h, keep, |c, y, x| {
+    let map = Map::from_fn(w, h, channels, |c, y, x| {
         interleaved[(y * w + x) * channels + c]
     });
     Ok(ImageFile { map, format })
@@ -174,7 +179,7 @@ fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
             .iter()
             .find(|c| c.name.to_string().eq_ignore_ascii_case(name))
     };
-    let picked: Vec<_> = match (find("R"), find("G"), find("B"), find("Y")) {
+    let mut picked: Vec<_> = match (find("R"), find("G"), find("B"), find("Y")) {
         (Some(r), Some(g), Some(b), _) => vec![r, g, b],
         (_, _, _, Some(y)) => vec![y],
         _ if channels.len() == 1 => vec![&channels[0]],
@@ -183,12 +188,14 @@ fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
             return Err(Error::file(
                 path,
                 format!(
-                    "unsupported channel layout: channels {}; expected R, G, B or a single grey channel",
+                    "unsupported channel layout: channels {}; expected R, G, B (and A) or a \
+                     single grey channel (and A)",
                     names.join(", ")
                 ),
             ));
         }
     };
+    picked.extend(find("A").filter(|_| channels.len() > picked.len()));
     let half = picked
         .iter()
         .all(|c| matches!(c.sample_data, ex::FlatSamples::F16(_)));
@@ -237,7 +244,7 @@ fn check_finite(
     }
 }
 
-/// TIFF through the tiff crate: grey or RGB (alpha dropped), 8 or 16-bit integers, or 16, 32 or
+/// TIFF through the tiff crate: grey or RGB, with or without alpha, 8 or 16-bit integers, or 16, 32 or
 /// 64-bit floats (read as float, linear); strips or tiles, chunky or planar.
 fn read_tiff(path: &Path, max_texels: u64) -> Result<ImageFile> {
     use tiff::decoder::{Decoder, DecodingResult, Limits};
@@ -253,15 +260,15 @@ fn read_tiff(path: &Path, max_texels: u64) -> Result<ImageFile> {
     let (w, h) = decoder.dimensions().map_err(bad)?;
     let (w, h) = (w as usize, h as usize);
     check_size(path, w, h, max_texels)?;
-    let (channels, keep) = match decoder.colortype().map_err(bad)? {
-        ColorType::Gray(_) => (1, 1),
-        ColorType::GrayA(_) => (2, 1),
-        ColorType::RGB(_) => (3, 3),
-        ColorType::RGBA(_) => (4, 3),
+    let channels = match decoder.colortype().map_err(bad)? {
+        ColorType::Gray(_) => 1,
+        ColorType::GrayA(_) => 2,
+        ColorType::RGB(_) => 3,
+        ColorType::RGBA(_) => 4,
         other => {
             return Err(Error::file(
                 path,
-                format!("unsupported TIFF colour type {other:?}; use grey or RGB"),
+                format!("unsupported TIFF colour type {other:?}; use grey or RGB (with alpha)"),
             ))
         }
     };
@@ -310,14 +317,14 @@ fn read_tiff(path: &Path, max_texels: u64) -> Result<ImageFile> {
         check_finite(path, &values[..w * h * channels], w, channels, "the image")?;
     }
     let n = w * h;
-    let map = Map::from_fn(w, h, keep, |c, y, x| {
+    let map = Map::from_fn(w, h, channels, |c, y, x| {
         let i = y * w + x;
         values[if planar { c * n + i } else { i * channels + c }]
     });
     Ok(ImageFile { map, format })
 }
 
-/// Writes a 1- or 3-channel map (values already in the file's encoding: [0, 1] for integer
+/// Writes a grey or RGB map, either with alpha (values already in the file's encoding: [0, 1] for integer
 /// formats) atomically, as one band of [`super::stream::ImageWriter`].
 pub(crate) fn write_image(path: &Path, map: &Map, format: FileFormat) -> Result<()> {
     super::stream::write_whole(path, map, format)

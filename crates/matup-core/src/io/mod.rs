@@ -15,8 +15,8 @@ pub use stream::ImageWriter;
 use crate::color::{linear_to_srgb, srgb_to_linear};
 use crate::map::Map;
 use crate::material::{
-    normalize_normals, FileFormat, MapKind, Material, MaterialOrigin, NormalConvention,
-    MIN_ROUGHNESS,
+    normalize_normals, Carried, Extra, FileFormat, MapKind, Material, MaterialOrigin,
+    NormalConvention, MIN_ROUGHNESS,
 };
 use crate::{Error, Result};
 pub use image_file::encode_png8;
@@ -78,8 +78,11 @@ impl Default for LoadOptions {
 }
 
 /// Loads the material in `folder` (maps recognised by name; see [`discover`]), with explicit
-/// files from `options.paths` taking precedence. `folder` may be `None` when base colour,
-/// normal and roughness are all given explicitly.
+/// files from `options.paths` taking precedence. `folder` may be `None` when the maps are
+/// given explicitly. Any of base colour, normal, roughness and metallic may be missing: its
+/// [`MapKind::stand_in`] takes its place ([`Material::stand_ins`] says which). Alpha
+/// channels and the folder's other maps are carried ([`Material::carried`]); other maps of
+/// another size are left out, and [`MaterialOrigin::left_out`] says so.
 pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Material> {
     let preferred = options.normal_convention.unwrap_or_default();
     let discovered = match folder {
@@ -102,66 +105,64 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
             None => discovered.files.get(&role).cloned(),
         }
     };
-    let missing = |what: &str, roles: &[Role]| {
-        Error::material(
-            &origin_folder,
-            format!(
-                "no {what} map found; looked for file names containing {} (or pass the file explicitly)",
-                discover::looked_for(roles)
-            ),
-        )
-    };
 
     let mut reader = Reader {
         max_texels: options.max_texels,
         files: BTreeMap::new(),
         sizes: Vec::new(),
         packed_format: FileFormat::Png8,
+        alpha: BTreeMap::new(),
     };
 
-    let (base_path, _) =
-        pick(Role::BaseColor).ok_or_else(|| missing("base colour", &[Role::BaseColor]))?;
-    let base_color = reader.read(MapKind::BaseColor, &base_path, Layout::Color)?;
-    let base_linear = reader.format(MapKind::BaseColor).is_float();
-    let base_color = if base_linear {
-        base_color
-    } else {
-        base_color.map_values(srgb_to_linear)
+    let base_color = match pick(Role::BaseColor) {
+        Some((path, _)) => {
+            let map = reader.read(MapKind::BaseColor, &path, Layout::Color)?;
+            Some(if reader.format(MapKind::BaseColor).is_float() {
+                map
+            } else {
+                map.map_values(srgb_to_linear)
+            })
+        }
+        None => None,
     };
 
-    let (normal_path, named_convention) =
-        pick(Role::Normal).ok_or_else(|| missing("normal", &[Role::Normal]))?;
-    let convention = named_convention.unwrap_or(preferred);
-    let mut normal = reader.read(MapKind::Normal, &normal_path, Layout::Vector)?;
-    decode_normals(&mut normal, convention);
+    let normal_pick = pick(Role::Normal);
+    let convention = normal_pick
+        .as_ref()
+        .and_then(|(_, named)| *named)
+        .unwrap_or(preferred);
+    let normal = match &normal_pick {
+        Some((path, _)) => {
+            let mut normal = reader.read(MapKind::Normal, path, Layout::Vector)?;
+            decode_normals(&mut normal, convention);
+            Some(normal)
+        }
+        None => None,
+    };
 
     // Dedicated maps win over glossiness, which wins over packed channels: the packed file is
-    // read only when it supplies something.
-    let packed = pick(Role::Packed).map(|(p, _)| p).filter(|_| {
-        pick(Role::Metallic).is_none()
-            || (pick(Role::Roughness).is_none() && pick(Role::Gloss).is_none())
-    });
+    // read only when it supplies something; otherwise it is carried as it is.
+    let packed_file = pick(Role::Packed).map(|(p, _)| p);
+    let packed_supplies = pick(Role::Metallic).is_none()
+        || (pick(Role::Roughness).is_none() && pick(Role::Gloss).is_none());
+    let packed = packed_file.clone().filter(|_| packed_supplies);
     let packed_map = match &packed {
         Some(p) => Some(reader.read_packed(p)?),
         None => None,
     };
 
+    let roughness_from_gloss = pick(Role::Roughness).is_none() && pick(Role::Gloss).is_some();
     let roughness = if let Some((p, _)) = pick(Role::Roughness) {
-        reader.read(MapKind::Roughness, &p, Layout::Scalar)?
+        Some(reader.read(MapKind::Roughness, &p, Layout::Scalar)?)
     } else if let Some((p, _)) = pick(Role::Gloss) {
-        reader
-            .read(MapKind::Roughness, &p, Layout::Scalar)?
-            .map_values(|g| 1.0 - g)
+        let gloss = reader.read(MapKind::Roughness, &p, Layout::Scalar)?;
+        Some(gloss.map_values(|g| 1.0 - g))
     } else if let (Some(p), Some(m)) = (&packed, &packed_map) {
         reader.note(MapKind::Roughness, p, reader.packed_format);
-        m.select_channels(&[1])
+        Some(m.select_channels(&[1]))
     } else {
-        return Err(missing(
-            "roughness",
-            &[Role::Roughness, Role::Gloss, Role::Packed],
-        ));
+        None
     };
-    let roughness = roughness.map_values(|r| r.clamp(MIN_ROUGHNESS, 1.0));
 
     let metallic = if let Some((p, _)) = pick(Role::Metallic) {
         Some(reader.read(MapKind::Metallic, &p, Layout::Scalar)?)
@@ -189,25 +190,107 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         None => None,
     };
 
+    let Some((w, h)) = reader.size() else {
+        return Err(Error::material(
+            &origin_folder,
+            format!(
+                "no material maps found; looked for file names containing {} (or pass the \
+                 files explicitly)",
+                discover::looked_for(&[Role::BaseColor, Role::Normal, Role::Roughness])
+            ),
+        ));
+    };
     reader.check_sizes(&origin_folder)?;
-    let (w, h) = (base_color.width(), base_color.height());
-    let metallic = metallic
-        .unwrap_or_else(|| Map::filled(w, h, 1, 0.0))
-        .map_values(|m| m.clamp(0.0, 1.0));
+
+    // The packed file's occlusion channel, when it supplied roughness or metallic; the whole
+    // file when it did not; and every other map of the folder.
+    let mut extras = Vec::new();
+    let mut left_out = Vec::new();
+    if let (Some(path), Some(m)) = (&packed, &packed_map) {
+        extras.push(Extra {
+            name: "occlusion".into(),
+            source: path.clone(),
+            format: reader.packed_format,
+            map: m.select_channels(&[0]),
+            alpha: None,
+        });
+    }
+    let unread_packed = packed_file.filter(|_| !packed_supplies);
+    for path in unread_packed.iter().chain(&discovered.extras) {
+        match read_extra(path, options.max_texels, (w, h))? {
+            Ok(extra) => extras.push(extra),
+            Err(why) => left_out.push(why),
+        }
+    }
+
+    let stand_in = |kind: MapKind, channels: usize| {
+        let value = kind.stand_in().expect("the core maps have stand-ins");
+        Map::from_fn(w, h, channels, |c, _, _| value[c])
+    };
     Ok(Material {
-        base_color,
-        normal,
-        roughness,
-        metallic,
+        base_color: base_color.unwrap_or_else(|| stand_in(MapKind::BaseColor, 3)),
+        normal: normal.unwrap_or_else(|| stand_in(MapKind::Normal, 3)),
+        roughness: roughness
+            .unwrap_or_else(|| stand_in(MapKind::Roughness, 1))
+            .map_values(|r| r.clamp(MIN_ROUGHNESS, 1.0)),
+        metallic: metallic
+            .unwrap_or_else(|| stand_in(MapKind::Metallic, 1))
+            .map_values(|m| m.clamp(0.0, 1.0)),
         height,
         anisotropy,
         anisotropy_angle,
+        carried: Carried {
+            alpha: reader.alpha,
+            extras,
+        },
         origin: Some(MaterialOrigin {
             folder: origin_folder,
             files: reader.files,
             normal_convention: convention,
+            size: [w, h],
+            packed,
+            roughness_from_gloss,
+            left_out,
         }),
     })
+}
+
+/// An extra map of a material `size` texels wide and tall: `Ok(Err(why))` when it is left
+/// out for a size of its own (a picture, a map of another resolution).
+fn read_extra(
+    path: &Path,
+    max_texels: u64,
+    size: (usize, usize),
+) -> Result<std::result::Result<Extra, String>> {
+    let file = read_image(path, max_texels)?;
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    if (file.map.width(), file.map.height()) != size {
+        return Ok(Err(format!(
+            "{name}: {}×{}, the material's maps are {}×{}",
+            file.map.width(),
+            file.map.height(),
+            size.0,
+            size.1
+        )));
+    }
+    let format = file.format;
+    let (map, alpha) = file.split_alpha();
+    let map = if map.channels() == 3 && !format.is_float() {
+        map.map_values(srgb_to_linear)
+    } else {
+        map
+    };
+    Ok(Ok(Extra {
+        name: path
+            .file_stem()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned(),
+        source: path.to_path_buf(),
+        format,
+        map,
+        alpha,
+    }))
 }
 
 /// The channel layout a map needs.
@@ -221,12 +304,13 @@ enum Layout {
     Scalar,
 }
 
-/// Reads the maps of one material, remembering files, formats and sizes.
+/// Reads the maps of one material, remembering files, formats, sizes and alpha channels.
 struct Reader {
     max_texels: u64,
     files: BTreeMap<MapKind, (PathBuf, FileFormat)>,
     sizes: Vec<(PathBuf, usize, usize)>,
     packed_format: FileFormat,
+    alpha: BTreeMap<MapKind, Map>,
 }
 
 impl Reader {
@@ -245,10 +329,19 @@ impl Reader {
         self.files[&kind].1
     }
 
+    /// The size of the maps read so far: that of the first.
+    fn size(&self) -> Option<(usize, usize)> {
+        self.sizes.first().map(|(_, w, h)| (*w, *h))
+    }
+
+    /// A map's colour channels in `layout`; its alpha channel, if any, is kept aside.
     fn read(&mut self, kind: MapKind, path: &Path, layout: Layout) -> Result<Map> {
         let file = self.load(path)?;
         self.note(kind, path, file.format);
-        let map = file.map;
+        let (map, alpha) = file.split_alpha();
+        if let Some(alpha) = alpha {
+            self.alpha.insert(kind, alpha);
+        }
         match (layout, map.channels()) {
             (Layout::Color, 1) => Ok(map.select_channels(&[0, 0, 0])),
             (Layout::Color | Layout::Vector, 3) => Ok(map),
@@ -272,7 +365,7 @@ impl Reader {
 
     fn read_packed(&mut self, path: &Path) -> Result<Map> {
         let file = self.load(path)?;
-        if file.map.channels() != 3 {
+        if file.map.channels() < 3 {
             return Err(Error::file(
                 path,
                 "unsupported channel layout for a packed occlusion/roughness/metallic map: \
@@ -330,7 +423,28 @@ pub struct SaveOptions {
     pub format: Option<FileFormat>,
     /// Convention of the written normal map; by default the input's.
     pub normal_convention: Option<NormalConvention>,
+    /// The names the maps are written under.
+    pub names: Names,
 }
+
+/// The names a material's maps are written under.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Names {
+    /// The input's own file names (a resolution tag such as `_1K` rewritten to the output's
+    /// size), so the output folder drops in where the input was, as per-map upscalers do; a
+    /// packed occlusion/roughness/metallic file comes back packed, a gloss map as gloss.
+    #[default]
+    Keep,
+    /// matup's: `baseColor`, `normal`, `roughness`, `metallic`, `height` (packed and gloss
+    /// inputs unpacked and converted); other maps keep theirs.
+    Matup,
+}
+
+serde_plain::derive_display_from_serialize!(Names);
+serde_plain::derive_fromstr_from_deserialize!(Names, |e| -> Error {
+    Error::Invalid(format!("names: {e}"))
+});
 
 /// Refuses an output folder that is (or holds a source file of) the input.
 pub fn check_output_folder(out_dir: &Path, origin: Option<&MaterialOrigin>) -> Result<()> {
@@ -355,10 +469,10 @@ pub fn check_output_folder(out_dir: &Path, origin: Option<&MaterialOrigin>) -> R
     Ok(())
 }
 
-/// Saves every map of `material` into `out_dir` (created if needed) as
-/// `baseColor.<ext>`, `normal.<ext>`, `roughness.<ext>`, `metallic.<ext>`, `height.<ext>`,
-/// each written atomically. Metallic is written when the input had one or it is not all zero.
-/// Returns the written files.
+/// Saves every map of `material` into `out_dir` (created if needed), each with its alpha
+/// channel if its input had one, under the input's names or matup's ([`Names`]), the carried
+/// extra maps under their own; each written atomically. A map the input lacked is written only
+/// if it differs from its stand-in. Returns the written files.
 pub fn save_material(
     material: &Material,
     out_dir: &Path,
@@ -384,22 +498,44 @@ pub struct MaterialWriter {
     origin: Option<MaterialOrigin>,
     format: Option<FileFormat>,
     convention: NormalConvention,
+    names: Names,
     /// Opened with the first band, which says what maps there are.
     maps: Vec<MapWriter>,
 }
 
+/// What a file holds of a band.
+#[derive(Clone, Copy, PartialEq)]
+enum Written {
+    Core(MapKind),
+    /// Roughness stored as glossiness (1 − roughness), as the input stored it.
+    Gloss,
+    /// The band's i-th extra map.
+    Extra(usize),
+    /// Occlusion (the i-th extra map, or none: white), roughness and metallic packed in RGB.
+    Packed(Option<usize>),
+}
+
+/// A file [`MaterialWriter`] will write: what of a band, under which stem, how.
+struct PlannedFile {
+    what: Written,
+    stem: String,
+    channels: usize,
+    format: FileFormat,
+    stand_in: Option<&'static [f32]>,
+}
+
 struct MapWriter {
-    kind: MapKind,
+    what: Written,
     file: ImageWriter,
-    /// A metallic map the input did not have is written only if it is not all zero.
-    only_if_nonzero: bool,
-    all_zero: bool,
+    /// A map the input did not have is written only if it differs from its stand-in.
+    stand_in: Option<&'static [f32]>,
+    all_stand_in: bool,
 }
 
 impl MaterialWriter {
-    /// For a material of `size` ([width, height]) from `origin` (whose formats and normal
-    /// convention it keeps unless `options` say otherwise) into `out_dir` (created; never the
-    /// input folder).
+    /// For a material of `size` ([width, height]) from `origin` (whose formats, names and
+    /// normal convention it keeps unless `options` say otherwise) into `out_dir` (created;
+    /// never the input folder).
     pub fn new(
         out_dir: &Path,
         size: [usize; 2],
@@ -418,6 +554,7 @@ impl MaterialWriter {
             origin: origin.cloned(),
             format: options.format,
             convention,
+            names: options.names,
             maps: Vec::new(),
         })
     }
@@ -427,20 +564,42 @@ impl MaterialWriter {
         if self.maps.is_empty() {
             self.open(band)?;
         }
-        let formats: Vec<FileFormat> = self.maps.iter().map(|m| self.format_of(m.kind)).collect();
-        for (map, format) in self.maps.iter_mut().zip(formats) {
-            let rows = band.map(map.kind).ok_or_else(|| {
-                Error::Invalid(format!("a band of the output lacks its {} map", map.kind))
-            })?;
-            if map.only_if_nonzero && map.all_zero {
-                map.all_zero = rows.data().iter().all(|&v| v == 0.0);
-            }
-            map.file.write_rows(&encode_map(
-                map.kind,
-                rows,
-                format.is_float(),
-                self.convention,
-            ))?;
+        let missing =
+            || Error::Invalid("a band of the output lacks one of the material's maps".into());
+        for map in self.maps.iter_mut() {
+            let float = map.file.format().is_float();
+            let (encoded, alpha) = match map.what {
+                Written::Core(kind) => {
+                    let rows = band.map(kind).ok_or_else(missing)?;
+                    if let (Some(value), true) = (map.stand_in, map.all_stand_in) {
+                        map.all_stand_in = (0..rows.channels())
+                            .all(|c| (rows.plane(c).iter()).all(|&v| (v - value[c]).abs() <= 1e-5));
+                    }
+                    let encoded = encode_map(kind, rows, float, self.convention);
+                    (encoded, band.carried.alpha.get(&kind))
+                }
+                Written::Gloss => (
+                    band.roughness.clone().map_values(|r| 1.0 - r),
+                    band.carried.alpha.get(&MapKind::Roughness),
+                ),
+                Written::Extra(i) => {
+                    let extra = band.carried.extras.get(i).ok_or_else(missing)?;
+                    (encode_extra(&extra.map, float), extra.alpha.as_ref())
+                }
+                Written::Packed(occlusion) => {
+                    let occlusion = match occlusion {
+                        Some(i) => band.carried.extras.get(i).ok_or_else(missing)?.map.clone(),
+                        None => Map::filled(band.width(), band.height_px(), 1, 1.0),
+                    };
+                    let packed = Map::stack(&[&occlusion, &band.roughness, &band.metallic]);
+                    (packed, None)
+                }
+            };
+            let encoded = match alpha {
+                Some(alpha) => Map::stack(&[&encoded, alpha]),
+                None => encoded,
+            };
+            map.file.write_rows(&encoded)?;
         }
         Ok(())
     }
@@ -449,7 +608,7 @@ impl MaterialWriter {
     pub fn finish(self) -> Result<Vec<PathBuf>> {
         let mut written = Vec::new();
         for map in self.maps {
-            if map.only_if_nonzero && map.all_zero {
+            if map.stand_in.is_some() && map.all_stand_in {
                 continue; // dropped: its temporary file goes with it
             }
             written.push(map.file.finish()?);
@@ -457,38 +616,171 @@ impl MaterialWriter {
         Ok(written)
     }
 
-    fn format_of(&self, kind: MapKind) -> FileFormat {
-        self.format
-            .or(self
-                .origin
-                .as_ref()
-                .and_then(|o| o.files.get(&kind).map(|f| f.1)))
-            .unwrap_or(FileFormat::Png8)
+    /// The input file a map of `kind` came from, if it did.
+    fn source(&self, kind: MapKind) -> Option<&(PathBuf, FileFormat)> {
+        self.origin.as_ref().and_then(|o| o.files.get(&kind))
+    }
+
+    /// The output stem of an input file: its own, with its resolution tag rewritten.
+    fn kept_name(&self, source: &Path) -> String {
+        let stem = source.file_stem().unwrap_or_default().to_string_lossy();
+        match &self.origin {
+            Some(o) => retag(&stem, o.size[0], self.size[0]),
+            None => stem.into_owned(),
+        }
     }
 
     fn open(&mut self, band: &Material) -> Result<()> {
-        let [w, h] = self.size;
+        let keep = self.names == Names::Keep;
+        let packed = self
+            .origin
+            .as_ref()
+            .and_then(|o| o.packed.clone())
+            .filter(|_| keep);
+        let from_packed =
+            |kind| packed.is_some() && self.source(kind).map(|s| &s.0) == packed.as_ref();
+        let mut plan: Vec<PlannedFile> = Vec::new();
         for kind in MapKind::ALL {
             let Some(map) = band.map(kind) else {
                 continue;
             };
-            let format = self.format_of(kind);
-            let path = self
-                .out_dir
-                .join(format!("{}.{}", kind.file_stem(), format.extension()));
-            let had_source = self
-                .origin
-                .as_ref()
-                .is_some_and(|o| o.files.contains_key(&kind));
+            if from_packed(kind) {
+                continue; // written packed below
+            }
+            let source = self.source(kind).cloned();
+            let format = self
+                .format
+                .or(source.as_ref().map(|s| s.1))
+                .unwrap_or(FileFormat::Png8);
+            let stem = match (&source, keep) {
+                (Some((path, _)), true) => self.kept_name(path),
+                _ => kind.file_stem().to_string(),
+            };
+            let gloss = keep
+                && kind == MapKind::Roughness
+                && self.origin.as_ref().is_some_and(|o| o.roughness_from_gloss);
+            // Without an origin every map counts as given, but a metallic map of zeros.
+            let had_source = match &self.origin {
+                Some(_) => source.is_some(),
+                None => kind != MapKind::Metallic,
+            };
+            let alpha = band.carried.alpha.contains_key(&kind) as usize;
+            plan.push(PlannedFile {
+                what: if gloss {
+                    Written::Gloss
+                } else {
+                    Written::Core(kind)
+                },
+                stem,
+                channels: map.channels() + alpha,
+                format,
+                stand_in: if had_source { None } else { kind.stand_in() },
+            });
+        }
+        let mut occlusion = None;
+        for (i, extra) in band.carried.extras.iter().enumerate() {
+            if packed.as_ref() == Some(&extra.source) {
+                occlusion = Some(i);
+                continue;
+            }
+            let stem = match &self.origin {
+                Some(o) => retag(&extra.name, o.size[0], self.size[0]),
+                None => extra.name.clone(),
+            };
+            let channels = extra.map.channels() + extra.alpha.is_some() as usize;
+            plan.push(PlannedFile {
+                what: Written::Extra(i),
+                stem,
+                channels,
+                format: self.format.unwrap_or(extra.format),
+                stand_in: None,
+            });
+        }
+        if let Some(path) = &packed {
+            let format = self
+                .format
+                .or(self
+                    .source(MapKind::Roughness)
+                    .or(self.source(MapKind::Metallic))
+                    .map(|s| s.1))
+                .unwrap_or(FileFormat::Png8);
+            plan.push(PlannedFile {
+                what: Written::Packed(occlusion),
+                stem: self.kept_name(path),
+                channels: 3,
+                format,
+                stand_in: None,
+            });
+        }
+
+        let [w, h] = self.size;
+        let mut paths: Vec<PathBuf> = Vec::new();
+        for PlannedFile {
+            what,
+            stem,
+            channels,
+            format,
+            stand_in,
+        } in plan
+        {
+            let path = self.out_dir.join(format!("{stem}.{}", format.extension()));
+            if paths.contains(&path) {
+                return Err(Error::file(
+                    &path,
+                    "two of the material's maps would be written to this file; rename one, or \
+                     use matup's names (--names matup)",
+                ));
+            }
+            paths.push(path.clone());
             self.maps.push(MapWriter {
-                kind,
-                file: ImageWriter::create(&path, w, h, map.channels(), format)?,
-                only_if_nonzero: kind == MapKind::Metallic && !had_source,
-                all_zero: true,
+                what,
+                file: ImageWriter::create(&path, w, h, channels, format)?,
+                stand_in,
+                all_stand_in: true,
             });
         }
         Ok(())
     }
+}
+
+/// An extra map's values as its file stores them: RGB sRGB-encoded in integer formats.
+fn encode_extra(map: &Map, float: bool) -> Map {
+    if map.channels() == 3 && !float {
+        map.clone().map_values(linear_to_srgb)
+    } else {
+        map.clone()
+    }
+}
+
+/// `stem` with a resolution tag for `from` texels (`_1K`, `-2k-`: a word of a number and K,
+/// the number `from / 1024`) rewritten for `to` texels, in the tag's case; other names as
+/// they are.
+pub fn retag(stem: &str, from: usize, to: usize) -> String {
+    if from % 1024 != 0 || to % 1024 != 0 {
+        return stem.to_string();
+    }
+    let bytes = stem.as_bytes();
+    let is_word = |i: usize| bytes.get(i).is_some_and(u8::is_ascii_alphanumeric);
+    let mut out = String::with_capacity(stem.len() + 1);
+    let mut rest = 0; // the bytes before it are in `out`
+    for (i, _) in stem.char_indices() {
+        if i < rest || (i > 0 && is_word(i - 1)) {
+            continue;
+        }
+        let k = i + bytes[i..].iter().take_while(|b| b.is_ascii_digit()).count();
+        let tag = k > i
+            && bytes.get(k).is_some_and(|b| b.eq_ignore_ascii_case(&b'k'))
+            && !is_word(k + 1)
+            && stem[i..k].parse::<usize>().ok() == Some(from / 1024);
+        if tag {
+            out.push_str(&stem[rest..i]);
+            out.push_str(&(to / 1024).to_string());
+            out.push(bytes[k] as char);
+            rest = k + 1;
+        }
+    }
+    out.push_str(&stem[rest..]);
+    out
 }
 
 /// A map's values as its file stores them: sRGB base colour in integer formats, normals as
@@ -523,4 +815,32 @@ pub fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
 /// Writes a display-space RGB image (a render or a preview) as an 8-bit PNG, atomically.
 pub fn save_png(path: &Path, image: &Map) -> Result<()> {
     write_image(path, image, FileFormat::Png8)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::retag;
+
+    #[test]
+    fn resolution_tags_follow_the_output_size() {
+        let cases = [
+            (
+                "Leather008_1K-JPG_AmbientOcclusion",
+                1024,
+                4096,
+                "Leather008_4K-JPG_AmbientOcclusion",
+            ),
+            ("denim_fabric_ao_1k", 1024, 4096, "denim_fabric_ao_4k"),
+            ("rock_2K_opacity", 2048, 32768, "rock_32K_opacity"),
+            // Not the input's tag, not a tag, or no size in K.
+            ("x_2k_ao", 1024, 4096, "x_2k_ao"),
+            ("brick1k_ao", 1024, 4096, "brick1k_ao"),
+            ("x_1kg", 1024, 4096, "x_1kg"),
+            ("x_1K", 256, 1024, "x_1K"),
+            ("émission_1K", 1024, 2048, "émission_2K"),
+        ];
+        for (stem, from, to, want) in cases {
+            assert_eq!(retag(stem, from, to), want, "{stem}");
+        }
+    }
 }

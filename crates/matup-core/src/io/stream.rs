@@ -23,8 +23,8 @@ use crate::map::Map;
 use crate::material::FileFormat;
 use crate::{Error, Result};
 
-/// Writes one image file (grey or RGB, values in the file's encoding: [0, 1] for integer
-/// formats) band by band: [`ImageWriter::write_rows`] with every row once, in order, then
+/// Writes one image file (grey or RGB, either with alpha as its last channel; values in the
+/// file's encoding: [0, 1] for integer formats) band by band: [`ImageWriter::write_rows`] with every row once, in order, then
 /// [`ImageWriter::finish`]. Dropped unfinished, it leaves nothing at `path`.
 pub struct ImageWriter {
     path: PathBuf,
@@ -84,7 +84,8 @@ impl Recording {
 }
 
 impl ImageWriter {
-    /// Starts `path`, `width × height` texels of `channels` (1 or 3) in `format`.
+    /// Starts `path`, `width × height` texels of `channels` (grey, grey + alpha, RGB, RGBA) in
+    /// `format`. JPEG holds no alpha: a file of 2 or 4 channels in it is refused.
     pub fn create(
         path: &Path,
         width: usize,
@@ -93,9 +94,15 @@ impl ImageWriter {
         format: FileFormat,
     ) -> Result<ImageWriter> {
         assert!(
-            channels == 1 || channels == 3,
-            "only grey and RGB are written"
+            (1..=4).contains(&channels),
+            "grey or RGB, with or without alpha"
         );
+        if format == FileFormat::Jpeg && channels % 2 == 0 {
+            return Err(Error::file(
+                path,
+                "JPEG holds no alpha channel; write this map as PNG, TIFF, TGA or EXR (--format)",
+            ));
+        }
         let temporary = temporary_beside(path)?;
         let file = || {
             temporary
@@ -111,10 +118,11 @@ impl ImageWriter {
                     error: error.clone(),
                 };
                 let mut encoder = png::Encoder::new(output, width as u32, height as u32);
-                encoder.set_color(if channels == 1 {
-                    png::ColorType::Grayscale
-                } else {
-                    png::ColorType::Rgb
+                encoder.set_color(match channels {
+                    1 => png::ColorType::Grayscale,
+                    2 => png::ColorType::GrayscaleAlpha,
+                    3 => png::ColorType::Rgb,
+                    _ => png::ColorType::Rgba,
                 });
                 let sixteen_bits = format == FileFormat::Png16;
                 encoder.set_depth(if sixteen_bits {
@@ -167,6 +175,11 @@ impl ImageWriter {
             temporary,
             encoder,
         })
+    }
+
+    /// The format the file is written in.
+    pub fn format(&self) -> FileFormat {
+        self.format
     }
 
     /// Appends `rows` (as wide as the image, as many channels) below the rows written so far.
@@ -297,16 +310,12 @@ fn write_exr(
     half: bool,
     bands: std::sync::mpsc::Receiver<Map>,
 ) -> std::result::Result<(), String> {
-    let names: &[&str] = if channels == 1 {
-        &["Y"]
-    } else {
-        &["B", "G", "R"]
-    };
     // The file's channels are sorted by name; `plane[i]` is the map's channel for the i-th.
-    let plane: Vec<usize> = if channels == 1 {
-        vec![0]
-    } else {
-        vec![2, 1, 0]
+    let (names, plane): (&[&str], &[usize]) = match channels {
+        1 => (&["Y"], &[0]),
+        2 => (&["A", "Y"], &[1, 0]),
+        3 => (&["B", "G", "R"], &[2, 1, 0]),
+        _ => (&["A", "B", "G", "R"], &[3, 2, 1, 0]),
     };
     let sample_type = if half {
         ex::SampleType::F16
@@ -377,7 +386,8 @@ fn write_exr(
 }
 
 /// Encodes a whole image of gathered samples: JPEG (quality 95) or TGA from 8-bit samples,
-/// TIFF (LZW, as image editors write it) at its depth.
+/// TIFF (LZW, as image editors write it) at its depth. The `tiff` crate writes no grey +
+/// alpha, so such a TIFF is written RGBA with the grey in all three colour channels.
 fn encode_whole(
     out: &mut BufWriter<File>,
     width: usize,
@@ -386,24 +396,30 @@ fn encode_whole(
     format: FileFormat,
     samples: Samples,
 ) -> std::result::Result<(), String> {
-    use tiff::encoder::colortype;
+    use tiff::encoder::colortype::*;
     let (w, h) = (width as u32, height as u32);
-    let grey = channels == 1;
     let written = match (format, samples) {
-        (FileFormat::Tiff8, Samples::U8(raw)) => {
-            write_tiff::<colortype::Gray8, colortype::RGB8>(out, w, h, grey, &raw)
-        }
-        (FileFormat::Tiff16, Samples::U16(raw)) => {
-            write_tiff::<colortype::Gray16, colortype::RGB16>(out, w, h, grey, &raw)
-        }
-        (FileFormat::TiffFloat, Samples::F32(raw)) => {
-            write_tiff::<colortype::Gray32Float, colortype::RGB32Float>(out, w, h, grey, &raw)
-        }
+        (FileFormat::Tiff8, Samples::U8(raw)) => match channels {
+            1 => write_tiff::<Gray8>(out, w, h, &raw),
+            3 => write_tiff::<RGB8>(out, w, h, &raw),
+            _ => write_tiff::<RGBA8>(out, w, h, &as_rgba(channels, raw)),
+        },
+        (FileFormat::Tiff16, Samples::U16(raw)) => match channels {
+            1 => write_tiff::<Gray16>(out, w, h, &raw),
+            3 => write_tiff::<RGB16>(out, w, h, &raw),
+            _ => write_tiff::<RGBA16>(out, w, h, &as_rgba(channels, raw)),
+        },
+        (FileFormat::TiffFloat, Samples::F32(raw)) => match channels {
+            1 => write_tiff::<Gray32Float>(out, w, h, &raw),
+            3 => write_tiff::<RGB32Float>(out, w, h, &raw),
+            _ => write_tiff::<RGBA32Float>(out, w, h, &as_rgba(channels, raw)),
+        },
         (FileFormat::Jpeg | FileFormat::Tga, Samples::U8(raw)) => {
-            let image = if grey {
-                DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap())
-            } else {
-                DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, raw).unwrap())
+            let image = match channels {
+                1 => DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap()),
+                2 => DynamicImage::ImageLumaA8(image::GrayAlphaImage::from_raw(w, h, raw).unwrap()),
+                3 => DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, raw).unwrap()),
+                _ => DynamicImage::ImageRgba8(image::RgbaImage::from_raw(w, h, raw).unwrap()),
             };
             return if format == FileFormat::Tga {
                 image.write_with_encoder(image::codecs::tga::TgaEncoder::new(out))
@@ -418,27 +434,31 @@ fn encode_whole(
     written.map_err(|e| e.to_string())
 }
 
-/// A whole TIFF (LZW, as image editors write it), grey as `Grey`, else RGB as `Rgb`, the two
-/// of one sample type.
-fn write_tiff<Grey, Rgb>(
+/// A whole TIFF of colour type `C` (LZW, as image editors write it).
+fn write_tiff<C>(
     out: &mut BufWriter<File>,
     width: u32,
     height: u32,
-    grey: bool,
-    samples: &[Grey::Inner],
+    samples: &[C::Inner],
 ) -> tiff::TiffResult<()>
 where
-    Grey: tiff::encoder::colortype::ColorType,
-    Rgb: tiff::encoder::colortype::ColorType<Inner = Grey::Inner>,
-    [Grey::Inner]: tiff::encoder::TiffValue,
+    C: tiff::encoder::colortype::ColorType,
+    [C::Inner]: tiff::encoder::TiffValue,
 {
     use tiff::encoder::{Compression, TiffEncoder};
-    let mut encoder = TiffEncoder::new(out)?.with_compression(Compression::Lzw);
-    if grey {
-        encoder.write_image::<Grey>(width, height, samples)
-    } else {
-        encoder.write_image::<Rgb>(width, height, samples)
+    TiffEncoder::new(out)?
+        .with_compression(Compression::Lzw)
+        .write_image::<C>(width, height, samples)
+}
+
+/// Interleaved grey + alpha or RGBA samples as RGBA (grey copied into R, G and B).
+fn as_rgba<T: Copy>(channels: usize, samples: Vec<T>) -> Vec<T> {
+    if channels == 4 {
+        return samples;
     }
+    (samples.chunks_exact(2))
+        .flat_map(|ga| [ga[0], ga[0], ga[0], ga[1]])
+        .collect()
 }
 
 /// A temporary file in `path`'s folder (so the rename that completes it stays on one disk).
@@ -525,17 +545,31 @@ mod tests {
             FileFormat::TiffFloat,
             FileFormat::Tga,
         ] {
-            for channels in [1, 3] {
+            // Grey, grey + alpha, RGB, RGBA.
+            for channels in 1..=4 {
                 let map = image(channels);
                 let name = |how: &str| {
                     dir.path()
                         .join(format!("{how}{channels}.{}", format.extension()))
                 };
+                if format == FileFormat::Jpeg && channels % 2 == 0 {
+                    let refused = write_whole(&name("whole"), &map, format).unwrap_err();
+                    assert!(
+                        refused.to_string().contains("JPEG holds no alpha"),
+                        "{refused}"
+                    );
+                    continue;
+                }
                 write_in_bands(&name("bands"), &map, format, &[10, 1, 9, 3]);
                 write_whole(&name("whole"), &map, format).unwrap();
                 let bands = read_image(&name("bands"), u64::MAX).unwrap().map;
-                let whole = read_image(&name("whole"), u64::MAX).unwrap().map;
+                let mut whole = read_image(&name("whole"), u64::MAX).unwrap().map;
                 assert!(bands == whole, "{format} ×{channels}");
+                if whole.channels() == 4 && channels == 2 {
+                    // TIFF: grey + alpha is written as RGBA, the grey in R, G and B.
+                    assert!(whole.plane(0) == whole.plane(1) && whole.plane(1) == whole.plane(2));
+                    whole = whole.select_channels(&[0, 3]);
+                }
                 // And what was written, to the format's precision (JPEG is lossy).
                 let tolerance = match format {
                     FileFormat::Png8 | FileFormat::Tiff8 | FileFormat::Tga => 0.5 / 255.0,
