@@ -50,7 +50,7 @@ struct Cli {
 enum Command {
     /// List every registered upsampler and shading model with its options.
     List,
-    /// Upsample a material ×4 (or ×2, ×3, ×16) with a per-material filter.
+    /// Upsample a material ×4 (or ×2, ×3, ×16): every map of its folder.
     Upscale(Box<upscale::UpscaleArgs>),
     /// Upsample every material of a library (folders of maps), resumable and shardable.
     Batch(Box<batch::BatchArgs>),

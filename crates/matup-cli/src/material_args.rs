@@ -10,7 +10,8 @@ use matup_core::{load_material, LoadOptions, Material, MaterialPaths, NormalConv
 #[derive(Args, Debug, Clone)]
 pub struct MaterialArgs {
     /// Folder holding the material's maps (recognised by name: baseColor/albedo/…_Color,
-    /// normal/…_NormalGL/…_nor_dx_…, roughness, metallic, height, packed …_arm_…).
+    /// normal/…_NormalGL/…_nor_dx_…, roughness, metallic, height, packed …_arm_…; any may be
+    /// missing). Its other maps (occlusion, opacity, emission, …) come back upscaled too.
     pub material: PathBuf,
     #[command(flatten)]
     pub load: LoadArgs,
