@@ -20,7 +20,7 @@ use matup_core::resample::Border;
 use matup_core::shading::shading_model;
 use matup_core::upsample::{check_scale, upsampler};
 use matup_core::{Error, PluginSpec, Result};
-use matup_eval::metrics::{evaluate, Evaluation};
+use matup_eval::metrics::{evaluate, false_colour, Evaluation};
 use matup_method::config::choose_upsampler;
 use matup_method::config::{check_supported_scale, Config};
 use matup_method::per_map::upscale_per_map;
@@ -449,7 +449,14 @@ pub fn run_experiment(
                             keep_output(out, run, "truth", &p.truth)?;
                         }
                         evaluate(&p.truth, &material, eval_model.as_ref(), &eval_lights)
-                            .map(|ev| (facts, ev))
+                            .and_then(|mut ev| {
+                                ev.false_colour = Some(false_colour(
+                                    &p.lr.base_color,
+                                    &material.base_color,
+                                    Some(&p.truth.base_color),
+                                )?);
+                                Ok((facts, ev))
+                            })
                             .map_err(|e| e.to_string())
                     }
                 }
@@ -663,7 +670,7 @@ fn append_journal(path: &Path, row: &Row) -> Result<()> {
 }
 
 /// The metric columns, in table order.
-pub const METRICS: [&str; 12] = [
+pub const METRICS: [&str; 13] = [
     "render_psnr",
     "render_ssim",
     "render_flip",
@@ -673,6 +680,7 @@ pub const METRICS: [&str; 12] = [
     "normal_error_degrees",
     "roughness_rmse",
     "metallic_rmse",
+    "false_colour_texels",
     "seam_ratio",
     "reference_seam_ratio",
     "lights",

@@ -2,20 +2,26 @@
 //! reference, whether each of its maps tiles.
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, PluginSpec};
-use matup_eval::metrics::{evaluate, map_seams, Evaluation};
+use matup_eval::metrics::{evaluate, false_colour, map_seams, Evaluation, FalseColour};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// The reference (true) material's folder. Without one, only the candidate's seams are
-    /// reported.
+    /// The reference (true) material's folder. Without one, only the candidate's seams (and
+    /// false colour, given the input) are reported.
     #[arg(long)]
     pub reference: Option<std::path::PathBuf>,
     /// The material to judge, of the same size.
     #[arg(long)]
     pub candidate: std::path::PathBuf,
+    /// The material the candidate was upscaled from, for its false colour (hues the input
+    /// has nowhere near). Default: the input folder `run.json` in the candidate's folder
+    /// names, if there is one.
+    #[arg(long)]
+    pub input: Option<std::path::PathBuf>,
     /// Held-out lights (a Hammersley hemisphere set, unlike the training set).
     #[arg(long, default_value_t = 16)]
     pub lights: usize,
@@ -30,13 +36,21 @@ pub struct EvalArgs {
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.lights > 0, "--lights must be at least 1");
     let candidate = load_material(Some(&args.candidate), &LoadOptions::default())?;
+    let input = match args.input.clone().or_else(|| run_input(&args.candidate)) {
+        Some(folder) => Some(load_material(Some(&folder), &LoadOptions::default())?),
+        None => None,
+    };
     let Some(reference_folder) = &args.reference else {
         let seams = map_seams(&candidate);
+        let false_colour = input
+            .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None))
+            .transpose()?;
         if args.json {
-            let report = serde_json::json!({ "map_seams": seams });
+            let report = serde_json::json!({ "map_seams": seams, "false_colour": false_colour });
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
             print_seams(&seams, None);
+            print_false_colour(false_colour.as_ref(), "against the input alone");
         }
         return Ok(());
     };
@@ -55,18 +69,50 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         }
     }
     let model = shading_model(&args.shading)?;
-    let e = evaluate(
+    let mut e = evaluate(
         &reference,
         &candidate,
         model.as_ref(),
         &LightSetSpec::held_out(args.lights),
     )?;
+    e.false_colour = input
+        .map(|lr| {
+            false_colour(
+                &lr.base_color,
+                &candidate.base_color,
+                Some(&reference.base_color),
+            )
+        })
+        .transpose()?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&e)?);
     } else {
         print_table(&e);
     }
     Ok(())
+}
+
+/// The input folder a matup output's `run.json` names, if it has one.
+fn run_input(candidate: &Path) -> Option<PathBuf> {
+    let text = std::fs::read_to_string(candidate.join("run.json")).ok()?;
+    let run: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let folder = PathBuf::from(run["input_folder"].as_str()?);
+    folder.is_dir().then_some(folder)
+}
+
+fn print_false_colour(f: Option<&FalseColour>, how: &str) {
+    match f {
+        Some(f) => println!(
+            "{:<28} {:>12}",
+            format!("false colour ({how})"),
+            format!(
+                "{} texels ({:.3}%)",
+                f.false_colour_texels,
+                100.0 * f.false_colour_rate
+            )
+        ),
+        None => println!("false colour: needs the input (--input, or a run.json that names it)"),
+    }
 }
 
 fn print_table(e: &Evaluation) {
@@ -101,6 +147,10 @@ fn print_table(e: &Evaluation) {
         println!("{name:<28} {value:>12}");
     }
     print_seams(&e.map_seams, Some(&e.reference_map_seams));
+    print_false_colour(
+        e.false_colour.as_ref(),
+        "hues neither input nor reference has",
+    );
 }
 
 /// Each map's wrap-around seam ratio (and the reference's): about 1 where copies join

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use matup_core::color::to_u8;
+use matup_core::color::{linear_to_srgb, to_u8};
 use matup_core::lights::{Light, LightSetSpec};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
@@ -51,6 +51,83 @@ pub struct Evaluation {
     /// an oversharpened one above.
     pub render_sharpness: f64,
     pub reference_render_sharpness: f64,
+    /// Base-colour texels with a hue neither the input nor the reference has ([`false_colour`]),
+    /// when the caller knows the input.
+    #[serde(flatten)]
+    pub false_colour: Option<FalseColour>,
+}
+
+/// How many texels of an upscaled base colour have a hue that neither the input nor the truth
+/// has ([`false_colour`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FalseColour {
+    pub false_colour_texels: f64,
+    /// The share of all texels.
+    pub false_colour_rate: f64,
+}
+
+/// Levels of 255 the input's chroma range is widened by before a texel counts as false colour.
+pub const FALSE_COLOUR_MARGIN: i32 = 12;
+
+/// The texels of `candidate` (a linear base colour `scale` times the size of `lr`, the linear
+/// base colour it was upscaled from) whose chroma lies outside the chroma range of the input
+/// texels around it, where `truth`'s (the true high-resolution base colour) does not. Chroma is
+/// (R − G, B − G) of the stored 8-bit sRGB values; the range is that of the texel's own input
+/// texel and its 8 neighbours, widened by [`FALSE_COLOUR_MARGIN`] levels. Detail finer than a
+/// texel in luminance (a dark groove) is no false colour; a hue the input has nowhere near is.
+/// Without a truth every texel outside the range counts.
+pub fn false_colour(lr: &Map, candidate: &Map, truth: Option<&Map>) -> Result<FalseColour> {
+    let scale = candidate.width() / lr.width().max(1);
+    if scale == 0
+        || candidate.width() != lr.width() * scale
+        || candidate.height() != lr.height() * scale
+        || truth.is_some_and(|t| (t.width(), t.height()) != (candidate.width(), candidate.height()))
+    {
+        return Err(Error::Invalid(format!(
+            "false colour: the upscaled base colour ({}×{}) is no whole multiple of the input's \
+             ({}×{}), or the truth's size differs",
+            candidate.width(),
+            candidate.height(),
+            lr.width(),
+            lr.height()
+        )));
+    }
+    let chroma = |m: &Map| -> Vec<[i32; 2]> {
+        let level = |c: usize, i: usize| to_u8(linear_to_srgb(m.plane(c)[i])) as i32;
+        (0..m.texels())
+            .map(|i| [level(0, i) - level(1, i), level(2, i) - level(1, i)])
+            .collect()
+    };
+    let (lr_chroma, up, true_chroma) = (chroma(lr), chroma(candidate), truth.map(chroma));
+    let (lw, lh) = (lr.width() as isize, lr.height() as isize);
+    // The widened range of each input texel's 3×3 neighbourhood (clamped at the edges).
+    let ranges: Vec<[[i32; 2]; 2]> = (0..lw * lh)
+        .map(|i| {
+            let (y, x) = (i / lw, i % lw);
+            let mut r = [[i32::MAX, i32::MIN]; 2];
+            for (dy, dx) in (0..9).map(|k| (k / 3 - 1, k % 3 - 1)) {
+                let j = ((y + dy).clamp(0, lh - 1) * lw + (x + dx).clamp(0, lw - 1)) as usize;
+                for (c, range) in r.iter_mut().enumerate() {
+                    range[0] = range[0].min(lr_chroma[j][c] - FALSE_COLOUR_MARGIN);
+                    range[1] = range[1].max(lr_chroma[j][c] + FALSE_COLOUR_MARGIN);
+                }
+            }
+            r
+        })
+        .collect();
+    let w = candidate.width();
+    let inside =
+        |c: [i32; 2], r: &[[i32; 2]; 2]| (0..2).all(|k| (r[k][0]..=r[k][1]).contains(&c[k]));
+    let texels = (0..up.len())
+        .filter(|&i| {
+            let r = &ranges[(i / w / scale) * lw as usize + (i % w) / scale];
+            !inside(up[i], r) && true_chroma.as_ref().is_none_or(|t| inside(t[i], r))
+        })
+        .count();
+    Ok(FalseColour {
+        false_colour_texels: texels as f64,
+        false_colour_rate: texels as f64 / up.len().max(1) as f64,
+    })
 }
 
 /// Renders `reference` and `candidate` under `lights` with `model` and compares them.
@@ -123,6 +200,7 @@ pub fn evaluate(
         reference_map_seams: map_seams(reference),
         render_sharpness: mean(3),
         reference_render_sharpness: mean(4),
+        false_colour: None,
     })
 }
 
@@ -252,6 +330,56 @@ pub fn flip(reference: &Map, test: &Map) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Grey with dark grooves every 8th row, `size`² (linear).
+    fn grooved_grey(size: usize) -> Map {
+        Map::from_fn(size, size, 3, |_, y, _| if y % 8 == 3 { 0.01 } else { 0.3 })
+    }
+
+    #[test]
+    fn false_colour_counts_hues_neither_input_nor_truth_has() {
+        let truth = grooved_grey(64);
+        let lr = matup_core::resample::box_downsample(&truth, 4);
+        // The truth itself: grooves finer than an input texel, but grey.
+        let exact = false_colour(&lr, &truth, Some(&truth)).unwrap();
+        assert_eq!(exact.false_colour_texels, 0.0);
+        // Grooves tinted magenta (red and blue over green), as the issue shows.
+        let tinted = Map::from_fn(64, 64, 3, |c, y, x| {
+            let v = truth.get(c, y, x);
+            if y % 8 == 3 && c != 1 {
+                0.06
+            } else {
+                v
+            }
+        });
+        let grooves = (64 * 64 / 8) as f64;
+        let counted = false_colour(&lr, &tinted, Some(&truth)).unwrap();
+        assert_eq!(counted.false_colour_texels, grooves);
+        assert!((counted.false_colour_rate - 1.0 / 8.0).abs() < 1e-12);
+        // Against the input alone, the same; where the truth has the hue too, none.
+        assert_eq!(
+            false_colour(&lr, &tinted, None)
+                .unwrap()
+                .false_colour_texels,
+            grooves
+        );
+        assert_eq!(
+            false_colour(&lr, &tinted, Some(&tinted))
+                .unwrap()
+                .false_colour_texels,
+            0.0
+        );
+        // A slight tint, within the margin of 12 levels, is no false colour.
+        let slight = Map::from_fn(64, 64, 3, |c, y, x| {
+            truth.get(c, y, x) * if c == 0 { 1.04 } else { 1.0 }
+        });
+        assert_eq!(
+            false_colour(&lr, &slight, Some(&truth))
+                .unwrap()
+                .false_colour_texels,
+            0.0
+        );
+    }
 
     fn noise(w: usize, h: usize, seed: usize) -> Map {
         Map::from_fn(w, h, 3, |c, y, x| {
