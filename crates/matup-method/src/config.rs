@@ -70,7 +70,7 @@ mod as_string {
     }
 }
 
-serde_through_strings!(Activation, Interpolation, ResidualBase);
+serde_through_strings!(Activation, Interpolation, ResidualBase, Chroma);
 strings_through_serde!(
     Schedule: "schedule",
     Chain: "chain",
@@ -207,6 +207,38 @@ impl fmt::Display for ResidualBase {
     }
 }
 
+/// Where the per-map path's base colour takes its chroma from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Chroma {
+    /// The run's RGB upsampler, as it upsamples the colour.
+    Upsampler,
+    /// A classical kernel on the LR base colour, with the upsampler's luma carried over (a
+    /// network may sharpen brightness but then adds no hue of its own).
+    Kernel(Kernel),
+}
+
+impl FromStr for Chroma {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.parse::<ResidualBase>() {
+            Ok(ResidualBase::Upsampler) => Ok(Chroma::Upsampler),
+            Ok(ResidualBase::Kernel(k)) => Ok(Chroma::Kernel(k)),
+            Err(_) => Err(Error::Invalid(format!(
+                "unknown base colour chroma '{s}'; use upsampler, bilinear, bicubic or lanczos3"
+            ))),
+        }
+    }
+}
+
+impl fmt::Display for Chroma {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Chroma::Kernel(k) => ResidualBase::Kernel(*k).fmt(f),
+            Chroma::Upsampler => ResidualBase::Upsampler.fmt(f),
+        }
+    }
+}
+
 /// The renders the filter is trained to reproduce.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -295,6 +327,13 @@ pub struct FilterConfig {
     pub self_ensemble: usize,
     /// The maps the self-ensemble covers: "all", or "normal" (the normal map alone).
     pub self_ensemble_maps: EnsembleMaps,
+    /// Where an `upsampler` residual base's base colour takes its chroma from: "upsampler",
+    /// or a kernel ("bilinear", "bicubic", "lanczos3") on the LR colour, the upsampler's
+    /// luma kept.
+    pub base_color_chroma: Chroma,
+    /// Clamp each texel's base-colour chroma into that of its LR texel's 3×3 neighbourhood
+    /// (its luma kept), after back-projection: no hue the input lacks around it.
+    pub clamp_chroma: bool,
 }
 
 impl FilterConfig {
@@ -343,6 +382,10 @@ impl Default for FilterConfig {
             // budgets (2 s for the main job, 60 s for 1K² → 4K²) hold two passes, not four.
             self_ensemble: 2,
             self_ensemble_maps: EnsembleMaps::All,
+            base_color_chroma: Chroma::Upsampler,
+            // Measured (docs/experiments/2026-11-25-false-colour.md): no false colour left on
+            // the shared and val sets, render PSNR +0.004 / +0.008 dB, FLIP lower.
+            clamp_chroma: true,
         }
     }
 }
@@ -608,6 +651,7 @@ impl Config {
         let mut c = Config::default();
         c.filter.residual_base = ResidualBase::Kernel(Kernel::Bilinear);
         c.filter.back_project = false;
+        c.filter.clamp_chroma = false;
         c.train.targets = TargetKind::Direct;
         c.train.epochs = 10;
         c.train.early_stop.enabled = false;
@@ -773,6 +817,7 @@ mod tests {
             ResidualBase::Kernel(Kernel::Bilinear)
         );
         assert!(!c.filter.back_project);
+        assert!(!c.filter.clamp_chroma, "the paper adds nothing to its filter's colours");
         assert!(!c.train.early_stop.enabled, "the paper trains every epoch");
         assert_eq!(c.train.targets, TargetKind::Direct);
         assert_eq!(
@@ -798,6 +843,7 @@ mod tests {
                 filter: FilterConfig {
                     residual_base: ResidualBase::Upsampler,
                     back_project: true,
+                    clamp_chroma: true,
                     ..c.filter.clone()
                 },
                 train: TrainConfig {

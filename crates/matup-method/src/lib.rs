@@ -6,6 +6,7 @@
 
 pub mod bands;
 pub mod carried;
+pub mod chroma;
 pub mod config;
 pub mod context;
 pub mod features;

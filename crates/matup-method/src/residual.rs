@@ -5,12 +5,13 @@
 
 use rayon::prelude::*;
 
-use crate::config::{FilterConfig, ResidualBase};
+use crate::chroma::{clamp_chroma_to_input, with_chroma_of};
+use crate::config::{Chroma, FilterConfig, ResidualBase};
 use crate::features::FEATURES;
 use crate::features::{features, pack_features};
 use crate::per_map::upscale_each_map;
 use matup_core::map::Map;
-use matup_core::material::{Material, MIN_ALPHA};
+use matup_core::material::{MapKind, Material, MIN_ALPHA};
 use matup_core::resample::{box_downsample, upsample, Border, Kernel};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
@@ -29,8 +30,13 @@ pub fn residual_base(
     border: Border,
 ) -> Result<Map> {
     let mut base = upsampled_base(lr, config, upsampler, scale, border)?;
+    let lr_features = features(lr);
     if config.back_project {
-        back_project(&mut base, &features(lr), scale, border);
+        back_project(&mut base, &lr_features, scale, border);
+    }
+    if config.clamp_chroma {
+        // The base colour is the features' first three channels.
+        clamp_chroma_to_input(&mut base, &lr_features, scale, border);
     }
     Ok(base)
 }
@@ -118,6 +124,12 @@ fn upsampled_base(
                 border,
                 config.self_ensemble(),
                 |kind, map| {
+                    let map = match (kind, config.base_color_chroma) {
+                        (MapKind::BaseColor, Chroma::Kernel(kernel)) => {
+                            with_chroma_of(&map, &upsample(&lr.base_color, scale, kernel, border))
+                        }
+                        _ => map,
+                    };
                     pack_features(&mut base, kind, &map);
                     Ok(())
                 },

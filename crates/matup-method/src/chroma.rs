@@ -1,0 +1,147 @@
+//! Keeping the base colour's hue to the input's: an SR network may sharpen brightness, but a
+//! hue the input has nowhere near (a grey groove turned magenta) is an error an artist sees at
+//! once. Colours here are sRGB-encoded, split into luma (Rec. 709 weights) and chroma
+//! (R′ − G′, B′ − G′), the chroma `matup eval`'s false-colour count judges.
+
+use matup_core::color::{linear_to_srgb, srgb_to_linear};
+use matup_core::map::Map;
+use matup_core::resample::Border;
+
+const WEIGHTS: [f32; 3] = [0.2126, 0.7152, 0.0722];
+
+fn luma(rgb: [f32; 3]) -> f32 {
+    (0..3).map(|c| WEIGHTS[c] * rgb[c]).sum()
+}
+
+/// Texel `i` of the first three channels of `m` (linear), sRGB-encoded.
+fn encoded(m: &Map, i: usize) -> [f32; 3] {
+    [0, 1, 2].map(|c| linear_to_srgb(m.plane(c)[i]))
+}
+
+/// The colour of luma `y` and chroma `(cr, cb)`; where a channel would leave [0, 1], the
+/// chroma is scaled toward grey until none does (`y` is kept).
+fn from_luma_chroma(y: f32, chroma: [f32; 2]) -> [f32; 3] {
+    let y = y.clamp(0.0, 1.0);
+    // y = g + 0.2126 cr + 0.0722 cb, r = g + cr, b = g + cb.
+    let offsets = |k: f32| {
+        let (cr, cb) = (k * chroma[0], k * chroma[1]);
+        let g = -(WEIGHTS[0] * cr + WEIGHTS[2] * cb);
+        [g + cr, g, g + cb]
+    };
+    let full = offsets(1.0);
+    // The largest k ≤ 1 with y + k·offset in [0, 1] for every channel.
+    let k = full.iter().fold(1.0f32, |k, &o| {
+        if y + o > 1.0 {
+            k.min((1.0 - y) / o)
+        } else if y + o < 0.0 {
+            k.min(y / -o)
+        } else {
+            k
+        }
+    });
+    offsets(k.max(0.0)).map(|o| (y + o).clamp(0.0, 1.0))
+}
+
+/// A linear colour map with the luma of `luma_from` and the chroma of `chroma_from` (two
+/// upsamplings of one colour map).
+pub fn with_chroma_of(luma_from: &Map, chroma_from: &Map) -> Map {
+    let mut out = Map::filled(luma_from.width(), luma_from.height(), 3, 0.0);
+    for i in 0..luma_from.texels() {
+        let colour = encoded(chroma_from, i);
+        let chroma = [colour[0] - colour[1], colour[2] - colour[1]];
+        let rgb = from_luma_chroma(luma(encoded(luma_from, i)), chroma);
+        for (c, v) in rgb.into_iter().enumerate() {
+            out.plane_mut(c)[i] = srgb_to_linear(v);
+        }
+    }
+    out
+}
+
+/// Clamps the chroma of each texel of `hr` (its first three channels a linear colour, `scale`
+/// times the size of `lr`'s) into the chroma range of its `lr` texel's 3×3 neighbourhood
+/// (rows and columns past the edge wrapped or mirrored as `border` says), its luma kept: the
+/// output has no hue its input lacks around it.
+pub fn clamp_chroma_to_input(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
+    let (lw, lh) = (lr.width() as isize, lr.height() as isize);
+    let at = |i: isize, n: isize| match border {
+        Border::Wrap => i.rem_euclid(n),
+        _ => i.clamp(0, n - 1),
+    } as usize;
+    let lr_chroma: Vec<[f32; 2]> = (0..lr.texels())
+        .map(|i| {
+            let c = encoded(lr, i);
+            [c[0] - c[1], c[2] - c[1]]
+        })
+        .collect();
+    let ranges: Vec<[[f32; 2]; 2]> = (0..lw * lh)
+        .map(|i| {
+            let (y, x) = (i / lw, i % lw);
+            let mut r = [[f32::INFINITY, f32::NEG_INFINITY]; 2];
+            for (dy, dx) in (0..9).map(|k| (k / 3 - 1, k % 3 - 1)) {
+                let j = at(y + dy, lh) * lw as usize + at(x + dx, lw);
+                for (range, v) in r.iter_mut().zip(lr_chroma[j]) {
+                    range[0] = range[0].min(v);
+                    range[1] = range[1].max(v);
+                }
+            }
+            r
+        })
+        .collect();
+    let w = hr.width();
+    for i in 0..hr.texels() {
+        let range = &ranges[(i / w / scale) * lw as usize + (i % w) / scale];
+        let colour = encoded(hr, i);
+        let chroma = [colour[0] - colour[1], colour[2] - colour[1]];
+        let clamped = [0, 1].map(|k| chroma[k].clamp(range[k][0], range[k][1]));
+        if clamped == chroma {
+            continue;
+        }
+        let rgb = from_luma_chroma(luma(colour), clamped);
+        for (c, v) in rgb.into_iter().enumerate() {
+            hr.plane_mut(c)[i] = srgb_to_linear(v);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn luma_and_chroma_round_trip_and_stay_in_range() {
+        for rgb in [
+            [0.2, 0.5, 0.9],
+            [1.0, 0.0, 0.3],
+            [0.0, 0.0, 0.0],
+            [0.6, 0.6, 0.6],
+        ] {
+            let y = luma(rgb);
+            let back = from_luma_chroma(y, [rgb[0] - rgb[1], rgb[2] - rgb[1]]);
+            for c in 0..3 {
+                assert!((back[c] - rgb[c]).abs() < 1e-5, "{rgb:?} → {back:?}");
+            }
+        }
+        // A dark texel with a strong chroma: the chroma gives way, the luma is kept.
+        let rgb = from_luma_chroma(0.05, [0.5, 0.3]);
+        assert!(rgb.iter().all(|v| (0.0..=1.0).contains(v)), "{rgb:?}");
+        assert!((luma(rgb) - 0.05).abs() < 1e-5);
+    }
+
+    #[test]
+    fn a_hue_the_input_lacks_is_clamped_away_and_its_brightness_kept() {
+        // Grey input; an output texel turned magenta at the same brightness.
+        let lr = Map::filled(4, 4, 3, 0.2);
+        let mut hr = Map::filled(16, 16, 3, 0.2);
+        let magenta = [0.35, 0.02, 0.3];
+        for (c, v) in magenta.into_iter().enumerate() {
+            hr.plane_mut(c)[5 * 16 + 7] = v;
+        }
+        let before = luma(encoded(&hr, 5 * 16 + 7));
+        clamp_chroma_to_input(&mut hr, &lr, 4, Border::Mirror);
+        let after = encoded(&hr, 5 * 16 + 7);
+        assert!((after[0] - after[1]).abs() < 1e-4 && (after[2] - after[1]).abs() < 1e-4);
+        assert!((luma(after) - before).abs() < 1e-4);
+        // Texels already within range are untouched.
+        assert_eq!(hr.plane(0)[0], 0.2);
+    }
+}
