@@ -120,6 +120,44 @@ def lag_crossing(img, max_lag_fraction=0.25):
     return (w * (across - inside)).sum() / max((w * np.clip(far - inside, 0, None)).sum(), 1e-9)
 
 
+def periodic_rule_inputs(img):
+    """For the periodicity rule: how strongly the rows repeat at their best lag (at least a
+    32nd of the side; 1 = exactly), how much more the pairs at that lag that cross the edge
+    differ than those inside (as `lag_crossing`, at that lag alone), and the lag-1 edge's
+    `z`: (edge − neighbour median) / (unrelated − neighbour median)."""
+    h = img.shape[0]
+    r = img.reshape(h, -1).astype(np.float64)
+    n = (r * r).mean(1)
+    d = n[:, None] + n[None] - 2 * (r @ r.T) / r.shape[1]
+    lags = np.arange(1, h // 2 + 1)
+    inside = np.array([np.diagonal(d, k).mean() for k in lags])
+    across = np.array([np.diagonal(d, h - k).mean() for k in lags])
+    far = np.median(inside[len(inside) // 2 :])
+    j = np.argmin(np.where(lags >= max(4, h // 32), inside, np.inf))
+    neighbours = np.median(np.diagonal(d, 1))
+    return (
+        1 - inside[j] / far,
+        (across[j] - inside[j]) / max(far - inside[j], 1e-9),
+        (d[h - 1, 0] - neighbours) / max(far - neighbours, 1e-9),
+    )
+
+
+def periodic_rule(inputs, tileable, sizes):
+    """Where the rows repeat (strength > S), tileable when the crossing pairs at the period
+    are like the inside ones (≤ C); elsewhere when the lag-1 z ≤ Z; both axes. The best
+    (S, C, Z) on the set."""
+    def decide(axes, s, c, z):
+        return np.array([all((x[1] <= c) if x[0] > s else (x[2] <= z) for x in a) for a in axes])
+    grid = [(s, c, z) for s in (0.3, 0.4, 0.5, 0.6, 0.7, 0.8) for c in (0.1, 0.2, 0.3, 0.4, 0.5)
+            for z in (0.1, 0.2, 0.3, 0.5, 0.8)]
+    best = max(grid, key=lambda p: (decide(inputs, *p) == tileable).mean())
+    right = decide(inputs, *best) == tileable
+    per_size = ", ".join(
+        f"{s}²: {100 * right[sizes == s].mean():.1f}%" for s in SIZES if (sizes == s).any()
+    )
+    print(f"periodicity rule (S, C, Z) = {best}: {100 * right.mean():.1f}% ({per_size})")
+
+
 def report(name, scores, tileable, sizes):
     best = max((((scores <= t) == tileable).mean(), t) for t in np.unique(scores))
     t = best[1]
@@ -136,17 +174,19 @@ def main():
     ap.add_argument("--max-side", type=int, default=128)
     args = ap.parse_args()
     rng = np.random.default_rng(39)
-    novelty, crossing, tileable, sizes = [], [], [], []
+    novelty, crossing, periodic, tileable, sizes = [], [], [], [], []
     for name, size, whole, maps in labelled(args.sets, rng):
         img = channels(maps, args.max_side)
         t = img.transpose(1, 0, 2)
         novelty.append(max(patch_novelty(img, rng), patch_novelty(t, rng)))
         crossing.append(max(lag_crossing(img), lag_crossing(t)))
+        periodic.append([periodic_rule_inputs(img), periodic_rule_inputs(t)])
         tileable.append(whole)
         sizes.append(size)
     tileable, sizes = np.array(tileable), np.array(sizes)
     report("patch novelty", np.array(novelty), tileable, sizes)
     report("lag crossing", np.array(crossing), tileable, sizes)
+    periodic_rule(periodic, tileable, sizes)
 
 
 if __name__ == "__main__":

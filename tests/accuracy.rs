@@ -178,8 +178,9 @@ fn back_projection_makes_the_per_map_base_consistent_with_its_input() {
         matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
     assert!(report.levels[0].training.epoch_losses.is_empty());
     config.filter.back_project = false;
+    config.filter.clamp_chroma = false;
     let (per_map, _) = matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
-    // Without back-projection the result is exactly per-map upsampling.
+    // Without back-projection (and the chroma clamp) the result is exactly per-map upsampling.
     let bicubic = upsampler(&PluginSpec::new("bicubic")).unwrap();
     let border = Border::for_tiling(report.tileable);
     let baseline = matup::per_map::upscale_per_map(&lr, bicubic.as_ref(), 4, border).unwrap();
@@ -266,7 +267,7 @@ fn self_validation_picks_per_map_upsampling_when_it_is_best() {
 #[test]
 fn selection_among_upsamplers_runs_the_one_that_validates_best() {
     // The use it is for: a network fine-tuned on the corpus (which has no tiles) beside stock
-    // SPAN, on a tiled floor's 128² LR crop, where the fine-tune loses (docs/experiments/
+    // SPAN, on a tiled floor's 128² LR crop, where the two are close (docs/experiments/
     // 2026-11-25-tiles-in-data.md); validated at 32².
     let tuned = format!(
         "onnx:{}/runs/span_x4_normals_batch24/best.onnx",
@@ -304,19 +305,28 @@ fn selection_among_upsamplers_runs_the_one_that_validates_best() {
         ]
     );
     assert_eq!(selection.validation_size, [32, 32]);
-    // Stock SPAN validates better (measured with the defaults' two passes: score 33.80
-    // against 33.63, render PSNR 22.90 against 22.93 dB but FLIP 0.0810 against 0.0848) …
-    let [tuned_score, stock_score] = [selection.candidates[0].score, selection.candidates[1].score];
+    // The better score wins (measured with the defaults' two passes and the chroma clamp:
+    // the tuned network 33.92 against stock's 33.87; before the clamp stock won, 33.80 against
+    // 33.63: the clamp removed the tuned network's tint of the tiles' grout) …
+    let best = (selection.candidates.iter())
+        .max_by(|a, b| a.score.total_cmp(&b.score))
+        .unwrap();
+    let other = (selection.candidates.iter())
+        .find(|c| c.name != best.name)
+        .unwrap();
     assert!(
-        stock_score > tuned_score + 0.1,
-        "{stock_score} vs {tuned_score}"
+        best.score > other.score + 0.02,
+        "{} vs {}",
+        best.score,
+        other.score
     );
-    assert_eq!(selection.chosen, "upsampler onnx:span_x4_ch48");
-    // … and the run goes on with it: what a plain run with stock SPAN gives.
-    assert_eq!(report.config.upsampler, "onnx:span_x4_ch48");
+    assert_eq!(selection.chosen, best.name);
+    // … and the run goes on with it: what a plain run with that upsampler gives.
+    let chosen = best.name.trim_start_matches("upsampler ").to_string();
+    assert_eq!(report.config.upsampler, chosen);
     assert_eq!(report.config.select, Selection::Off);
     let plain = Config {
-        upsampler: "onnx:span_x4_ch48".into(),
+        upsampler: chosen,
         tileable: Some(false),
         seed: 1,
         ..Config::default()

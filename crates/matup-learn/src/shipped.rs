@@ -3,7 +3,10 @@
 //! decodes it (`matup_method::per_map::upscale_per_map`), the 7 features back-projected onto the
 //! LR features (`matup_method::residual::back_project`), decoded to shading parameters
 //! (`matup_method::filter::decode`), rendered with the shading model's tensor form and shown
-//! through the display transform. The tests hold each step equal to matup's own code.
+//! through the display transform. The tests hold each step equal to matup's own code. The
+//! defaults' last step, clamping each texel's chroma into its input's range
+//! (`matup_method::chroma`), is not modelled: it touches only texels whose hue the network
+//! invented, and a network trained without it is judged with it.
 
 use candle_core::{Device, Tensor, D};
 use matup_core::material::{MIN_ALPHA, MIN_ROUGHNESS};

@@ -78,6 +78,8 @@ fn a_training_crops_centre_beyond_the_zero_paddings_reach_is_what_matup_upscale_
         residual_base: ResidualBase::Upsampler,
         back_project: true,
         self_ensemble: 1,
+        // Training does not model the chroma clamp (crates/matup-learn/src/shipped.rs).
+        clamp_chroma: false,
         ..FilterConfig::default()
     };
     let executor = OnnxUpsampler::load(&model, EngineChoice::Matup).unwrap();
@@ -106,6 +108,8 @@ fn the_training_pipeline_computes_what_matup_upscale_ships() {
         residual_base: ResidualBase::Upsampler,
         back_project: true,
         self_ensemble: 1,
+        // Training does not model the chroma clamp (crates/matup-learn/src/shipped.rs).
+        clamp_chroma: false,
         ..FilterConfig::default()
     };
     let shipped = residual_base(&lr, &config, &Lanczos, 4, Border::Mirror).unwrap();

@@ -817,7 +817,10 @@ mod tests {
             ResidualBase::Kernel(Kernel::Bilinear)
         );
         assert!(!c.filter.back_project);
-        assert!(!c.filter.clamp_chroma, "the paper adds nothing to its filter's colours");
+        assert!(
+            !c.filter.clamp_chroma,
+            "the paper adds nothing to its filter's colours"
+        );
         assert!(!c.train.early_stop.enabled, "the paper trains every epoch");
         assert_eq!(c.train.targets, TargetKind::Direct);
         assert_eq!(
