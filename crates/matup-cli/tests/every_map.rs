@@ -418,3 +418,32 @@ fn a_packed_file_comes_back_packed_with_its_occlusion() {
     let (mean, _) = shrink_error(&packed.carried.extras[0].map, &lr.carried.extras[0].map);
     assert!(mean < 0.004, "occlusion {mean}");
 }
+
+#[test]
+fn a_batch_upscales_partial_materials_with_what_each_has() {
+    let dir = tempfile::tempdir().unwrap();
+    let library = dir.path().join("library");
+    let full = library.join("leather");
+    leather(&full);
+    let colour = library.join("decal");
+    std::fs::create_dir_all(&colour).unwrap();
+    std::fs::copy(full.join("baseColor.png"), colour.join("decal_albedo.png")).unwrap();
+    let out = dir.path().join("out");
+    matup(&["batch", library.to_str().unwrap(), "-o", out.to_str().unwrap(), "--quiet"]);
+    let pngs = |folder: &Path| {
+        let mut names: Vec<String> = std::fs::read_dir(folder)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".png") && n != "preview.png")
+            .collect();
+        names.sort();
+        names
+    };
+    assert_eq!(pngs(&out.join("decal")), ["decal_albedo.png"]);
+    assert_eq!(pngs(&out.join("leather")), pngs(&full));
+    let run: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("decal/run.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(run["stand_ins"].to_string().contains("no roughness map"), "{run}");
+}
