@@ -429,7 +429,13 @@ fn a_batch_upscales_partial_materials_with_what_each_has() {
     std::fs::create_dir_all(&colour).unwrap();
     std::fs::copy(full.join("baseColor.png"), colour.join("decal_albedo.png")).unwrap();
     let out = dir.path().join("out");
-    matup(&["batch", library.to_str().unwrap(), "-o", out.to_str().unwrap(), "--quiet"]);
+    matup(&[
+        "batch",
+        library.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
     let pngs = |folder: &Path| {
         let mut names: Vec<String> = std::fs::read_dir(folder)
             .unwrap()
@@ -441,9 +447,11 @@ fn a_batch_upscales_partial_materials_with_what_each_has() {
     };
     assert_eq!(pngs(&out.join("decal")), ["decal_albedo.png"]);
     assert_eq!(pngs(&out.join("leather")), pngs(&full));
-    let run: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(out.join("decal/run.json")).unwrap(),
-    )
-    .unwrap();
-    assert!(run["stand_ins"].to_string().contains("no roughness map"), "{run}");
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("decal/run.json")).unwrap())
+            .unwrap();
+    assert!(
+        run["stand_ins"].to_string().contains("no roughness map"),
+        "{run}"
+    );
 }

@@ -213,7 +213,8 @@ pub struct MaterialOrigin {
     pub packed: Option<PathBuf>,
     /// Whether roughness came from a glossiness file (roughness = 1 − gloss).
     pub roughness_from_gloss: bool,
-    /// Images of the folder that were not loaded, and why (a size of their own).
+    /// What of the folder was not loaded, and why (an image of a size of its own, a packed
+    /// file's alpha channel).
     pub left_out: Vec<String>,
 }
 

@@ -112,6 +112,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         sizes: Vec::new(),
         packed_format: FileFormat::Png8,
         alpha: BTreeMap::new(),
+        left_out: Vec::new(),
     };
 
     let base_color = match pick(Role::BaseColor) {
@@ -205,7 +206,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
     // The packed file's occlusion channel, when it supplied roughness or metallic; the whole
     // file when it did not; and every other map of the folder.
     let mut extras = Vec::new();
-    let mut left_out = Vec::new();
+    let mut left_out = std::mem::take(&mut reader.left_out);
     if let (Some(path), Some(m)) = (&packed, &packed_map) {
         extras.push(Extra {
             name: "occlusion".into(),
@@ -311,6 +312,8 @@ struct Reader {
     sizes: Vec<(PathBuf, usize, usize)>,
     packed_format: FileFormat,
     alpha: BTreeMap<MapKind, Map>,
+    /// What of the files read is not kept, and why.
+    left_out: Vec<String>,
 }
 
 impl Reader {
@@ -370,6 +373,12 @@ impl Reader {
                 path,
                 "unsupported channel layout for a packed occlusion/roughness/metallic map: \
                  it needs RGB, this file is grey",
+            ));
+        }
+        if file.map.channels() == 4 {
+            self.left_out.push(format!(
+                "{}: its alpha channel (a packed file's fourth channel is not kept)",
+                path.file_name().unwrap_or_default().to_string_lossy()
             ));
         }
         self.packed_format = file.format;
