@@ -50,9 +50,11 @@ fn upscale(lr: &Material, config: &Config) -> Material {
 #[test]
 fn the_samples_output_has_no_magenta_the_input_lacks() {
     let lr = matup::load_material(Some(&common::sample_material()), &Default::default()).unwrap();
-    let defaults = upscale(&lr, &Config::default());
+    let (defaults, report) =
+        matup::upscale(&lr, &Config::default(), &RunOptions::default(), &Silent).unwrap();
     let found = new_magenta(&lr.base_color, &defaults.base_color, 4);
-    let fc = false_colour(&lr.base_color, &defaults.base_color, None).unwrap();
+    let border = matup::Border::for_tiling(report.tileable);
+    let fc = false_colour(&lr.base_color, &defaults.base_color, None, border).unwrap();
     println!(
         "defaults: {found} new magenta texels, {} of false colour",
         fc.false_colour_texels

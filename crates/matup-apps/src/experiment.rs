@@ -454,6 +454,7 @@ pub fn run_experiment(
                                     &p.lr.base_color,
                                     &material.base_color,
                                     Some(&p.truth.base_color),
+                                    Border::for_tiling(detect_tileable(&p.lr).0),
                                 )?);
                                 Ok((facts, ev))
                             })

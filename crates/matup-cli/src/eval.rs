@@ -5,7 +5,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, PluginSpec};
+use matup_core::resample::Border;
+use matup_core::tileable::detect_tileable;
+use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, Material, PluginSpec};
 use matup_eval::metrics::{evaluate, false_colour, map_seams, Evaluation, FalseColour};
 
 #[derive(Args, Debug)]
@@ -40,10 +42,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         Some(folder) => Some(load_material(Some(&folder), &LoadOptions::default())?),
         None => None,
     };
+    // Neighbours wrap around where the input tiles, as its output was made.
+    let border = |lr: &Material| Border::for_tiling(detect_tileable(lr).0);
     let Some(reference_folder) = &args.reference else {
         let seams = map_seams(&candidate);
         let false_colour = input
-            .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None))
+            .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None, border(&lr)))
             .transpose()?;
         if args.json {
             let report = serde_json::json!({ "map_seams": seams, "false_colour": false_colour });
@@ -77,11 +81,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     )?;
     e.false_colour = input
         .map(|lr| {
-            false_colour(
-                &lr.base_color,
-                &candidate.base_color,
-                Some(&reference.base_color),
-            )
+            let truth = Some(&reference.base_color);
+            false_colour(&lr.base_color, &candidate.base_color, truth, border(&lr))
         })
         .transpose()?;
     if args.json {

@@ -349,6 +349,45 @@ fn downsample_then_eval_reports_a_table_and_json() {
         "{table}"
     );
 
+    // False colour: the input comes from the output's run.json (or --input).
+    let up = dir.path().join("up");
+    let o = matup(&[
+        "upscale",
+        lr.to_str().unwrap(),
+        "-o",
+        up.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = matup(&[
+        "eval",
+        "--reference",
+        &sample(),
+        "--candidate",
+        up.to_str().unwrap(),
+        "--lights",
+        "2",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(e["false_colour_texels"].as_f64(), Some(0.0), "{e}");
+    let o = matup(&[
+        "eval",
+        "--candidate",
+        &sample(),
+        "--input",
+        lr.to_str().unwrap(),
+    ]);
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        table.contains("false colour (against the input alone)"),
+        "{table}"
+    );
+    let o = matup(&["eval", "--candidate", &sample()]);
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(table.contains("false colour: needs the input"), "{table}");
+
     let o = matup(&[
         "eval",
         "--reference",

@@ -75,8 +75,14 @@ pub const FALSE_COLOUR_MARGIN: i32 = 12;
 /// (R − G, B − G) of the stored 8-bit sRGB values; the range is that of the texel's own input
 /// texel and its 8 neighbours, widened by [`FALSE_COLOUR_MARGIN`] levels. Detail finer than a
 /// texel in luminance (a dark groove) is no false colour; a hue the input has nowhere near is.
-/// Without a truth every texel outside the range counts.
-pub fn false_colour(lr: &Map, candidate: &Map, truth: Option<&Map>) -> Result<FalseColour> {
+/// Without a truth every texel outside the range counts. Neighbours past the edge wrap around
+/// for a tileable input (`Border::Wrap`, as its output was made) and are clamped otherwise.
+pub fn false_colour(
+    lr: &Map,
+    candidate: &Map,
+    truth: Option<&Map>,
+    border: Border,
+) -> Result<FalseColour> {
     let scale = candidate.width() / lr.width().max(1);
     if scale == 0
         || candidate.width() != lr.width() * scale
@@ -100,13 +106,17 @@ pub fn false_colour(lr: &Map, candidate: &Map, truth: Option<&Map>) -> Result<Fa
     };
     let (lr_chroma, up, true_chroma) = (chroma(lr), chroma(candidate), truth.map(chroma));
     let (lw, lh) = (lr.width() as isize, lr.height() as isize);
-    // The widened range of each input texel's 3×3 neighbourhood (clamped at the edges).
+    let at = |i: isize, n: isize| match border {
+        Border::Wrap => i.rem_euclid(n),
+        _ => i.clamp(0, n - 1),
+    };
+    // The widened range of each input texel's 3×3 neighbourhood.
     let ranges: Vec<[[i32; 2]; 2]> = (0..lw * lh)
         .map(|i| {
             let (y, x) = (i / lw, i % lw);
             let mut r = [[i32::MAX, i32::MIN]; 2];
             for (dy, dx) in (0..9).map(|k| (k / 3 - 1, k % 3 - 1)) {
-                let j = ((y + dy).clamp(0, lh - 1) * lw + (x + dx).clamp(0, lw - 1)) as usize;
+                let j = (at(y + dy, lh) * lw + at(x + dx, lw)) as usize;
                 for (c, range) in r.iter_mut().enumerate() {
                     range[0] = range[0].min(lr_chroma[j][c] - FALSE_COLOUR_MARGIN);
                     range[1] = range[1].max(lr_chroma[j][c] + FALSE_COLOUR_MARGIN);
@@ -341,7 +351,7 @@ mod tests {
         let truth = grooved_grey(64);
         let lr = matup_core::resample::box_downsample(&truth, 4);
         // The truth itself: grooves finer than an input texel, but grey.
-        let exact = false_colour(&lr, &truth, Some(&truth)).unwrap();
+        let exact = false_colour(&lr, &truth, Some(&truth), Border::Mirror).unwrap();
         assert_eq!(exact.false_colour_texels, 0.0);
         // Grooves tinted magenta (red and blue over green), as the issue shows.
         let tinted = Map::from_fn(64, 64, 3, |c, y, x| {
@@ -353,18 +363,18 @@ mod tests {
             }
         });
         let grooves = (64 * 64 / 8) as f64;
-        let counted = false_colour(&lr, &tinted, Some(&truth)).unwrap();
+        let counted = false_colour(&lr, &tinted, Some(&truth), Border::Mirror).unwrap();
         assert_eq!(counted.false_colour_texels, grooves);
         assert!((counted.false_colour_rate - 1.0 / 8.0).abs() < 1e-12);
         // Against the input alone, the same; where the truth has the hue too, none.
         assert_eq!(
-            false_colour(&lr, &tinted, None)
+            false_colour(&lr, &tinted, None, Border::Wrap)
                 .unwrap()
                 .false_colour_texels,
             grooves
         );
         assert_eq!(
-            false_colour(&lr, &tinted, Some(&tinted))
+            false_colour(&lr, &tinted, Some(&tinted), Border::Mirror)
                 .unwrap()
                 .false_colour_texels,
             0.0
@@ -374,7 +384,7 @@ mod tests {
             truth.get(c, y, x) * if c == 0 { 1.04 } else { 1.0 }
         });
         assert_eq!(
-            false_colour(&lr, &slight, Some(&truth))
+            false_colour(&lr, &slight, Some(&truth), Border::Mirror)
                 .unwrap()
                 .false_colour_texels,
             0.0
