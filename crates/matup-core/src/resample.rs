@@ -246,6 +246,31 @@ pub fn gaussian_blur(plane: &[f32], w: usize, h: usize, sigma: f32, border: Bord
     out
 }
 
+/// The least and greatest of each component of `values` (row-major, `width` texels wide)
+/// over each texel's 3×3 neighbourhood, rows and columns past the edge as `border` says: the
+/// range an upsampled texel keeps to so that it invents nothing its input lacks around it.
+pub fn neighbourhood_ranges<const N: usize>(
+    values: &[[f32; N]],
+    width: usize,
+    border: Border,
+) -> Vec<[[f32; 2]; N]> {
+    let height = values.len() / width.max(1);
+    (0..values.len())
+        .map(|i| {
+            let (y, x) = ((i / width) as isize, (i % width) as isize);
+            let mut range = [[f32::INFINITY, f32::NEG_INFINITY]; N];
+            for (dy, dx) in (0..9).map(|k| (k / 3 - 1, k % 3 - 1)) {
+                let j = border.index(y + dy, height) * width + border.index(x + dx, width);
+                for (r, v) in range.iter_mut().zip(values[j]) {
+                    r[0] = r[0].min(v);
+                    r[1] = r[1].max(v);
+                }
+            }
+            range
+        })
+        .collect()
+}
+
 /// How well an image wraps around: mean |difference| across the wrap-around edges divided by
 /// the mean |difference| between interior neighbours (≈ 1: seamless; ≫ 1: a seam). The larger
 /// of the row and column ratios, over all channels.

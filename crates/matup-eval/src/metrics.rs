@@ -11,7 +11,7 @@ use matup_core::lights::{Light, LightSetSpec};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::render::{render, RenderOptions};
-use matup_core::resample::{gaussian_blur, seam_ratio, Border};
+use matup_core::resample::{gaussian_blur, neighbourhood_ranges, seam_ratio, Border};
 use matup_core::shading::ShadingModel;
 use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
 use matup_core::{Error, Result};
@@ -98,39 +98,23 @@ pub fn false_colour(
             lr.height()
         )));
     }
-    let chroma = |m: &Map| -> Vec<[i32; 2]> {
-        let level = |c: usize, i: usize| to_u8(linear_to_srgb(m.plane(c)[i])) as i32;
+    // Chroma in levels of the stored 8-bit sRGB values.
+    let chroma = |m: &Map| -> Vec<[f32; 2]> {
+        let level = |c: usize, i: usize| to_u8(linear_to_srgb(m.plane(c)[i])) as f32;
         (0..m.texels())
             .map(|i| [level(0, i) - level(1, i), level(2, i) - level(1, i)])
             .collect()
     };
-    let (lr_chroma, up, true_chroma) = (chroma(lr), chroma(candidate), truth.map(chroma));
-    let (lw, lh) = (lr.width() as isize, lr.height() as isize);
-    let at = |i: isize, n: isize| match border {
-        Border::Wrap => i.rem_euclid(n),
-        _ => i.clamp(0, n - 1),
+    let (up, true_chroma) = (chroma(candidate), truth.map(chroma));
+    let ranges = neighbourhood_ranges(&chroma(lr), lr.width(), border);
+    let margin = FALSE_COLOUR_MARGIN as f32;
+    let inside = |c: [f32; 2], r: &[[f32; 2]; 2]| {
+        (0..2).all(|k| (r[k][0] - margin..=r[k][1] + margin).contains(&c[k]))
     };
-    // The widened range of each input texel's 3×3 neighbourhood.
-    let ranges: Vec<[[i32; 2]; 2]> = (0..lw * lh)
-        .map(|i| {
-            let (y, x) = (i / lw, i % lw);
-            let mut r = [[i32::MAX, i32::MIN]; 2];
-            for (dy, dx) in (0..9).map(|k| (k / 3 - 1, k % 3 - 1)) {
-                let j = (at(y + dy, lh) * lw + at(x + dx, lw)) as usize;
-                for (c, range) in r.iter_mut().enumerate() {
-                    range[0] = range[0].min(lr_chroma[j][c] - FALSE_COLOUR_MARGIN);
-                    range[1] = range[1].max(lr_chroma[j][c] + FALSE_COLOUR_MARGIN);
-                }
-            }
-            r
-        })
-        .collect();
     let w = candidate.width();
-    let inside =
-        |c: [i32; 2], r: &[[i32; 2]; 2]| (0..2).all(|k| (r[k][0]..=r[k][1]).contains(&c[k]));
     let texels = (0..up.len())
         .filter(|&i| {
-            let r = &ranges[(i / w / scale) * lw as usize + (i % w) / scale];
+            let r = &ranges[(i / w / scale) * lr.width() + (i % w) / scale];
             !inside(up[i], r) && true_chroma.as_ref().is_none_or(|t| inside(t[i], r))
         })
         .count();

@@ -5,7 +5,7 @@
 
 use matup_core::map::Map;
 use matup_core::material::{Carried, Extra, MapKind, Material};
-use matup_core::resample::{upsample, Border, Kernel};
+use matup_core::resample::{neighbourhood_ranges, upsample, Border, Kernel};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
 
@@ -173,42 +173,14 @@ fn upscale_alpha(alpha: &Map, how: CarriedUpsampling) -> Result<Map> {
     if how.back_project {
         back_project_within(&mut up, alpha, how.scale, how.border, |_| (0.0, 1.0));
     }
-    let (low, high) = neighbourhood_range(alpha, how.border);
+    let values: Vec<[f32; 1]> = alpha.data().iter().map(|&v| [v]).collect();
+    let ranges = neighbourhood_ranges(&values, alpha.width(), how.border);
     let (w, s) = (up.width(), how.scale);
-    let lw = alpha.width();
     for (i, v) in up.data_mut().iter_mut().enumerate() {
-        let lr = (i / w / s) * lw + (i % w) / s;
-        *v = v.clamp(low[lr], high[lr]);
+        let [[low, high]] = ranges[(i / w / s) * alpha.width() + (i % w) / s];
+        *v = v.clamp(low, high);
     }
     Ok(up)
-}
-
-/// The least and greatest value of each texel's 3×3 neighbourhood (a 1-channel map), rows and
-/// columns past the edge wrapped or mirrored as `border` says.
-fn neighbourhood_range(map: &Map, border: Border) -> (Vec<f32>, Vec<f32>) {
-    let (w, h) = (map.width() as isize, map.height() as isize);
-    let at = |i: isize, n: isize| match border {
-        Border::Wrap => i.rem_euclid(n),
-        _ => i.clamp(0, n - 1),
-    } as usize;
-    let plane = map.plane(0);
-    let mut low = vec![0.0; plane.len()];
-    let mut high = vec![0.0; plane.len()];
-    for y in 0..h {
-        for x in 0..w {
-            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let v = plane[at(y + dy, h) * w as usize + at(x + dx, w)];
-                    lo = lo.min(v);
-                    hi = hi.max(v);
-                }
-            }
-            low[(y * w + x) as usize] = lo;
-            high[(y * w + x) as usize] = hi;
-        }
-    }
-    (low, high)
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@
 
 use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::map::Map;
-use matup_core::resample::Border;
+use matup_core::resample::{neighbourhood_ranges, Border};
 
 const WEIGHTS: [f32; 3] = [0.2126, 0.7152, 0.0722];
 
@@ -62,34 +62,16 @@ pub fn with_chroma_of(luma_from: &Map, chroma_from: &Map) -> Map {
 /// (rows and columns past the edge wrapped or mirrored as `border` says), its luma kept: the
 /// output has no hue its input lacks around it.
 pub fn clamp_chroma_to_input(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
-    let (lw, lh) = (lr.width() as isize, lr.height() as isize);
-    let at = |i: isize, n: isize| match border {
-        Border::Wrap => i.rem_euclid(n),
-        _ => i.clamp(0, n - 1),
-    } as usize;
     let lr_chroma: Vec<[f32; 2]> = (0..lr.texels())
         .map(|i| {
             let c = encoded(lr, i);
             [c[0] - c[1], c[2] - c[1]]
         })
         .collect();
-    let ranges: Vec<[[f32; 2]; 2]> = (0..lw * lh)
-        .map(|i| {
-            let (y, x) = (i / lw, i % lw);
-            let mut r = [[f32::INFINITY, f32::NEG_INFINITY]; 2];
-            for (dy, dx) in (0..9).map(|k| (k / 3 - 1, k % 3 - 1)) {
-                let j = at(y + dy, lh) * lw as usize + at(x + dx, lw);
-                for (range, v) in r.iter_mut().zip(lr_chroma[j]) {
-                    range[0] = range[0].min(v);
-                    range[1] = range[1].max(v);
-                }
-            }
-            r
-        })
-        .collect();
+    let ranges = neighbourhood_ranges(&lr_chroma, lr.width(), border);
     let w = hr.width();
     for i in 0..hr.texels() {
-        let range = &ranges[(i / w / scale) * lw as usize + (i % w) / scale];
+        let range = &ranges[(i / w / scale) * lr.width() + (i % w) / scale];
         let colour = encoded(hr, i);
         let chroma = [colour[0] - colour[1], colour[2] - colour[1]];
         let clamped = [0, 1].map(|k| chroma[k].clamp(range[k][0], range[k][1]));
