@@ -103,11 +103,10 @@ def patch_novelty(img, rng, rows=4, cols=8):
     return edge.mean() / max(interior.mean(), 1e-9)
 
 
-def lag_crossing(img, max_lag_fraction=0.25):
-    """For lags L up to a quarter of the side: how much more the row pairs L apart that cross
-    the wrap-around edge differ than those that do not, over how much less interior pairs
-    differ than unrelated rows (0 when the edge is like the interior, 1 when it joins
-    unrelated content), weighted by the crossing pairs' count."""
+def lag_profile(img):
+    """Rows' mean squared differences: the matrix between every two rows, the lags 1..h/2,
+    per lag the mean over the pairs that do not cross the wrap-around edge and over those that
+    do, and the median over the larger half of the lags (unrelated rows)."""
     h = img.shape[0]
     r = img.reshape(h, -1).astype(np.float64)
     n = (r * r).mean(1)
@@ -115,7 +114,16 @@ def lag_crossing(img, max_lag_fraction=0.25):
     lags = np.arange(1, h // 2 + 1)
     inside = np.array([np.diagonal(d, k).mean() for k in lags])
     across = np.array([np.diagonal(d, h - k).mean() for k in lags])
-    far = np.median(inside[len(inside) // 2 :])
+    return d, lags, inside, across, np.median(inside[len(inside) // 2 :])
+
+
+def lag_crossing(img, max_lag_fraction=0.25):
+    """For lags L up to a quarter of the side: how much more the row pairs L apart that cross
+    the wrap-around edge differ than those that do not, over how much less interior pairs
+    differ than unrelated rows (0 when the edge is like the interior, 1 when it joins
+    unrelated content), weighted by the crossing pairs' count."""
+    h = img.shape[0]
+    d, lags, inside, across, far = lag_profile(img)
     w = lags * (lags <= max(2, int(h * max_lag_fraction)))
     return (w * (across - inside)).sum() / max((w * np.clip(far - inside, 0, None)).sum(), 1e-9)
 
@@ -126,13 +134,7 @@ def periodic_rule_inputs(img):
     differ than those inside (as `lag_crossing`, at that lag alone), and the lag-1 edge's
     `z`: (edge − neighbour median) / (unrelated − neighbour median)."""
     h = img.shape[0]
-    r = img.reshape(h, -1).astype(np.float64)
-    n = (r * r).mean(1)
-    d = n[:, None] + n[None] - 2 * (r @ r.T) / r.shape[1]
-    lags = np.arange(1, h // 2 + 1)
-    inside = np.array([np.diagonal(d, k).mean() for k in lags])
-    across = np.array([np.diagonal(d, h - k).mean() for k in lags])
-    far = np.median(inside[len(inside) // 2 :])
+    d, lags, inside, across, far = lag_profile(img)
     j = np.argmin(np.where(lags >= max(4, h // 32), inside, np.inf))
     neighbours = np.median(np.diagonal(d, 1))
     return (

@@ -54,6 +54,22 @@ fn shrink_error(hr: &Map, lr: &Map) -> (f32, f32) {
     )
 }
 
+/// The names of the files in `folder` that `keep` keeps, sorted.
+fn files(folder: &Path, keep: impl Fn(&str) -> bool) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(folder)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| keep(n))
+        .collect();
+    names.sort();
+    names
+}
+
+/// The maps matup wrote into `folder` as PNG (its preview aside).
+fn png_maps(folder: &Path) -> Vec<String> {
+    files(folder, |n| n.ends_with(".png") && n != "preview.png")
+}
+
 /// A disc of alpha 1 on 0 (a cutout), 64².
 fn disc() -> Map {
     Map::from_fn(64, 64, 1, |_, y, x| {
@@ -162,13 +178,8 @@ fn every_map_of_the_folder_comes_back_at_four_times_aligned() {
     let run: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("run.json")).unwrap()).unwrap();
     let listed = run["carried"].to_string();
-    let mut names: Vec<String> = std::fs::read_dir(&out)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
     assert_eq!(
-        names,
+        files(&out, |_| true),
         [
             // The resolution tag is no 1K's (64²): names as they were.
             "Leather_1K_AmbientOcclusion.png",
@@ -231,13 +242,11 @@ fn materials_with_some_maps_upscale_with_what_they_have() {
             "{}",
             stderr(&o)
         );
-        let mut written: Vec<String> = std::fs::read_dir(&out)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .filter(|n| n.ends_with(".png") && n != "preview.png")
-            .collect();
-        written.sort();
-        assert_eq!(written, maps, "{name}: the maps it has, no stand-ins");
+        assert_eq!(
+            png_maps(&out),
+            maps,
+            "{name}: the maps it has, no stand-ins"
+        );
         let lr = load_material(Some(&input), &Default::default()).unwrap();
         let up = load_material(Some(&out), &Default::default()).unwrap();
         assert_eq!(up.width(), 256);
@@ -305,15 +314,7 @@ fn a_raw_ambientcg_download_comes_back_complete_under_its_own_names() {
     write(&raw.join("Leather025.png"), &colour, FileFormat::Png8);
     std::fs::write(raw.join("Leather025_1K-JPG.mtlx"), "<materialx/>").unwrap();
 
-    let listing = |folder: &Path| {
-        let mut names: Vec<String> = std::fs::read_dir(folder)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .filter(|n| n.ends_with(".jpg"))
-            .collect();
-        names.sort();
-        names
-    };
+    let listing = |folder: &Path| files(folder, |n| n.ends_with(".jpg"));
     let out = dir.path().join("out");
     matup(&[
         "upscale",
@@ -383,13 +384,8 @@ fn a_packed_file_comes_back_packed_with_its_occlusion() {
         "-o",
         out.to_str().unwrap(),
     ]);
-    let mut names: Vec<String> = std::fs::read_dir(&out)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
     assert_eq!(
-        names,
+        files(&out, |_| true),
         [
             "crate_albedo.png",
             "crate_normal.png",
@@ -436,17 +432,8 @@ fn a_batch_upscales_partial_materials_with_what_each_has() {
         out.to_str().unwrap(),
         "--quiet",
     ]);
-    let pngs = |folder: &Path| {
-        let mut names: Vec<String> = std::fs::read_dir(folder)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .filter(|n| n.ends_with(".png") && n != "preview.png")
-            .collect();
-        names.sort();
-        names
-    };
-    assert_eq!(pngs(&out.join("decal")), ["decal_albedo.png"]);
-    assert_eq!(pngs(&out.join("leather")), pngs(&full));
+    assert_eq!(png_maps(&out.join("decal")), ["decal_albedo.png"]);
+    assert_eq!(png_maps(&out.join("leather")), png_maps(&full));
     let run: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("decal/run.json")).unwrap())
             .unwrap();
