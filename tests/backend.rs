@@ -102,11 +102,16 @@ fn backends_and_devices_are_checked_before_anything_runs() {
     let e = c.validate().unwrap_err().to_string();
     assert!(e.contains("use cpu, cuda or cuda:N"), "{e}");
 
-    // This build has no CUDA: asking for it says so instead of failing later.
+    // This build has no CUDA: asking for it says so instead of failing later, also where
+    // nothing would be trained (the defaults) and the request would otherwise pass unused.
     if !matup::candle_core::utils::cuda_is_available() {
         let mut c = config(Backend::Auto);
         c.train.device = "cuda:0".into();
         let error = matup::upscale(&sample(), &c, &RunOptions::default(), &Silent).unwrap_err();
         assert!(error.to_string().contains("--features cuda"), "{error}");
+        let mut defaults = Config::default();
+        defaults.train.device = "cuda".into();
+        let error = defaults.validate().unwrap_err().to_string();
+        assert!(error.contains("--features cuda"), "{error}");
     }
 }

@@ -9,7 +9,9 @@
 //! the sample with `lanczos3`, the fixed 10 epochs and with early stopping; the defaults' cost
 //! per output megatexel at 256², 512² and 1K² outputs, and the training's (paper settings,
 //! 1 epoch each); with `MATUP_BENCH_4K=1`, also 1K² → 4K² with the defaults, with one pass,
-//! and 1 epoch on 262 144 sampled texels. `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the paper rows.
+//! and 1 epoch on 262 144 sampled texels; with `MATUP_BENCH_SHARED_1K=1`, every 1K² material
+//! of `../shared/materials` → 4K² with the defaults (the CPU's time budget: 60 s each on 2
+//! cores). `MATUP_BENCH_EPOCHS` overrides the 10 epochs of the paper rows.
 //!
 //! Then the quality of the same settings (`matup sweep`): the four shared materials cropped
 //! to 512² → 128² → ×4, SPAN, render PSNR / FLIP under 16 held-out lights, means over the
@@ -76,6 +78,28 @@ fn downsampled(name: &str, size: usize) -> tempfile::TempDir {
     )
     .unwrap();
     dir
+}
+
+/// The materials of `../shared/materials` whose maps are `side`² texels: (name, folder).
+fn shared_materials_of_side(side: usize) -> Vec<(String, PathBuf)> {
+    let root = repo().join("../shared/materials");
+    let Ok(entries) = std::fs::read_dir(&root) else {
+        eprintln!(
+            "{} is missing: the shared 1K² rows read it; put the shared material sets there",
+            root.display()
+        );
+        std::process::exit(2);
+    };
+    let mut found: Vec<(String, PathBuf)> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            load_material(Some(p), &LoadOptions::default())
+                .is_ok_and(|m| (m.width(), m.height_px()) == (side, side))
+        })
+        .map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), p))
+        .collect();
+    found.sort();
+    found
 }
 
 /// Seconds in the stages whose name ends with `suffix`, over every level (0 for none).
@@ -167,6 +191,17 @@ fn main() {
             4096,
             &paper_args(paper, "1", &["--texels-per-epoch", "262144"]),
         ));
+    }
+
+    if std::env::var("MATUP_BENCH_SHARED_1K").is_ok_and(|v| v == "1") {
+        for (name, folder) in shared_materials_of_side(1024) {
+            rows.push(run(
+                &format!("{name} 1K²→4K², defaults"),
+                &folder,
+                4096,
+                &[],
+            ));
+        }
     }
 
     println!("\nmatup upscale, {cores} cores (times in seconds; per-megatexel figures are per output megatexel)\n");

@@ -162,6 +162,24 @@ fn bad_arguments_give_clear_errors_and_fail() {
     let o = matup(&["render", dir.path().to_str().unwrap(), "-o", out]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("no image files"), "{}", stderr(&o));
+
+    // A GPU asked of a build without CUDA is refused by every command, not ignored.
+    if !cfg!(feature = "cuda") {
+        let folder = dir.path().join("up");
+        let folder = folder.to_str().unwrap();
+        for args in [
+            vec!["upscale", &sample(), "-o", folder, "--device", "cuda"],
+            vec!["batch", &sample(), "-o", folder, "--device", "cuda:1"],
+        ] {
+            let o = matup(&args);
+            assert!(!o.status.success(), "{args:?}");
+            assert!(stderr(&o).contains("--features cuda"), "{}", stderr(&o));
+        }
+        assert!(
+            !PathBuf::from(folder).exists(),
+            "refused before writing anything"
+        );
+    }
 }
 
 #[test]

@@ -738,6 +738,15 @@ impl Config {
                 t.device
             ));
         }
+        // Refused up front, whatever the settings would run: a run that trains nothing must
+        // not pass silently on the CPU.
+        if !on_cpu && !cfg!(feature = "cuda") {
+            return bad(format!(
+                "train.device {}: this build has no CUDA support; build matup with \
+                 --features cuda (docs/cuda.md)",
+                t.device
+            ));
+        }
         if tensor && (t.lr_consistency > 0.0 || t.cross_scale > 0.0) {
             return bad(FUSED_ONLY_TERMS.into());
         }
