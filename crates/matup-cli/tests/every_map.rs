@@ -287,7 +287,8 @@ fn a_raw_ambientcg_download_comes_back_complete_under_its_own_names() {
     let canonical = dir.path().join("canonical");
     let m = leather(&canonical);
     // As ambientCG ships it: JPEGs named MATERIAL_SIZE-JPG_MAP, the normal map in OpenGL's
-    // convention, occlusion beside, a preview named after the material and a MaterialX file.
+    // convention and DirectX's, occlusion beside, a preview named after the material and a
+    // MaterialX file.
     let raw = dir.path().join("Leather025_1K-JPG");
     std::fs::create_dir_all(&raw).unwrap();
     let stem = |map: &str| raw.join(format!("Leather025_1K-JPG_{map}.jpg"));
@@ -304,6 +305,13 @@ fn a_raw_ambientcg_download_comes_back_complete_under_its_own_names() {
     let height = m.height.clone().unwrap();
     write(&stem("Color"), &colour, FileFormat::Jpeg);
     write(&stem("NormalGL"), &normal_gl, FileFormat::Jpeg);
+    let mut normal_dx =
+        matup_core::io::encode_normals(&m.normal, matup_core::NormalConvention::DirectX);
+    normal_dx
+        .data_mut()
+        .iter_mut()
+        .for_each(|v| *v = v.clamp(0.0, 1.0));
+    write(&stem("NormalDX"), &normal_dx, FileFormat::Jpeg);
     write(&stem("Roughness"), &m.roughness, FileFormat::Jpeg);
     write(&stem("Displacement"), &height, FileFormat::Jpeg);
     write(
@@ -329,10 +337,23 @@ fn a_raw_ambientcg_download_comes_back_complete_under_its_own_names() {
     );
     let up = load_material(Some(&out), &Default::default()).unwrap();
     assert_eq!((up.width(), up.carried.extras.len()), (256, 1));
-    assert_eq!(
-        up.origin.as_ref().unwrap().normal_convention,
-        matup_core::NormalConvention::OpenGl,
-        "the normal map stays OpenGL"
+    // Both normal maps: one upscaled normal map, in each file's own convention.
+    let green = |file: &str| -> Vec<i32> {
+        let image = image::open(out.join(file)).unwrap().to_rgb8();
+        image.pixels().map(|p| p[1] as i32).collect()
+    };
+    let (gl, dx) = (
+        green("Leather025_1K-JPG_NormalGL.jpg"),
+        green("Leather025_1K-JPG_NormalDX.jpg"),
+    );
+    let flipped = gl
+        .iter()
+        .zip(&dx)
+        .filter(|(g, d)| (*g + *d - 255).abs() > 6)
+        .count();
+    assert!(
+        flipped < gl.len() / 100,
+        "{flipped} texels' green is not flipped"
     );
 
     // matup's names on request; occlusion keeps its own.
@@ -345,6 +366,7 @@ fn a_raw_ambientcg_download_comes_back_complete_under_its_own_names() {
         "--names",
         "matup",
     ]);
+    // Matup's names write one normal map, in the convention read (DirectX, preferred).
     assert_eq!(
         listing(&out),
         [

@@ -213,6 +213,9 @@ pub struct MaterialOrigin {
     pub packed: Option<PathBuf>,
     /// Whether roughness came from a glossiness file (roughness = 1 − gloss).
     pub roughness_from_gloss: bool,
+    /// The same normal map in the other convention, beside the one read: written back from
+    /// the output's normals under its own name.
+    pub other_normals: Vec<(PathBuf, NormalConvention)>,
     /// What of the folder was not loaded, and why (an image of a size of its own, a packed
     /// file's alpha channel).
     pub left_out: Vec<String>,

@@ -194,6 +194,9 @@ pub struct Discovered {
     /// The other images that are maps (occlusion, opacity, emission, unknown names), sorted:
     /// carried along. Previews and thumbnails are not among them.
     pub extras: Vec<PathBuf>,
+    /// Normal maps in the other convention beside the one taken (ambientCG ships `NormalGL`
+    /// and `NormalDX`), with the convention their names state.
+    pub other_normals: Vec<(PathBuf, Option<NormalConvention>)>,
 }
 
 /// Assigns the image files of `folder` to roles. When a normal map exists in both
@@ -249,6 +252,7 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
     }
 
     let mut files = BTreeMap::new();
+    let mut other_normals = Vec::new();
     for (role, mut candidates) in claims {
         if role == Role::Normal && candidates.len() > 1 {
             // Keep the preferred convention if that settles it.
@@ -259,6 +263,13 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
                 .collect();
             let conventions: Vec<_> = candidates.iter().map(|c| c.1).collect();
             if preferred_only.len() == 1 && conventions.iter().all(|c| c.is_some()) {
+                // The other convention's file is the same normals: written back, not read.
+                other_normals.extend(
+                    candidates
+                        .iter()
+                        .filter(|c| c.1 != Some(preferred))
+                        .cloned(),
+                );
                 candidates = preferred_only;
             }
         }
@@ -283,7 +294,11 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         }
         files.insert(role, candidates.pop().unwrap());
     }
-    Ok(Discovered { files, extras })
+    Ok(Discovered {
+        files,
+        extras,
+        other_normals,
+    })
 }
 
 /// The name parts matup looks for, for an error message about a missing map.

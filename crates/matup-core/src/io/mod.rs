@@ -251,6 +251,9 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
             size: [w, h],
             packed,
             roughness_from_gloss,
+            other_normals: (discovered.other_normals.iter())
+                .filter_map(|(path, convention)| Some((path.clone(), (*convention)?)))
+                .collect(),
             left_out,
         }),
     })
@@ -522,6 +525,8 @@ enum Written {
     Extra(usize),
     /// Occlusion (the i-th extra map, or none: white), roughness and metallic packed in RGB.
     Packed(Option<usize>),
+    /// The normal map again, in the other convention.
+    NormalIn(NormalConvention),
 }
 
 /// A file [`MaterialWriter`] will write: what of a band, under which stem, how.
@@ -595,6 +600,7 @@ impl MaterialWriter {
                     let extra = band.carried.extras.get(i).ok_or_else(missing)?;
                     (encode_extra(&extra.map, float), extra.alpha.as_ref())
                 }
+                Written::NormalIn(convention) => (encode_normals(&band.normal, convention), None),
                 Written::Packed(occlusion) => {
                     let occlusion = match occlusion {
                         Some(i) => band.carried.extras.get(i).ok_or_else(missing)?.map.clone(),
@@ -630,6 +636,14 @@ impl MaterialWriter {
         self.origin.as_ref().and_then(|o| o.files.get(&kind))
     }
 
+    /// The format a map of `kind` is written in: the one asked for, else its input file's,
+    /// else 8-bit PNG.
+    fn format_of_source(&self, kind: MapKind) -> FileFormat {
+        self.format
+            .or(self.source(kind).map(|s| s.1))
+            .unwrap_or(FileFormat::Png8)
+    }
+
     /// The output stem of an input file: its own, with its resolution tag rewritten.
     fn kept_name(&self, source: &Path) -> String {
         let stem = source.file_stem().unwrap_or_default().to_string_lossy();
@@ -657,10 +671,7 @@ impl MaterialWriter {
                 continue; // written packed below
             }
             let source = self.source(kind).cloned();
-            let format = self
-                .format
-                .or(source.as_ref().map(|s| s.1))
-                .unwrap_or(FileFormat::Png8);
+            let format = self.format_of_source(kind);
             let stem = match (&source, keep) {
                 (Some((path, _)), true) => self.kept_name(path),
                 _ => kind.file_stem().to_string(),
@@ -704,6 +715,19 @@ impl MaterialWriter {
                 format: self.format.unwrap_or(extra.format),
                 stand_in: None,
             });
+        }
+        if keep {
+            let others = self.origin.as_ref().map(|o| o.other_normals.clone());
+            for (path, convention) in others.unwrap_or_default() {
+                let format = self.format_of_source(MapKind::Normal);
+                plan.push(PlannedFile {
+                    what: Written::NormalIn(convention),
+                    stem: self.kept_name(&path),
+                    channels: 3,
+                    format,
+                    stand_in: None,
+                });
+            }
         }
         if let Some(path) = &packed {
             let format = self
