@@ -246,6 +246,13 @@ pub fn gaussian_blur(plane: &[f32], w: usize, h: usize, sigma: f32, border: Bord
     out
 }
 
+/// The texel of a map `lr_width` wide under texel `hr_index` of its ×`scale` upsampling,
+/// `hr_width` wide (both row-major).
+#[inline]
+pub fn lr_texel(hr_index: usize, hr_width: usize, scale: usize, lr_width: usize) -> usize {
+    (hr_index / hr_width / scale) * lr_width + (hr_index % hr_width) / scale
+}
+
 /// The least and greatest of each component of `values` (row-major, `width` texels wide)
 /// over each texel's 3×3 neighbourhood, rows and columns past the edge as `border` says: the
 /// range an upsampled texel keeps to so that it invents nothing its input lacks around it.

@@ -11,7 +11,7 @@ use matup_core::lights::{Light, LightSetSpec};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::render::{render, RenderOptions};
-use matup_core::resample::{gaussian_blur, neighbourhood_ranges, seam_ratio, Border};
+use matup_core::resample::{gaussian_blur, lr_texel, neighbourhood_ranges, seam_ratio, Border};
 use matup_core::shading::ShadingModel;
 use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
 use matup_core::{Error, Result};
@@ -114,7 +114,7 @@ pub fn false_colour(
     let w = candidate.width();
     let texels = (0..up.len())
         .filter(|&i| {
-            let r = &ranges[(i / w / scale) * lr.width() + (i % w) / scale];
+            let r = &ranges[lr_texel(i, w, scale, lr.width())];
             !inside(up[i], r) && true_chroma.as_ref().is_none_or(|t| inside(t[i], r))
         })
         .count();

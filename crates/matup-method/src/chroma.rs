@@ -5,7 +5,7 @@
 
 use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::map::Map;
-use matup_core::resample::{neighbourhood_ranges, Border};
+use matup_core::resample::{lr_texel, neighbourhood_ranges, Border};
 
 const WEIGHTS: [f32; 3] = [0.2126, 0.7152, 0.0722];
 
@@ -16,6 +16,11 @@ fn luma(rgb: [f32; 3]) -> f32 {
 /// Texel `i` of the first three channels of `m` (linear), sRGB-encoded.
 fn encoded(m: &Map, i: usize) -> [f32; 3] {
     [0, 1, 2].map(|c| linear_to_srgb(m.plane(c)[i]))
+}
+
+/// The chroma (R′ − G′, B′ − G′) of an sRGB-encoded colour.
+fn chroma(rgb: [f32; 3]) -> [f32; 2] {
+    [rgb[0] - rgb[1], rgb[2] - rgb[1]]
 }
 
 /// The colour of luma `y` and chroma `(cr, cb)`; where a channel would leave [0, 1], the
@@ -47,9 +52,7 @@ fn from_luma_chroma(y: f32, chroma: [f32; 2]) -> [f32; 3] {
 pub fn with_chroma_of(luma_from: &Map, chroma_from: &Map) -> Map {
     let mut out = Map::filled(luma_from.width(), luma_from.height(), 3, 0.0);
     for i in 0..luma_from.texels() {
-        let colour = encoded(chroma_from, i);
-        let chroma = [colour[0] - colour[1], colour[2] - colour[1]];
-        let rgb = from_luma_chroma(luma(encoded(luma_from, i)), chroma);
+        let rgb = from_luma_chroma(luma(encoded(luma_from, i)), chroma(encoded(chroma_from, i)));
         for (c, v) in rgb.into_iter().enumerate() {
             out.plane_mut(c)[i] = srgb_to_linear(v);
         }
@@ -62,20 +65,15 @@ pub fn with_chroma_of(luma_from: &Map, chroma_from: &Map) -> Map {
 /// (rows and columns past the edge wrapped or mirrored as `border` says), its luma kept: the
 /// output has no hue its input lacks around it.
 pub fn clamp_chroma_to_input(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
-    let lr_chroma: Vec<[f32; 2]> = (0..lr.texels())
-        .map(|i| {
-            let c = encoded(lr, i);
-            [c[0] - c[1], c[2] - c[1]]
-        })
-        .collect();
+    let lr_chroma: Vec<[f32; 2]> = (0..lr.texels()).map(|i| chroma(encoded(lr, i))).collect();
     let ranges = neighbourhood_ranges(&lr_chroma, lr.width(), border);
     let w = hr.width();
     for i in 0..hr.texels() {
-        let range = &ranges[(i / w / scale) * lr.width() + (i % w) / scale];
+        let range = &ranges[lr_texel(i, w, scale, lr.width())];
         let colour = encoded(hr, i);
-        let chroma = [colour[0] - colour[1], colour[2] - colour[1]];
-        let clamped = [0, 1].map(|k| chroma[k].clamp(range[k][0], range[k][1]));
-        if clamped == chroma {
+        let own = chroma(colour);
+        let clamped = [0, 1].map(|k| own[k].clamp(range[k][0], range[k][1]));
+        if clamped == own {
             continue;
         }
         let rgb = from_luma_chroma(luma(colour), clamped);
@@ -98,7 +96,7 @@ mod tests {
             [0.6, 0.6, 0.6],
         ] {
             let y = luma(rgb);
-            let back = from_luma_chroma(y, [rgb[0] - rgb[1], rgb[2] - rgb[1]]);
+            let back = from_luma_chroma(y, chroma(rgb));
             for c in 0..3 {
                 assert!((back[c] - rgb[c]).abs() < 1e-5, "{rgb:?} → {back:?}");
             }

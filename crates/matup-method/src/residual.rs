@@ -142,12 +142,17 @@ fn upsampled_base(
 /// The maps of `lr` the features come from: height and anisotropy are no filter features,
 /// so the upsampler is spared them.
 fn feature_maps(lr: &Material) -> Material {
+    // Built map by map: cloning the whole material would copy the maps left out too.
     Material {
+        base_color: lr.base_color.clone(),
+        normal: lr.normal.clone(),
+        roughness: lr.roughness.clone(),
+        metallic: lr.metallic.clone(),
         height: None,
         anisotropy: None,
         anisotropy_angle: None,
         carried: Default::default(),
-        ..lr.clone()
+        origin: lr.origin.clone(),
     }
 }
 
