@@ -384,7 +384,17 @@ fn bands_equal_the_whole_image() {
     .unwrap();
     // 128² → 512² in one level, 32² → 512² in two (the second in bands).
     for (scale, side) in [(4, 128), (16, 32)] {
-        let lr = truth.box_downsample(truth.width() / side);
+        let mut lr = truth.box_downsample(truth.width() / side);
+        // An alpha of 0 or 1 but in its last rows: a soft alpha as a whole, which every band
+        // must upsample as one (a band that reads none of those rows looks like a cutout).
+        let alpha = Map::from_fn(side, side, 1, |_, y, x| {
+            if y < side - side / 16 {
+                ((x / 5 + y / 7) % 2) as f32
+            } else {
+                0.25 + 0.25 * ((x + y) % 3) as f32
+            }
+        });
+        lr.carried.alpha.insert(MapKind::BaseColor, alpha);
         for tileable in [false, true] {
             let config = Config {
                 scale,
@@ -413,6 +423,13 @@ fn bands_equal_the_whole_image() {
                     "×{scale}, tileable {tileable}, {kind}: {worst}"
                 );
             }
+            let alpha = |m: &Material| m.carried.alpha[&MapKind::BaseColor].clone();
+            let worst = common::max_abs_diff(&alpha(&whole.0), &alpha(&banded));
+            println!("×{scale}, tileable {tileable}, {bands} bands, alpha: {worst:.2e}");
+            assert!(
+                worst <= 1.0 / 255.0,
+                "×{scale}, tileable {tileable}, alpha: {worst}"
+            );
         }
     }
 }

@@ -4,8 +4,8 @@
 //! its input. Alpha is kept free of halos, and a cutout's alpha stays binary.
 
 use matup_core::map::Map;
-use matup_core::material::{Carried, Extra, MapKind, Material};
-use matup_core::resample::{neighbourhood_ranges, upsample, Border, Kernel};
+use matup_core::material::{Carried, MapKind, Material};
+use matup_core::resample::{lr_texel, neighbourhood_ranges, upsample, Border, Kernel};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
 
@@ -23,31 +23,68 @@ pub struct CarriedUpsampling<'a> {
     pub border: Border,
 }
 
-/// Every map `lr` carries, upsampled.
-pub fn upscale_carried(lr: &Carried, how: CarriedUpsampling) -> Result<Carried> {
-    let alpha = (lr.alpha.iter())
-        .map(|(kind, a)| Ok((*kind, upscale_alpha(a, how)?)))
-        .collect::<Result<_>>()?;
-    let extras = (lr.extras.iter())
-        .map(|e| {
-            Ok(Extra {
-                map: upscale_extra(&e.map, how)?,
-                alpha: e
-                    .alpha
-                    .as_ref()
-                    .map(|a| upscale_alpha(a, how))
-                    .transpose()?,
-                ..e.clone()
-            })
-        })
-        .collect::<Result<_>>()?;
-    Ok(Carried { alpha, extras })
+/// How one carried map is upsampled.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Method {
+    /// A cutout's alpha (only 0 and 1): bicubic, thresholded at one half.
+    Cutout,
+    /// Any other alpha: the upsampler, back-projected, kept within its neighbourhood.
+    SoftAlpha,
+    /// An extra map through the upsampler as the per-map path takes a map of this kind (RGB as
+    /// base colour, grey as height: values as they come), back-projected within [0, 1].
+    Picture(MapKind),
+    /// An extra map with values outside [0, 1] (HDR emission): Lanczos, no network.
+    Lanczos,
+}
+
+/// How each of a material's carried maps is upsampled, in the order of [`Carried::maps`],
+/// decided once from the whole maps: the bands of an output must all treat a map alike.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CarriedPlan(Vec<Method>);
+
+impl CarriedPlan {
+    pub fn of(carried: &Carried) -> CarriedPlan {
+        let alpha = |a: &Map| {
+            if a.data().iter().all(|&v| v == 0.0 || v == 1.0) {
+                Method::Cutout
+            } else {
+                Method::SoftAlpha
+            }
+        };
+        let extra = |m: &Map| match m.data().iter().all(|v| (0.0..=1.0).contains(v)) {
+            false => Method::Lanczos,
+            true if m.channels() == 3 => Method::Picture(MapKind::BaseColor),
+            true => Method::Picture(MapKind::Height),
+        };
+        let mut methods: Vec<Method> = carried.alpha.values().map(alpha).collect();
+        for e in &carried.extras {
+            methods.push(extra(&e.map));
+            methods.extend(e.alpha.as_ref().map(alpha));
+        }
+        CarriedPlan(methods)
+    }
+}
+
+/// Every map `lr` carries (a material's, or a band of it), upsampled as `plan` (made from the
+/// whole material) says.
+pub fn upscale_carried(
+    lr: &Carried,
+    plan: &CarriedPlan,
+    how: CarriedUpsampling,
+) -> Result<Carried> {
+    let mut out = lr.clone();
+    for (map, &method) in out.maps_mut().zip(&plan.0) {
+        *map = upscale(map, method, how)?;
+    }
+    Ok(out)
 }
 
 /// What [`upscale_carried`] does to each of `material`'s carried maps, for the run's report:
-/// `"AmbientOcclusion.jpg: grey, by span_x4 (2 passes), back-projected"`.
+/// `"x_AmbientOcclusion.jpg as x_AmbientOcclusion: by onnx:span_x4_materials (2 passes),
+/// back-projected"`.
 pub fn describe_carried(
     material: &Material,
+    plan: &CarriedPlan,
     upsampler: &str,
     how: CarriedUpsampling,
 ) -> Vec<String> {
@@ -60,68 +97,48 @@ pub fn describe_carried(
     } else {
         ""
     };
+    let describe = |method| match method {
+        Method::Cutout => "alpha of a cutout: bicubic, thresholded at 0.5 (stays 0 or 1)".into(),
+        Method::SoftAlpha => format!(
+            "alpha: by {upsampler}{passes}{projected}, kept within its 3×3 neighbourhood \
+             (no halo)"
+        ),
+        Method::Picture(MapKind::BaseColor) => format!("RGB, by {upsampler}{passes}{projected}"),
+        Method::Picture(_) => format!("grey, by {upsampler}{passes}{projected}"),
+        Method::Lanczos => format!("by lanczos3 (values outside [0, 1]){projected}"),
+    };
     let file = |p: &std::path::Path| {
         p.file_name()
             .unwrap_or_default()
             .to_string_lossy()
             .into_owned()
     };
+    let mut methods = plan.0.iter().copied();
     let mut out = Vec::new();
     for kind in material.carried.alpha.keys() {
         let source = (material.origin.as_ref())
             .and_then(|o| o.files.get(kind))
             .map_or_else(|| kind.to_string(), |(p, _)| file(p));
-        out.push(format!(
-            "{source}: alpha, {}",
-            alpha_method(&material.carried.alpha[kind], upsampler)
-        ));
+        out.push(format!("{source}: {}", describe(methods.next().unwrap())));
     }
     for e in &material.carried.extras {
-        let what = if e.map.channels() == 3 { "RGB" } else { "grey" };
-        let by = if in_unit_range(&e.map) {
-            format!("by {upsampler}{passes}{projected}")
-        } else {
-            format!("by lanczos3 (values outside [0, 1]){projected}")
-        };
-        let mut line = format!("{} as {}: {what}, {by}", file(&e.source), e.name);
-        if let Some(a) = &e.alpha {
-            line += &format!("; alpha, {}", alpha_method(a, upsampler));
+        let mut line = format!(
+            "{} as {}: {}",
+            file(&e.source),
+            e.name,
+            describe(methods.next().unwrap())
+        );
+        if e.alpha.is_some() {
+            line += &format!("; {}", describe(methods.next().unwrap()));
         }
         out.push(line);
     }
     out
 }
 
-/// How [`upscale_alpha`] upsamples `alpha`.
-fn alpha_method(alpha: &Map, upsampler: &str) -> String {
-    if is_binary(alpha) {
-        "a cutout: bicubic, thresholded at 0.5 (stays 0 or 1)".to_string()
-    } else {
-        format!("by {upsampler}, back-projected, kept within its 3×3 neighbourhood (no halo)")
-    }
-}
-
-/// Whether every value lies in [0, 1] (an image's; HDR emission may not).
-fn in_unit_range(map: &Map) -> bool {
-    map.data().iter().all(|v| (0.0..=1.0).contains(v))
-}
-
-/// Whether every value is 0 or 1: a cutout's alpha.
-fn is_binary(map: &Map) -> bool {
-    map.data().iter().all(|&v| v == 0.0 || v == 1.0)
-}
-
-/// An extra map: RGB as the base colour is upsampled (linear colour shown sRGB-encoded), grey
-/// as roughness is, values outside [0, 1] by Lanczos instead (no network sees those).
-fn upscale_extra(map: &Map, how: CarriedUpsampling) -> Result<Map> {
-    let bounded = in_unit_range(map);
-    let mut up = if bounded {
-        let kind = if map.channels() == 3 {
-            MapKind::BaseColor
-        } else {
-            // Height: a grey map whose values the per-map path leaves as they come.
-            MapKind::Height
-        };
+/// One carried map upsampled by `method`.
+fn upscale(map: &Map, method: Method, how: CarriedUpsampling) -> Result<Map> {
+    let through_upsampler = |kind| {
         upscale_one_map(
             kind,
             map,
@@ -129,58 +146,54 @@ fn upscale_extra(map: &Map, how: CarriedUpsampling) -> Result<Map> {
             how.scale,
             how.border,
             how.ensemble,
-        )?
-    } else {
-        upsample(map, how.scale, Kernel::Lanczos3, how.border)
+        )
     };
-    if bounded {
-        up.data_mut()
-            .iter_mut()
-            .for_each(|v| *v = v.clamp(0.0, 1.0));
-    }
-    if how.back_project {
-        let range = if bounded {
-            (0.0, 1.0)
-        } else {
-            (f32::MIN, f32::MAX)
-        };
-        back_project_within(&mut up, map, how.scale, how.border, |_| range);
-    }
-    Ok(up)
-}
-
-/// An alpha channel: a cutout's (only 0 and 1) upsampled bicubically and thresholded at one
-/// half, so it stays binary with edges where the input's lie; any other kept within the values of its LR
-/// texel's 3×3 neighbourhood after back-projection, so no ring (halo) forms around an edge.
-fn upscale_alpha(alpha: &Map, how: CarriedUpsampling) -> Result<Map> {
-    if is_binary(alpha) {
-        // A smooth interpolant's half-level line is a smooth contour through the input's
-        // edges; a network's output speckles there (it hallucinates texture at a hard step).
-        let mut up = upsample(alpha, how.scale, Kernel::Bicubic { a: -0.5 }, how.border);
-        up.data_mut()
-            .iter_mut()
-            .for_each(|v| *v = if *v >= 0.5 { 1.0 } else { 0.0 });
-        return Ok(up);
-    }
-    let mut up = upscale_one_map(
-        MapKind::Height,
-        alpha,
-        how.upsampler,
-        how.scale,
-        how.border,
-        how.ensemble,
-    )?;
-    if how.back_project {
-        back_project_within(&mut up, alpha, how.scale, how.border, |_| (0.0, 1.0));
-    }
-    let values: Vec<[f32; 1]> = alpha.data().iter().map(|&v| [v]).collect();
-    let ranges = neighbourhood_ranges(&values, alpha.width(), how.border);
-    let (w, s) = (up.width(), how.scale);
-    for (i, v) in up.data_mut().iter_mut().enumerate() {
-        let [[low, high]] = ranges[(i / w / s) * alpha.width() + (i % w) / s];
-        *v = v.clamp(low, high);
-    }
-    Ok(up)
+    Ok(match method {
+        Method::Cutout => {
+            // A smooth interpolant's half-level line is a smooth contour through the input's
+            // edges; a network's output speckles there (it hallucinates texture at a hard
+            // step).
+            let mut up = upsample(map, how.scale, Kernel::Bicubic { a: -0.5 }, how.border);
+            up.data_mut()
+                .iter_mut()
+                .for_each(|v| *v = if *v >= 0.5 { 1.0 } else { 0.0 });
+            up
+        }
+        Method::SoftAlpha => {
+            let mut up = through_upsampler(MapKind::Height)?;
+            if how.back_project {
+                back_project_within(&mut up, map, how.scale, how.border, |_| (0.0, 1.0));
+            }
+            // No ring (halo) around an edge: each texel within its LR texel's neighbourhood.
+            let values: Vec<[f32; 1]> = map.data().iter().map(|&v| [v]).collect();
+            let ranges = neighbourhood_ranges(&values, map.width(), how.border);
+            let w = up.width();
+            for (i, v) in up.data_mut().iter_mut().enumerate() {
+                let [[low, high]] = ranges[lr_texel(i, w, how.scale, map.width())];
+                *v = v.clamp(low, high);
+            }
+            up
+        }
+        Method::Picture(kind) => {
+            let mut up = through_upsampler(kind)?;
+            up.data_mut()
+                .iter_mut()
+                .for_each(|v| *v = v.clamp(0.0, 1.0));
+            if how.back_project {
+                back_project_within(&mut up, map, how.scale, how.border, |_| (0.0, 1.0));
+            }
+            up
+        }
+        Method::Lanczos => {
+            let mut up = upsample(map, how.scale, Kernel::Lanczos3, how.border);
+            if how.back_project {
+                back_project_within(&mut up, map, how.scale, how.border, |_| {
+                    (f32::MIN, f32::MAX)
+                });
+            }
+            up
+        }
+    })
 }
 
 #[cfg(test)]
@@ -215,7 +228,7 @@ mod tests {
         let rings = upsample(&alpha, 4, Kernel::Lanczos3, Border::Mirror);
         let below = rings.data().iter().copied().fold(f32::INFINITY, f32::min);
         assert!(below < 0.29, "the upsampler undershoots the step: {below}");
-        let up = upscale_alpha(&alpha, how(&Lanczos)).unwrap();
+        let up = upscale(&alpha, Method::SoftAlpha, how(&Lanczos)).unwrap();
         let (lo, hi) = (up.data().iter()).fold((f32::INFINITY, 0.0f32), |(lo, hi), &v| {
             (lo.min(v), hi.max(v))
         });
@@ -228,7 +241,16 @@ mod tests {
     #[test]
     fn a_cutout_stays_binary_with_its_edge_in_place() {
         let alpha = Map::from_fn(16, 16, 1, |_, y, x| ((x + y) < 16) as u8 as f32);
-        let up = upscale_alpha(&alpha, how(&Lanczos)).unwrap();
+        let carried = Carried {
+            alpha: [(MapKind::BaseColor, alpha.clone())].into(),
+            extras: Vec::new(),
+        };
+        let plan = CarriedPlan::of(&carried);
+        assert_eq!(plan, CarriedPlan(vec![Method::Cutout]));
+        let up = upscale_carried(&carried, &plan, how(&Lanczos))
+            .unwrap()
+            .alpha[&MapKind::BaseColor]
+            .clone();
         assert!(up.data().iter().all(|&v| v == 0.0 || v == 1.0));
         let seen = matup_core::resample::box_downsample(&up, 4);
         let off: f32 = (seen.data().iter().zip(alpha.data()))

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::bands::{plan_bands, Assembler, BYTES_PER_BAND_TEXEL, ENSEMBLE_BYTES_PER_BAND_TEXEL};
-use crate::carried::{describe_carried, upscale_carried, CarriedUpsampling};
+use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
 use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
 use crate::context::{Context, RunOptions};
 use crate::fit::{infer_material, learn_level, TrainedFilter};
@@ -129,6 +129,7 @@ pub fn upscale_streamed(
     }
     let carried = describe_carried(
         material,
+        &CarriedPlan::of(&material.carried),
         &upsampler_used,
         carried_upsampling(config, upsampler.as_ref(), 1, Border::for_tiling(tileable)),
     );
@@ -288,6 +289,8 @@ fn run_level(
         ctx.progress.stage(&tag("bands"), plan.count() as u64);
     }
     let mut trained_base = trained_base;
+    // Decided from the whole level input: every band treats each carried map alike.
+    let carried_plan = CarriedPlan::of(&lr.carried);
     for band in plan.bands() {
         let read = (!whole).then(|| band.read_material(lr));
         let lr_band = read.as_ref().unwrap_or(lr);
@@ -333,7 +336,7 @@ fn run_level(
         if !lr_band.carried.is_empty() {
             let how = carried_upsampling(config, ctx.upsampler.as_ref(), scale, ctx.border);
             hr.carried = timed(timings, tag("carried maps"), || {
-                upscale_carried(&lr_band.carried, how)
+                upscale_carried(&lr_band.carried, &carried_plan, how)
             })?;
         }
         if !whole {
