@@ -93,12 +93,12 @@ fn backends_and_devices_are_checked_before_anything_runs() {
     assert!(e.contains("fused backend only"), "{e}");
 
     let mut c = config(Backend::Fused);
-    c.train.device = "cuda".into();
+    c.device = "cuda".into();
     let e = c.validate().unwrap_err().to_string();
     assert!(e.contains("CPU only"), "{e}");
 
     let mut c = config(Backend::Auto);
-    c.train.device = "gpu".into();
+    c.device = "gpu".into();
     let e = c.validate().unwrap_err().to_string();
     assert!(e.contains("use cpu, cuda or cuda:N"), "{e}");
 
@@ -106,11 +106,13 @@ fn backends_and_devices_are_checked_before_anything_runs() {
     // nothing would be trained (the defaults) and the request would otherwise pass unused.
     if !matup::candle_core::utils::cuda_is_available() {
         let mut c = config(Backend::Auto);
-        c.train.device = "cuda:0".into();
+        c.device = "cuda:0".into();
         let error = matup::upscale(&sample(), &c, &RunOptions::default(), &Silent).unwrap_err();
         assert!(error.to_string().contains("--features cuda"), "{error}");
-        let mut defaults = Config::default();
-        defaults.train.device = "cuda".into();
+        let defaults = Config {
+            device: "cuda".into(),
+            ..Config::default()
+        };
         let error = defaults.validate().unwrap_err().to_string();
         assert!(error.contains("--features cuda"), "{error}");
     }

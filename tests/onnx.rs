@@ -335,6 +335,40 @@ fn matups_executor_matches_tract_on_each_kind_of_network() {
     }
 }
 
+/// What `--device cuda` runs (the executor's graph as candle operations, many tiles a call),
+/// here on candle's CPU device, against matup's executor: both shipped networks, in tiles and
+/// whole, with a tileable image's wrap-around context and wrapping convolutions and without.
+#[test]
+fn the_candle_graph_matches_matups_executor_on_both_shipped_networks() {
+    let image = real_render();
+    let turned = image.transformed(matup::map::Dihedral::ALL[3]);
+    for model in ["span_x4_materials", "span_x4_ch48"] {
+        // 4 tiles of 32² (read as 76² windows), or the whole 64² image in one.
+        for (tiling, border) in [
+            ("tile=32", Border::Mirror),
+            ("tile=32", Border::Wrap),
+            ("tile=64", Border::Mirror),
+            ("tile=64", Border::Wrap),
+        ] {
+            let executor = build(&format!("onnx:{model},engine=matup,{tiling}"));
+            let candle = build(&format!("onnx:{model},engine=candle,{tiling}"));
+            assert!(candle.batches_images());
+            let want = executor
+                .upsample(&[image.clone(), turned.clone()], 4, border)
+                .unwrap();
+            // Both images in one call: their tiles share the network's batch.
+            let got = candle
+                .upsample(&[image.clone(), turned.clone()], 4, border)
+                .unwrap();
+            for (w, g) in want.iter().zip(&got) {
+                let diff = common::max_abs_diff(w, g);
+                println!("{model}, {tiling}, {border:?}: max |candle − matup| {diff:e}");
+                assert!(diff < 1e-4, "{model}, {tiling}, {border:?}: {diff}");
+            }
+        }
+    }
+}
+
 #[test]
 fn a_tileable_image_run_whole_with_wrapping_convolutions_matches_wrap_around_tiles() {
     let image = real_render();

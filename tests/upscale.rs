@@ -434,6 +434,53 @@ fn bands_equal_the_whole_image() {
     }
 }
 
+/// The defaults with the network as `--device cuda` runs it (candle operations, the
+/// self-ensemble's passes in one call), here on candle's CPU device, in bands, against the
+/// CPU's executor on the whole image: every map within 1/255 as its file stores it, tileable
+/// and not.
+#[test]
+fn the_gpu_path_in_bands_gives_the_cpu_paths_maps() {
+    let truth = matup::load_material(
+        Some(&common::test_material("polyhaven_coast_sand_rocks_02")),
+        &Default::default(),
+    )
+    .unwrap();
+    // 128² → 512².
+    let lr = truth.box_downsample(2);
+    for tileable in [false, true] {
+        let on = |engine: &str| Config {
+            upsampler: format!("onnx:span_x4_materials,engine={engine}"),
+            tileable: Some(tileable),
+            ..Config::default()
+        };
+        let (cpu, _) = run_defaults(&lr, &on("matup"), None);
+        let (gpu_path, report) = run_defaults(&lr, &on("candle"), Some(24 << 20));
+        let bands = report.levels[0].bands;
+        assert!(bands >= 2, "tileable {tileable}: {bands} bands");
+        for kind in MapKind::ALL {
+            let (Some(a), Some(b)) = (cpu.map(kind), gpu_path.map(kind)) else {
+                assert!(cpu.map(kind).is_none() && gpu_path.map(kind).is_none());
+                continue;
+            };
+            let worst = common::max_abs_diff(&as_stored(kind, a), &as_stored(kind, b));
+            println!("tileable {tileable}, {bands} bands, {kind}: {worst:.2e}");
+            assert!(worst <= 1.0 / 255.0, "tileable {tileable}, {kind}: {worst}");
+        }
+    }
+}
+
+fn run_defaults(
+    lr: &Material,
+    config: &Config,
+    memory_limit: Option<u64>,
+) -> (Material, RunReport) {
+    let options = RunOptions {
+        memory_limit,
+        ..RunOptions::default()
+    };
+    upscale(lr, config, &options, &Silent).unwrap()
+}
+
 /// Not a material's worth of memory: the limit is refused with the sizes in the message.
 #[test]
 fn a_limit_too_low_for_any_band_says_what_it_needs() {

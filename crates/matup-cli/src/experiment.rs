@@ -39,6 +39,10 @@ pub struct BenchArgs {
     /// Training epochs of every matup run (overrides the config).
     #[arg(long)]
     pub epochs: Option<usize>,
+    /// Where every matup run computes: cpu, cuda or cuda:N (overrides the config; the per-map
+    /// baselines run on the CPU).
+    #[arg(long)]
+    pub device: Option<String>,
     /// Also train matup on exact renders of the truth: the method's ceiling.
     #[arg(long)]
     pub oracle: bool,
@@ -60,6 +64,10 @@ pub struct SweepArgs {
     /// Output folder (default: results/NAME, NAME the file's stem).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
+    /// Where every matup run computes: cpu, cuda or cuda:N (overrides the file's `device`;
+    /// the per-map baselines run on the CPU).
+    #[arg(long)]
+    pub device: Option<String>,
     #[arg(long)]
     pub quiet: bool,
 }
@@ -97,6 +105,9 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
             t.insert("epochs".into(), toml::Value::Integer(e as i64));
         }
     }
+    if let Some(device) = &args.device {
+        base.insert("device".into(), toml::Value::String(device.clone()));
+    }
     let upsamplers = args
         .upsamplers
         .clone()
@@ -123,7 +134,10 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
 }
 
 pub fn sweep(args: &SweepArgs) -> anyhow::Result<()> {
-    let experiment = Experiment::from_file(&args.experiment)?;
+    let mut experiment = Experiment::from_file(&args.experiment)?;
+    if let Some(device) = &args.device {
+        (experiment.base).insert("device".into(), toml::Value::String(device.clone()));
+    }
     let output = args.output.clone().unwrap_or_else(|| {
         Path::new("results").join(args.experiment.file_stem().unwrap_or_default())
     });

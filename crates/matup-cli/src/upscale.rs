@@ -250,7 +250,7 @@ impl SettingsArgs {
             input_interpolation => filter.input, residual_base => filter.residual_base,
             lr => train.learning_rate, batch_size => train.batch_size, schedule => train.schedule,
             epochs => train.epochs, loss => train.loss, targets => train.targets,
-            backend => train.backend, device => train.device,
+            backend => train.backend, device => device,
             select => select,
             lr_consistency => train.lr_consistency, cross_scale => train.cross_scale,
         );

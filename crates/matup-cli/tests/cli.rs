@@ -170,6 +170,7 @@ fn bad_arguments_give_clear_errors_and_fail() {
         for args in [
             vec!["upscale", &sample(), "-o", folder, "--device", "cuda"],
             vec!["batch", &sample(), "-o", folder, "--device", "cuda:1"],
+            vec!["bench", &sample(), "-o", folder, "--device", "cuda"],
         ] {
             let o = matup(&args);
             assert!(!o.status.success(), "{args:?}");

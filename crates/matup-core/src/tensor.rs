@@ -161,7 +161,17 @@ pub fn parse_device(spec: &str) -> Result<Device> {
             "device '{spec}': this build has no CUDA support; build with --features cuda (see docs/cuda.md)"
         )));
     }
-    Device::new_cuda(ordinal).map_err(|e| Error::Invalid(format!("device '{spec}': {e}")))
+    // One device per GPU for the process: each candle device loads its kernels anew, and a
+    // batch of materials asks for the device once a material.
+    static DEVICES: std::sync::Mutex<Vec<(usize, Device)>> = std::sync::Mutex::new(Vec::new());
+    let mut devices = DEVICES.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, device)) = devices.iter().find(|(o, _)| *o == ordinal) {
+        return Ok(device.clone());
+    }
+    let device =
+        Device::new_cuda(ordinal).map_err(|e| Error::Invalid(format!("device '{spec}': {e}")))?;
+    devices.push((ordinal, device.clone()));
+    Ok(device)
 }
 
 /// `[T, 10]` parameters of `texels` as one tensor (tests and tools).

@@ -28,6 +28,13 @@ pub trait RgbUpsampler: Send + Sync {
         None
     }
 
+    /// Whether images run faster together than one a call (a GPU fills its batch with all
+    /// their tiles). Callers with several images to upsample at once (the self-ensemble's
+    /// passes) then hand them over in one call, holding all their outputs at once.
+    fn batches_images(&self) -> bool {
+        false
+    }
+
     /// Upsamples each image by `scale`. `border` says what lies beyond the edges:
     /// [`Border::Wrap`] for tileable materials, whose output must tile too.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>>;

@@ -8,7 +8,7 @@ use candle_core::{Device, Tensor, Var};
 use matup_core::resample::Border;
 use matup_core::{Error, Result};
 use matup_upsamplers::onnx::{
-    read_graph, read_sidecar, Arith, Graph, ModelInfo, ModelProto, Op, PerTexel, RawConv,
+    read_graph, read_sidecar, run_steps, Graph, ModelInfo, ModelProto, Op, RawConv,
 };
 use prost::Message;
 use tract_onnx::pb::tensor_proto::DataType;
@@ -177,50 +177,15 @@ impl TrainableNet {
             }
         };
         let input = swap(&images.affine((hi - lo) as f64, lo as f64)?)?;
-        let mut values: Vec<Option<Tensor>> = vec![None; self.graph.values];
-        values[0] = Some(input);
-        for (index, (step, conv)) in self.graph.steps.iter().zip(&self.convs).enumerate() {
-            let input = |k: usize| {
-                values[step.inputs[k]]
-                    .clone()
-                    .expect("steps come in the order they are computed")
-            };
-            let out = match &step.op {
-                Op::Conv(_, then) => {
-                    let w = conv.as_ref().expect("a conv step has weights");
-                    let mut y = convolve(&input(0), w)?;
-                    if let Some(((entry, g), height)) = guide {
-                        if *entry == index {
-                            y = (y + convolve(height, g)?)?;
-                        }
-                    }
-                    per_texel(&y, then)?
-                }
-                Op::PerTexel(chain) => per_texel(&input(0), chain)?,
-                Op::Arith(a) => {
-                    let (x, y) = (input(0), input(1));
-                    match a {
-                        Arith::Add => (x + y)?,
-                        Arith::Sub => (x - y)?,
-                        Arith::Mul => (x * y)?,
-                        Arith::Div => (x / y)?,
-                    }
-                }
-                Op::Concat => {
-                    let parts: Vec<Tensor> = (0..step.inputs.len()).map(input).collect();
-                    Tensor::cat(&parts, 1)?
-                }
-                Op::DepthToSpace { block, crd } => depth_to_space(&input(0), *block, *crd)?,
-                Op::ResizeNearest(f) => {
-                    let (_, _, h, w) = input(0).dims4()?;
-                    input(0).upsample_nearest2d(h * f, w * f)?
-                }
-            };
-            values[step.output] = Some(out);
-        }
-        let out = values[self.graph.output]
-            .take()
-            .expect("the output is computed");
+        let g = &self.graph;
+        let out = run_steps(&g.steps, g.values, g.output, input, |index, x| {
+            let w = self.convs[index].as_ref().expect("a conv step has weights");
+            let y = convolve(x, w)?;
+            match guide {
+                Some(((entry, g), height)) if *entry == index => y + convolve(height, g)?,
+                _ => Ok(y),
+            }
+        })?;
         swap(&out)?
             .affine(1.0 / (ohi - olo) as f64, -(olo / (ohi - olo)) as f64)?
             .clamp(0f32, 1f32)
@@ -353,63 +318,4 @@ fn convolve(x: &Tensor, w: &ConvWeights) -> candle_core::Result<Tensor> {
         y = y.broadcast_add(&bias.as_tensor().reshape((1, cout, 1))?)?;
     }
     y.reshape((b, cout, h, wd))
-}
-
-fn per_texel(x: &Tensor, chain: &[PerTexel]) -> candle_core::Result<Tensor> {
-    let mut x = x.clone();
-    for op in chain {
-        let channels = x.dim(1)?;
-        let per_channel = |values: &[f32]| -> candle_core::Result<Tensor> {
-            let n = values.len();
-            debug_assert!(n == 1 || n == channels);
-            Tensor::from_slice(values, (1, n, 1, 1), x.device())
-        };
-        x = match op {
-            // As (tanh(x/2) + 1)/2: 1/(1 + e^−x) overflows for very negative x, and its
-            // gradient becomes 0·∞.
-            PerTexel::Sigmoid => ((x * 0.5)?.tanh()? + 1.0)?.affine(0.5, 0.0)?,
-            PerTexel::Silu => x.silu()?,
-            PerTexel::Relu => x.relu()?,
-            PerTexel::LeakyRelu(a) => {
-                let negative = x.minimum(0f32)?;
-                (x.relu()? + (negative * *a as f64)?)?
-            }
-            PerTexel::Clip(lo, hi) => x.clamp(*lo, *hi)?,
-            PerTexel::PRelu(slope) => {
-                let negative = x.minimum(0f32)?.broadcast_mul(&per_channel(slope)?)?;
-                (x.relu()? + negative)?
-            }
-            PerTexel::Constant {
-                arith,
-                constant,
-                constant_first,
-            } => {
-                let c = per_channel(constant)?;
-                match (arith, constant_first) {
-                    (Arith::Add, _) => x.broadcast_add(&c)?,
-                    (Arith::Mul, _) => x.broadcast_mul(&c)?,
-                    (Arith::Sub, false) => x.broadcast_sub(&c)?,
-                    (Arith::Sub, true) => c.broadcast_sub(&x)?,
-                    (Arith::Div, false) => x.broadcast_div(&c)?,
-                    (Arith::Div, true) => c.broadcast_div(&x)?,
-                }
-            }
-        };
-    }
-    Ok(x)
-}
-
-/// `[B, C·r², H, W]` → `[B, C, H·r, W·r]`: CRD is PyTorch's pixel shuffle (channel, row,
-/// column), DCR ONNX's default (row, column, channel).
-fn depth_to_space(x: &Tensor, r: usize, crd: bool) -> candle_core::Result<Tensor> {
-    let (b, c, h, w) = x.dims4()?;
-    let c = c / (r * r);
-    let spread = if crd {
-        x.reshape(&[b, c, r, r, h, w][..])?
-            .permute(&[0, 1, 4, 2, 5, 3][..])?
-    } else {
-        x.reshape(&[b, r, r, c, h, w][..])?
-            .permute(&[0, 3, 4, 1, 5, 2][..])?
-    };
-    spread.reshape((b, c, h * r, w * r))
 }

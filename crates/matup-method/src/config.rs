@@ -504,8 +504,6 @@ pub struct TrainConfig {
     pub early_stop: EarlyStopConfig,
     /// How the steps are computed.
     pub backend: Backend,
-    /// Where: `cpu`, `cuda` or `cuda:N`.
-    pub device: String,
 }
 
 /// Convergence-based stopping: `train.epochs` is a maximum. A fixed set of texels is held out
@@ -556,7 +554,6 @@ impl Default for TrainConfig {
             texels_per_epoch: None,
             early_stop: EarlyStopConfig::default(),
             backend: Backend::Auto,
-            device: "cpu".into(),
         }
     }
 }
@@ -589,6 +586,10 @@ pub struct Config {
     pub lights: LightsConfig,
     pub filter: FilterConfig,
     pub train: TrainConfig,
+    /// Where matup computes with tensors: `cpu`, `cuda` or `cuda:N` (a build with the `cuda`
+    /// feature). On a GPU the SR networks run there (the `onnx` upsampler's `device`), and the
+    /// filter trains there.
+    pub device: String,
 }
 
 impl Default for Config {
@@ -606,6 +607,7 @@ impl Default for Config {
             lights: LightsConfig::default(),
             filter: FilterConfig::default(),
             train: TrainConfig::default(),
+            device: "cpu".into(),
         }
     }
 }
@@ -730,21 +732,21 @@ impl Config {
         if self.lights.count == 0 {
             return bad("lights.count must be at least 1".into());
         }
-        let on_cpu = matup_core::tensor::cuda_ordinal(&t.device)?.is_none();
+        let on_cpu = matup_core::tensor::cuda_ordinal(&self.device)?.is_none();
         let tensor = t.backend.resolve(on_cpu) == Backend::Tensor;
         if t.backend == Backend::Fused && !on_cpu {
             return bad(format!(
-                "train.backend fused runs on the CPU only; use tensor (or auto) with train.device {}",
-                t.device
+                "train.backend fused runs on the CPU only; use tensor (or auto) with device {}",
+                self.device
             ));
         }
         // Refused up front, whatever the settings would run: a run that trains nothing must
         // not pass silently on the CPU.
         if !on_cpu && !cfg!(feature = "cuda") {
             return bad(format!(
-                "train.device {}: this build has no CUDA support; build matup with \
+                "device {}: this build has no CUDA support; build matup with \
                  --features cuda (docs/cuda.md)",
-                t.device
+                self.device
             ));
         }
         if tensor && (t.lr_consistency > 0.0 || t.cross_scale > 0.0) {
@@ -769,12 +771,23 @@ impl Config {
     }
 }
 
+/// `spec` on the run's `device`: an ONNX network that names no device of its own runs there
+/// (the other upsamplers run on the CPU).
+pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
+    let names_one = (spec.argument.iter()).any(|a| a.split(',').any(|o| o.starts_with("device=")));
+    if spec.name == "onnx" && device != "cpu" && !names_one {
+        let argument = spec.argument.take().unwrap_or_default();
+        spec.argument = Some(format!("{argument},device={device}"));
+    }
+    spec
+}
+
 /// The configured upsampler, or for `auto` the first that loads and supports every level's
 /// scale: [`MATERIAL_NETWORK`] where the configuration only upsamples maps, then
 /// [`AUTO_UPSAMPLERS`].
 pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
     let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
-        let spec: PluginSpec = spec.parse()?;
+        let spec = on_device(spec.parse()?, &config.device);
         let up = upsampler(&spec)?;
         for &s in &config.levels() {
             check_scale(&spec.name, up.as_ref(), s)?;

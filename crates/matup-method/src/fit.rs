@@ -254,6 +254,7 @@ fn fit_filter(
             &shading,
             fixed,
             &config.train,
+            &config.device,
             config.seed.wrapping_add(level as u64),
             checkpoint.as_ref(),
             ctx.progress,

@@ -93,12 +93,35 @@ fn upscale_map(
     scale: usize,
     border: Border,
 ) -> Result<Map> {
-    let image = encode_for_upsampler(kind, map);
-    let up = (upsampler
-        .upsample(&[image], scale, border)?
-        .into_iter()
-        .next())
-    .ok_or_else(|| Error::Invalid(format!("the upsampler returned no image for {kind:?}")))?;
+    let up = upscale_maps(kind, std::slice::from_ref(map), upsampler, scale, border)?;
+    Ok(up.into_iter().next().expect("one map in, one out"))
+}
+
+/// Maps of `kind`, all of one size, upsampled in one call of the upsampler and decoded.
+fn upscale_maps(
+    kind: MapKind,
+    maps: &[Map],
+    upsampler: &dyn RgbUpsampler,
+    scale: usize,
+    border: Border,
+) -> Result<Vec<Map>> {
+    let images: Vec<Map> = maps.iter().map(|m| encode_for_upsampler(kind, m)).collect();
+    let ups = upsampler.upsample(&images, scale, border)?;
+    if ups.len() != maps.len() {
+        return Err(Error::Invalid(format!(
+            "the upsampler returned {} images for {} {kind:?} maps",
+            ups.len(),
+            maps.len()
+        )));
+    }
+    ups.into_iter()
+        .zip(maps)
+        .map(|(up, map)| decoded(kind, map, up, scale))
+        .collect()
+}
+
+/// `up`, the upsampler's image of `map` at ×`scale`, checked and decoded into a map of `kind`.
+fn decoded(kind: MapKind, map: &Map, up: Map, scale: usize) -> Result<Map> {
     let want = (map.width() * scale, map.height() * scale);
     if (up.width(), up.height()) != want || up.channels() < 3 {
         return Err(Error::Invalid(format!(
@@ -167,19 +190,38 @@ fn upscale_map_ensemble(
     }
     let (w, h) = (map.width() * scale, map.height() * scale);
     let mut sum: Option<Map> = None;
-    for &t in symmetries {
-        let mut up = upscale_map(
-            kind,
-            &transformed_map(kind, map, t),
-            upsampler,
-            scale,
-            border,
-        )?;
+    let mut add = |t: Dihedral, mut up: Map| {
         // Turned back: the directions first (texel by texel), then the texels, into the sum.
         let back = t.inverse();
         turn_with_surface(kind, &mut up, back);
         sum.get_or_insert_with(|| Map::filled(w, h, up.channels(), 0.0))
             .add_transformed(&up, back);
+    };
+    if upsampler.batches_images() {
+        // All passes in one call (a GPU's batch), their outputs held at once.
+        let passes: Vec<Map> = (symmetries.iter())
+            .map(|&t| transformed_map(kind, map, t))
+            .collect();
+        for (&t, up) in symmetries
+            .iter()
+            .zip(upscale_maps(kind, &passes, upsampler, scale, border)?)
+        {
+            add(t, up);
+        }
+    } else {
+        // One pass at a time: one output beside the sum.
+        for &t in symmetries {
+            add(
+                t,
+                upscale_map(
+                    kind,
+                    &transformed_map(kind, map, t),
+                    upsampler,
+                    scale,
+                    border,
+                )?,
+            );
+        }
     }
     let sum = sum.ok_or_else(|| Error::Invalid("a self-ensemble of no symmetries".into()))?;
     let n = symmetries.len() as f32;

@@ -320,6 +320,7 @@ pub fn train(
     shading: &Shading,
     fixed: [Option<f32>; FEATURES],
     config: &TrainConfig,
+    device: &str,
     seed: u64,
     checkpoint: Option<&Checkpoint>,
     progress: &dyn Progress,
@@ -337,7 +338,8 @@ pub fn train(
         prior: config.prior.feature_weights(),
     };
     let batch = config.batch_size.div_ceil(group) * group;
-    let device = parse_device(&config.device)?;
+    let device_name = device;
+    let device = parse_device(device_name)?;
     let backend = training_backend(config, &device, shading.model.as_ref(), cross.is_some())?;
     let mut stepper: Box<dyn Stepper + '_> = match backend {
         Backend::Tensor => Box::new(tensor::TensorStepper::new(
@@ -354,7 +356,7 @@ pub fn train(
     };
     let mut stats = TrainStats {
         backend: backend.to_string(),
-        device: config.device.clone(),
+        device: device_name.to_string(),
         ..TrainStats::default()
     };
     let mut validation = Validation::default();

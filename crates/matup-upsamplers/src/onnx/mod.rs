@@ -3,9 +3,11 @@
 //! from a sidecar `NAME.toml` next to `NAME.onnx`; the scale is checked against the network's
 //! real output on a probe input.
 //!
-//! Two engines run the graph: matup's own executor for convolutional SR graphs ([`convnet`],
+//! Three engines run the graph: matup's own executor for convolutional SR graphs ([`convnet`],
 //! several times faster on CPUs), used whenever the graph's operators allow, and tract for
-//! every other graph; the optimised tract plan is built once per input shape and reused.
+//! every other graph (the optimised tract plan is built once per input shape and reused); on
+//! a GPU (`device=cuda`), the executor's graph as candle operations ([`tensors`]), many tiles a
+//! call.
 //!
 //! Images are processed in tiles read with `overlap` texels of context on every side (wrapping
 //! around for tileable materials), several tiles per call, and blended with feathered weights
@@ -17,6 +19,7 @@ mod conv;
 mod convnet;
 mod kernels;
 mod source;
+mod tensors;
 mod winograd;
 
 use std::collections::HashMap;
@@ -34,12 +37,13 @@ use tract_onnx::prelude::*;
 
 use convnet::ConvNet;
 pub use convnet::{Graph, Op, RawConv, Step, Unsupported};
-pub use kernels::{Arith, PerTexel};
-use kernels::{Features, Padding};
+use kernels::Features;
+pub use kernels::{Arith, Padding, PerTexel};
 pub use source::{
     available_models, model_dirs, read_sidecar, read_sidecar_file, resolve, BuiltIn, ModelSource,
     BUILT_IN,
 };
+pub use tensors::{depth_to_space, per_texel, run_steps, TensorNet};
 pub use tract_onnx::pb::ModelProto;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
@@ -92,12 +96,15 @@ pub fn read_graph(path: &Path) -> Result<(ModelProto, Graph)> {
     Ok((proto, graph))
 }
 
-/// Which engine runs a network: `auto` picks matup's executor where the graph allows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Which engine runs a network: `auto` picks matup's executor where the graph allows;
+/// `Candle` runs the executor's graph as candle operations on a device (`cpu`, `cuda`,
+/// `cuda:N`).
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum EngineChoice {
     Auto,
     Matup,
     Tract,
+    Candle(String),
 }
 
 /// What runs the network.
@@ -107,6 +114,9 @@ enum Engine {
         net: ConvNet,
         pool: Option<rayon::ThreadPool>,
     },
+    /// The executor's graph as candle operations on a device, and how many tiles of the
+    /// sidecar's size fit in its memory.
+    Candle { net: TensorNet, free: usize },
     /// tract, with its plans by input shape [batch, height, width], and why matup's
     /// executor does not run the graph.
     Tract {
@@ -124,6 +134,8 @@ pub struct OnnxUpsampler {
     engine: Engine,
     /// The input's batch, height and width where the network fixes them.
     fixed: [Option<usize>; 3],
+    /// Whether `batch=N` was given (else a GPU runs as many tiles a call as fit).
+    batch_given: bool,
 }
 
 /// The [batch, height, width] an ONNX file's input declares, `None` where it is symbolic.
@@ -190,22 +202,23 @@ impl OnnxUpsampler {
                 "scale, tile and batch must be positive, channel_order rgb or bgr",
             ));
         }
-        let native = match choice {
-            EngineChoice::Tract => Err("engine=tract was asked for".to_string()),
-            _ => ConvNet::from_model(&proto).map_err(|e| e.to_string()),
-        };
-        let engine = match native {
-            Ok(net) => Engine::Matup { net, pool: None },
-            Err(why) if choice == EngineChoice::Matup => {
-                return Err(source.error("matup's executor cannot run it", why))
-            }
-            Err(why) => tract_engine(&source, why)?,
+        let engine = match &choice {
+            EngineChoice::Candle(device) => candle_engine(&source, &proto, device)?,
+            EngineChoice::Tract => tract_engine(&source, "engine=tract was asked for".into())?,
+            EngineChoice::Auto | EngineChoice::Matup => match ConvNet::from_model(&proto) {
+                Ok(net) => Engine::Matup { net, pool: None },
+                Err(why) if choice == EngineChoice::Matup => {
+                    return Err(source.error("matup's executor cannot run it", why))
+                }
+                Err(why) => tract_engine(&source, why.to_string())?,
+            },
         };
         let upsampler = OnnxUpsampler {
             source,
             info,
             engine,
             fixed: fixed_input(&proto),
+            batch_given: false,
         };
         // Probe: the output must be the input times the sidecar's scale, 3 channels.
         let fixed = upsampler.fixed;
@@ -228,10 +241,12 @@ impl OnnxUpsampler {
         Ok(upsampler)
     }
 
-    /// "matup", or "tract" and why matup's executor does not run the graph.
+    /// "matup", "candle on DEVICE", or "tract" and why matup's executor does not run the
+    /// graph.
     pub fn engine(&self) -> String {
         match &self.engine {
             Engine::Matup { .. } => "matup".into(),
+            Engine::Candle { net, .. } => format!("candle on {}", device_name(net.device())),
             Engine::Tract { because, .. } => format!("tract ({because})"),
         }
     }
@@ -248,6 +263,8 @@ impl OnnxUpsampler {
                 *pool = Some(built);
             }
             Engine::Tract { executor: e, .. } => *e = executor(threads),
+            // The device computes; the host's threads only cut and blend tiles.
+            Engine::Candle { .. } => {}
         }
         Ok(())
     }
@@ -276,6 +293,26 @@ impl OnnxUpsampler {
         Ok(plan)
     }
 
+    /// Images of 3 planes each, values in [0, 1], as one [batch, 3, h, w] array in the
+    /// network's range and channel order.
+    fn network_input(&self, images: &[&[f32]]) -> Vec<f32> {
+        let [lo, hi] = self.info.input_range;
+        let bgr = self.info.channel_order == "bgr";
+        let mut data = Vec::with_capacity(images.iter().map(|i| i.len()).sum());
+        for image in images {
+            let n = image.len() / 3;
+            for c in 0..3 {
+                let src = if bgr { 2 - c } else { c };
+                data.extend(
+                    image[src * n..(src + 1) * n]
+                        .iter()
+                        .map(|v| lo + v * (hi - lo)),
+                );
+            }
+        }
+        data
+    }
+
     /// Runs the network on tiles of one shape (each 3 planes of `h × w`, values in [0, 1]);
     /// matup's executor pads its convolutions as `padding` says, tract with zeros.
     fn run_batch(
@@ -292,6 +329,10 @@ impl OnnxUpsampler {
         let channel = |c: usize| if bgr { 2 - c } else { c };
         let output = |v: f32| ((v - olo) / (ohi - olo)).clamp(0.0, 1.0);
         let n = h * w;
+        let network_input = |tiles: &[Vec<f32>]| {
+            let planes: Vec<&[f32]> = tiles.iter().map(|t| &t[..]).collect();
+            self.network_input(&planes)
+        };
         match &self.engine {
             Engine::Matup { net, pool } => {
                 let run = |tile: &Vec<f32>| {
@@ -315,22 +356,40 @@ impl OnnxUpsampler {
                     None => tiles.iter().map(run).collect(),
                 })
             }
-            Engine::Tract { executor, .. } => {
-                let mut data = Vec::with_capacity(tiles.len() * 3 * n);
-                for tile in tiles {
-                    for c in 0..3 {
-                        let src = channel(c);
-                        data.extend(
-                            tile[src * n..(src + 1) * n]
-                                .iter()
-                                .map(|v| lo + v * (hi - lo)),
-                        );
-                    }
+            Engine::Candle { net, .. } => {
+                let failed = |e: candle_core::Error| self.source.error("inference failed", e);
+                let input = candle_core::Tensor::from_vec(
+                    network_input(tiles),
+                    (tiles.len(), 3, h, w),
+                    net.device(),
+                )
+                .map_err(failed)?;
+                let out = net.run(input, padding).map_err(failed)?;
+                let (b, c, oh, ow) = out.dims4().map_err(failed)?;
+                if b != tiles.len() || c != 3 {
+                    return Err(self.source.error(
+                        "unsupported output",
+                        format!("shape {:?}, want [batch, 3, height, width]", out.dims()),
+                    ));
                 }
-                let input: Tensor =
-                    tract_ndarray::Array4::from_shape_vec((tiles.len(), 3, h, w), data)
-                        .map_err(|e| self.source.error("input", e))?
-                        .into();
+                let data = out.flatten_all().and_then(|t| t.to_vec1::<f32>());
+                let data = data.map_err(failed)?;
+                let plane = oh * ow;
+                Ok((0..b)
+                    .into_par_iter()
+                    .map(|i| {
+                        let at = |c: usize| (i * 3 + channel(c)) * plane;
+                        Map::from_fn(ow, oh, 3, |c, y, x| output(data[at(c) + y * ow + x]))
+                    })
+                    .collect())
+            }
+            Engine::Tract { executor, .. } => {
+                let input: Tensor = tract_ndarray::Array4::from_shape_vec(
+                    (tiles.len(), 3, h, w),
+                    network_input(tiles),
+                )
+                .map_err(|e| self.source.error("input", e))?
+                .into();
                 let plan = self.plan(tiles.len(), h, w)?;
                 let outputs =
                     multithread_tract_scope(executor.clone(), || plan.run(tvec!(input.into())))
@@ -352,6 +411,42 @@ impl OnnxUpsampler {
             }
         }
     }
+}
+
+/// `cpu`, `cuda:N`: how `--device` names a candle device.
+fn device_name(device: &candle_core::Device) -> String {
+    match device.location() {
+        candle_core::DeviceLocation::Cuda { gpu_id } => format!("cuda:{gpu_id}"),
+        candle_core::DeviceLocation::Cpu => "cpu".into(),
+        other => format!("{other:?}"),
+    }
+}
+
+/// Bytes of memory free on `device` for the network's tiles: on a GPU, what its driver reports
+/// free now; on the CPU, the 1 GiB that a host batch of tiles is allowed.
+fn free_memory(device: &candle_core::Device) -> candle_core::Result<usize> {
+    match device {
+        #[cfg(feature = "cuda")]
+        candle_core::Device::Cuda(gpu) => {
+            let (free, _total) =
+                (gpu.cuda_stream().context().mem_get_info()).map_err(candle_core::Error::wrap)?;
+            Ok(free)
+        }
+        _ => Ok(1 << 30),
+    }
+}
+
+/// The candle engine for `proto` on `device`: the executor's graph, its weights uploaded once,
+/// and the device's free memory, which sets how many tiles a call runs.
+fn candle_engine(source: &ModelSource, proto: &ModelProto, device: &str) -> Result<Engine> {
+    let graph =
+        Graph::from_model(proto).map_err(|e| source.error("matup's executor cannot run it", e))?;
+    let device = matup_core::tensor::parse_device(device)?;
+    let on = format!("on {}", device_name(&device));
+    let failed = |e: candle_core::Error| source.error(&on, e);
+    let net = TensorNet::new(graph, &device).map_err(failed)?;
+    let free = free_memory(&device).map_err(failed)?;
+    Ok(Engine::Candle { net, free })
 }
 
 /// tract's engine for the network `source`, which matup's executor does not run `because`.
@@ -516,13 +611,19 @@ impl OnnxUpsampler {
         border == Border::Wrap
             && w.max(h) <= self.info.tile
             && self.fixed[1..] == [None, None]
-            && matches!(self.engine, Engine::Matup { .. })
+            && matches!(self.engine, Engine::Matup { .. } | Engine::Candle { .. })
     }
 }
 
 impl RgbUpsampler for OnnxUpsampler {
     fn native_scale(&self) -> Option<usize> {
         Some(self.info.scale)
+    }
+
+    /// The candle engine (a GPU's): the self-ensemble's passes fill its batch together. So
+    /// on candle's CPU device too, which tests the GPU's path where there is no GPU.
+    fn batches_images(&self) -> bool {
+        matches!(self.engine, Engine::Candle { .. })
     }
 
     /// The sidecar's overlap: the context each tile is run with.
@@ -538,6 +639,9 @@ impl RgbUpsampler for OnnxUpsampler {
         }
     }
 
+    /// Images of one size share calls: their tiles (or, run whole, the images) are queued
+    /// together and run as many a call as the engine takes, so the self-ensemble's passes and
+    /// a material's renders fill a GPU's batch.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         let s = self.info.scale;
         if scale != s {
@@ -546,84 +650,293 @@ impl RgbUpsampler for OnnxUpsampler {
                 what: format!("scale ×{scale} (the network upsamples ×{s})"),
             });
         }
-        let mut results = Vec::with_capacity(images.len());
+        let mut results: Vec<Option<Map>> = vec![None; images.len()];
+        let mut sizes: Vec<(usize, usize)> =
+            images.iter().map(|m| (m.width(), m.height())).collect();
+        sizes.sort_unstable();
+        sizes.dedup();
+        for (w, h) in sizes {
+            let same: Vec<usize> = (0..images.len())
+                .filter(|&k| (images[k].width(), images[k].height()) == (w, h))
+                .collect();
+            let outputs = if self.runs_whole_wrapping(w, h, border) {
+                let mut outputs = Vec::with_capacity(same.len());
+                for group in same.chunks(self.tiles_per_call(h, w)) {
+                    let planes: Vec<Vec<f32>> = (group.iter())
+                        .map(|&k| images[k].data()[..3 * w * h].to_vec())
+                        .collect();
+                    outputs.extend(self.run_batch(&planes, h, w, Padding::Wrap)?);
+                }
+                outputs
+            } else {
+                let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
+                match &self.engine {
+                    Engine::Candle { net, .. } => self
+                        .upsample_tiled_on_device(net, &same_images, border)
+                        .map_err(|e| self.source.error("inference failed", e))?,
+                    _ => self.upsample_tiled(&same_images, border)?,
+                }
+            };
+            for (k, out) in same.into_iter().zip(outputs) {
+                results[k] = Some(out);
+            }
+        }
+        Ok(results
+            .into_iter()
+            .map(|m| m.expect("every size is run"))
+            .collect())
+    }
+}
+
+impl OnnxUpsampler {
+    /// [`OnnxUpsampler::upsample_tiled`] on the candle engine's device: the images are
+    /// uploaded once; the tiles' windows are cut, run, mapped to [0, 1], weighted and blended
+    /// along each row of tiles there; each finished row of tiles comes back to be added into
+    /// the output, so the host only adds rows and the device holds a batch and a row.
+    fn upsample_tiled_on_device(
+        &self,
+        net: &TensorNet,
+        images: &[&Map],
+        border: Border,
+    ) -> candle_core::Result<Vec<Map>> {
+        use candle_core::Tensor;
+        let s = self.info.scale;
+        let (w, h) = (images[0].width(), images[0].height());
+        let device = net.device();
+        let margin = self.info.overlap / 2;
+        let axis = |len, fixed| {
+            self.tile_axis(len, fixed)
+                .map_err(|e| candle_core::Error::Msg(e.to_string()))
+        };
+        let (rows, columns) = (axis(h, self.fixed[1])?, axis(w, self.fixed[2])?);
+        let row_starts = tile_starts(h, rows.core);
+        let column_starts = tile_starts(w, columns.core);
+        let kept_rows = blend_weights(&row_starts, rows, h, margin, s);
+        let kept_columns = blend_weights(&column_starts, columns, w, margin, s);
+        // Each tile's window as indices into the image (the border decides beyond its edges).
+        let window = |start: usize, axis: TileAxis, len: usize| {
+            let at =
+                |t: usize| border.index(start as isize + t as isize - axis.before as isize, len);
+            let indices: Vec<u32> = (0..axis.window).map(|t| at(t) as u32).collect();
+            Tensor::from_vec(indices, axis.window, device)
+        };
+        let row_windows = (row_starts.iter().map(|&y| window(y, rows, h)))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        let column_windows = (column_starts.iter().map(|&x| window(x, columns, w)))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        let weights =
+            |k: &Kept, shape: (usize, usize, usize)| Tensor::from_slice(&k.weights, shape, device);
+        let row_weights = (kept_rows
+            .iter()
+            .map(|k| weights(k, (1, k.weights.len(), 1))))
+        .collect::<candle_core::Result<Vec<_>>>()?;
+        let column_weights = (kept_columns
+            .iter()
+            .map(|k| weights(k, (1, 1, k.weights.len()))))
+        .collect::<candle_core::Result<Vec<_>>>()?;
+        let planes: Vec<&[f32]> = images.iter().map(|m| &m.data()[..3 * w * h]).collect();
+        let uploaded =
+            Tensor::from_vec(self.network_input(&planes), (images.len(), 3, h, w), device)?;
+        let [olo, ohi] = self.info.output_range;
+        let rgb = Tensor::from_vec(
+            if self.info.channel_order == "bgr" {
+                vec![2u32, 1, 0]
+            } else {
+                vec![0u32, 1, 2]
+            },
+            3,
+            device,
+        )?;
+
+        let (out_w, out_h) = (w * s, h * s);
+        let mut accs = vec![vec![0f32; 3 * out_w * out_h]; images.len()];
+        // The row of tiles being blended: (image, row of tiles) and its [3, rows, out_w] sum.
+        let mut strip: Option<((usize, usize), Tensor)> = None;
+        let mut finish = |strip: Option<((usize, usize), Tensor)>| -> candle_core::Result<()> {
+            let Some(((k, i), sum)) = strip else {
+                return Ok(());
+            };
+            let kept = &kept_rows[i];
+            let sum = sum.flatten_all()?.to_vec1::<f32>()?;
+            let n = kept.weights.len() * out_w;
+            // Adds its rows into the output, a channel a thread.
+            accs[k]
+                .par_chunks_mut(out_w * out_h)
+                .enumerate()
+                .for_each(|(c, plane)| {
+                    let to = kept.in_image * out_w;
+                    for (d, v) in plane[to..to + n].iter_mut().zip(&sum[c * n..(c + 1) * n]) {
+                        *d += v;
+                    }
+                });
+            Ok(())
+        };
+        let grid: Vec<(usize, usize, usize)> = (0..images.len())
+            .flat_map(|k| {
+                let n_columns = column_starts.len();
+                (0..row_starts.len()).flat_map(move |i| (0..n_columns).map(move |j| (k, i, j)))
+            })
+            .collect();
+        let batch = self.tiles_per_call(rows.window, columns.window);
+        for group in grid.chunks(batch) {
+            let mut windows = (group.iter())
+                .map(|&(k, i, j)| {
+                    uploaded
+                        .narrow(0, k, 1)?
+                        .index_select(&row_windows[i], 2)?
+                        .index_select(&column_windows[j], 3)
+                })
+                .collect::<candle_core::Result<Vec<_>>>()?;
+            if let Some(fixed) = self.fixed[0] {
+                // Fill the fixed batch with copies; their outputs are not used.
+                let last = windows.last().expect("chunks are not empty").clone();
+                windows.resize(fixed, last);
+            }
+            let out = net.run(Tensor::cat(&windows, 0)?, Padding::Zero)?;
+            let out = out
+                .index_select(&rgb, 1)?
+                .affine(1.0 / (ohi - olo) as f64, -(olo / (ohi - olo)) as f64)?
+                .clamp(0f32, 1f32)?;
+            for (b, &(k, i, j)) in group.iter().enumerate() {
+                let (kr, kc) = (&kept_rows[i], &kept_columns[j]);
+                let tile = out
+                    .get(b)?
+                    .narrow(1, kr.in_tile, kr.weights.len())?
+                    .narrow(2, kc.in_tile, kc.weights.len())?
+                    .broadcast_mul(&row_weights[i])?
+                    .broadcast_mul(&column_weights[j])?;
+                let right = out_w - kc.in_image - kc.weights.len();
+                let tile = tile.pad_with_zeros(2, kc.in_image, right)?;
+                strip = match strip.take() {
+                    Some((at, sum)) if at == (k, i) => Some((at, (sum + tile)?)),
+                    done => {
+                        finish(done)?;
+                        Some(((k, i), tile))
+                    }
+                };
+            }
+        }
+        finish(strip)?;
+        Ok(accs
+            .into_iter()
+            .map(|acc| Map::from_planar(out_w, out_h, 3, acc))
+            .collect())
+    }
+}
+
+/// Output rows of one channel blended by one task.
+const BLEND_ROWS: usize = 64;
+
+impl OnnxUpsampler {
+    /// How many `h × w` inputs one call runs: the network's fixed batch, or as many as the
+    /// GPU's memory holds, or the sidecar's batch.
+    fn tiles_per_call(&self, h: usize, w: usize) -> usize {
+        match (self.fixed[0], &self.engine) {
+            (Some(fixed), _) => fixed,
+            (None, Engine::Candle { net, free }) if !self.batch_given => {
+                let cost = net.tile_cost(h, w);
+                // The output's three copies (mapped to [0, 1], channels in order, weighted).
+                let out = 3 * 3 * h * w * self.info.scale.pow(2) * 4;
+                // Half the GPU's free memory (the rest for others and the row being blended),
+                // and every tensor under 2³¹ elements (candle's CUDA kernels index in 32 bits).
+                let in_memory = free / 2 / (cost.bytes + out).max(1);
+                let indexable = (i32::MAX as usize) / cost.largest.max(1);
+                in_memory.min(indexable).max(1)
+            }
+            (None, _) => self.info.batch,
+        }
+    }
+
+    /// `images`, all of one size, in tiles read with context as `border` says, several tiles a
+    /// call across all the images, blended with feathered weights.
+    fn upsample_tiled(&self, images: &[&Map], border: Border) -> Result<Vec<Map>> {
+        let s = self.info.scale;
+        let (w, h) = (images[0].width(), images[0].height());
         // Tiles keep half their context, blended with their neighbours'.
         let margin = self.info.overlap / 2;
-        // A network with a fixed batch gets exactly that many tiles per call.
-        let batch = self.fixed[0].unwrap_or(self.info.batch);
-        for image in images {
-            let (w, h) = (image.width(), image.height());
-            if self.runs_whole_wrapping(w, h, border) {
-                let planes = image.data()[..3 * w * h].to_vec();
-                results.extend(self.run_batch(&[planes], h, w, Padding::Wrap)?);
-                continue;
-            }
-            let rows = self.tile_axis(h, self.fixed[1])?;
-            let columns = self.tile_axis(w, self.fixed[2])?;
-            let row_starts = tile_starts(h, rows.core);
-            let column_starts = tile_starts(w, columns.core);
-            let kept_rows = blend_weights(&row_starts, rows, h, margin, s);
-            let kept_columns = blend_weights(&column_starts, columns, w, margin, s);
-            // Tiles by (index of their row, index of their column).
-            let grid: Vec<(usize, usize)> = (0..row_starts.len())
-                .flat_map(|i| (0..column_starts.len()).map(move |j| (i, j)))
+        let rows = self.tile_axis(h, self.fixed[1])?;
+        let columns = self.tile_axis(w, self.fixed[2])?;
+        let row_starts = tile_starts(h, rows.core);
+        let column_starts = tile_starts(w, columns.core);
+        let kept_rows = blend_weights(&row_starts, rows, h, margin, s);
+        let kept_columns = blend_weights(&column_starts, columns, w, margin, s);
+        // Tiles by (image, index of their row, index of their column).
+        let (n_rows, n_columns) = (row_starts.len(), column_starts.len());
+        let grid: Vec<(usize, usize, usize)> = (0..images.len())
+            .flat_map(|k| (0..n_rows).flat_map(move |i| (0..n_columns).map(move |j| (k, i, j))))
+            .collect();
+        let (out_w, out_h) = (w * s, h * s);
+        let mut accs = vec![vec![0f32; 3 * out_w * out_h]; images.len()];
+        let batch = self.tiles_per_call(rows.window, columns.window);
+        for group in grid.chunks(batch) {
+            let mut tiles: Vec<Vec<f32>> = group
+                .iter()
+                .map(|&(k, i, j)| {
+                    let (y0, x0) = (row_starts[i], column_starts[j]);
+                    let mut t = Vec::with_capacity(3 * rows.window * columns.window);
+                    for c in 0..3 {
+                        for ty in 0..rows.window {
+                            let y =
+                                border.index(y0 as isize + ty as isize - rows.before as isize, h);
+                            for tx in 0..columns.window {
+                                let x = border
+                                    .index(x0 as isize + tx as isize - columns.before as isize, w);
+                                t.push(images[k].get(c, y, x));
+                            }
+                        }
+                    }
+                    t
+                })
                 .collect();
-            let (out_w, out_h) = (w * s, h * s);
-            let mut acc = vec![0f32; 3 * out_w * out_h];
-            for group in grid.chunks(batch) {
-                let mut tiles: Vec<Vec<f32>> = group
-                    .iter()
-                    .map(|&(i, j)| {
-                        let (y0, x0) = (row_starts[i], column_starts[j]);
-                        let mut t = Vec::with_capacity(3 * rows.window * columns.window);
-                        for c in 0..3 {
-                            for ty in 0..rows.window {
-                                let y = border
-                                    .index(y0 as isize + ty as isize - rows.before as isize, h);
-                                for tx in 0..columns.window {
-                                    let x = border.index(
-                                        x0 as isize + tx as isize - columns.before as isize,
-                                        w,
-                                    );
-                                    t.push(image.get(c, y, x));
-                                }
-                            }
-                        }
-                        t
-                    })
-                    .collect();
-                if self.fixed[0].is_some() {
-                    // Fill the fixed batch with copies; their outputs are not used.
-                    let last = tiles.last().expect("chunks are not empty").clone();
-                    tiles.resize(batch, last);
-                }
-                let outputs = self.run_batch(&tiles, rows.window, columns.window, Padding::Zero)?;
-                // One channel a thread, row by row: each tile's kept row is one contiguous
-                // run of its plane. Writing the three planes and a weight plane at once (each
-                // 256 MB apart at 8K²) cost 7.5× the time per texel at 8K² that it did at 4K²
-                // (perf), 14 s of 2K² → 8K²'s 174.
-                acc.par_chunks_mut((out_w * out_h).max(1))
-                    .enumerate()
-                    .for_each(|(c, plane)| {
-                        for (&(i, j), out) in group.iter().zip(&outputs) {
-                            let (rows, columns) = (&kept_rows[i], &kept_columns[j]);
-                            let tile = out.plane(c);
-                            for (dy, &wy) in rows.weights.iter().enumerate() {
-                                let from = (rows.in_tile + dy) * out.width() + columns.in_tile;
-                                let to = (rows.in_image + dy) * out_w + columns.in_image;
-                                let n = columns.weights.len();
-                                let (src, dst) = (&tile[from..from + n], &mut plane[to..to + n]);
-                                for ((d, &v), &wx) in dst.iter_mut().zip(src).zip(&columns.weights)
-                                {
-                                    *d += wy * wx * v;
-                                }
-                            }
-                        }
-                    });
+            if self.fixed[0].is_some() {
+                // Fill the fixed batch with copies; their outputs are not used.
+                let last = tiles.last().expect("chunks are not empty").clone();
+                tiles.resize(batch, last);
             }
-            results.push(Map::from_planar(w * s, h * s, 3, acc));
+            let outputs = self.run_batch(&tiles, rows.window, columns.window, Padding::Zero)?;
+            let mut in_group: Vec<usize> = group.iter().map(|t| t.0).collect();
+            in_group.dedup();
+            for k in in_group {
+                let acc = &mut accs[k];
+                // Each thread a run of rows of one channel: each tile's kept row is one
+                // contiguous run of its plane. Writing the three planes and a weight plane at
+                // once (each 256 MB apart at 8K²) cost 7.5× the time per texel at 8K² that it
+                // did at 4K² (perf), 14 s of 2K² → 8K²'s 174.
+                let planes = acc.par_chunks_mut((out_w * out_h).max(1)).enumerate();
+                let chunks = planes.flat_map(|(c, plane)| {
+                    let runs = plane
+                        .par_chunks_mut((out_w * BLEND_ROWS).max(1))
+                        .enumerate();
+                    runs.map(move |(r, dst_rows)| (c, r * BLEND_ROWS, dst_rows))
+                });
+                chunks.for_each(|(c, first, dst_rows)| {
+                    let last = (first + BLEND_ROWS).min(out_h);
+                    for (&(_, i, j), out) in
+                        (group.iter().zip(&outputs)).filter(|((image, _, _), _)| *image == k)
+                    {
+                        let (rows, columns) = (&kept_rows[i], &kept_columns[j]);
+                        let tile = out.plane(c);
+                        for (dy, &wy) in rows.weights.iter().enumerate() {
+                            let y = rows.in_image + dy;
+                            if y < first || y >= last {
+                                continue;
+                            }
+                            let from = (rows.in_tile + dy) * out.width() + columns.in_tile;
+                            let to = (y - first) * out_w + columns.in_image;
+                            let n = columns.weights.len();
+                            let (src, dst) = (&tile[from..from + n], &mut dst_rows[to..to + n]);
+                            for ((d, &v), &wx) in dst.iter_mut().zip(src).zip(&columns.weights) {
+                                *d += wy * wx * v;
+                            }
+                        }
+                    }
+                });
+            }
         }
-        Ok(results)
+        Ok(accs
+            .into_iter()
+            .map(|acc| Map::from_planar(out_w, out_h, 3, acc))
+            .collect())
     }
 }
 
@@ -641,7 +954,7 @@ const OPTIONS: &[PluginOption] = &[
     PluginOption {
         key: "batch",
         default: "",
-        help: "tiles per network call (default: the sidecar's)",
+        help: "tiles per network call (default: the sidecar's; on a GPU, as many as fit)",
     },
     PluginOption {
         key: "threads",
@@ -651,7 +964,12 @@ const OPTIONS: &[PluginOption] = &[
     PluginOption {
         key: "engine",
         default: "auto",
-        help: "what runs the network: matup (its own executor), tract, or auto (matup where the graph allows)",
+        help: "what runs the network: matup (its own executor), tract, candle (the executor's graph as candle operations), or auto (matup where the graph allows; candle on a GPU)",
+    },
+    PluginOption {
+        key: "device",
+        default: "cpu",
+        help: "where the network runs: cpu, or cuda[:N] (candle, a build with --features cuda)",
     },
     PluginOption {
         key: "sidecar",
@@ -660,7 +978,7 @@ const OPTIONS: &[PluginOption] = &[
     },
 ];
 
-/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E,sidecar=PATH]`, MODEL a path to a `.onnx` file or a name in the
+/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E,device=D,sidecar=PATH]`, MODEL a path to a `.onnx` file or a name in the
 /// model folders.
 fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let argument = argument.unwrap_or("");
@@ -672,14 +990,27 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
         });
     }
     let values = parse_options("onnx", Some(options), OPTIONS)?;
+    let device = values["device"].clone();
+    let on_gpu = matup_core::tensor::cuda_ordinal(&device)?.is_some();
     let choice = match values["engine"].as_str() {
+        "auto" if on_gpu => EngineChoice::Candle(device),
+        "candle" => EngineChoice::Candle(device),
         "auto" => EngineChoice::Auto,
-        "matup" => EngineChoice::Matup,
-        "tract" => EngineChoice::Tract,
+        "matup" if !on_gpu => EngineChoice::Matup,
+        "tract" if !on_gpu => EngineChoice::Tract,
+        "matup" | "tract" => {
+            return Err(Error::Plugin {
+                plugin: "onnx".into(),
+                message: format!(
+                    "engine={} runs on the CPU; on device {device} the engine is candle",
+                    values["engine"]
+                ),
+            })
+        }
         other => {
             return Err(Error::Plugin {
                 plugin: "onnx".into(),
-                message: format!("engine '{other}': known engines are auto, matup, tract"),
+                message: format!("engine '{other}': known engines are auto, matup, tract, candle"),
             })
         }
     };
@@ -688,6 +1019,7 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
         given => Some(PathBuf::from(given)),
     };
     let mut upsampler = OnnxUpsampler::load_source(resolve(model)?, sidecar.as_deref(), choice)?;
+    upsampler.batch_given = !values["batch"].is_empty();
     for (key, slot) in [
         ("tile", &mut upsampler.info.tile),
         ("overlap", &mut upsampler.info.overlap),
@@ -712,7 +1044,7 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
 inventory::submit! {
     UpsamplerRegistration {
         name: "onnx",
-        description: "a pre-trained SR network: onnx:PATH.onnx or onnx:NAME from the model folders (CPU)",
+        description: "a pre-trained SR network: onnx:PATH.onnx or onnx:NAME from the model folders (CPU, or a GPU with device=cuda)",
         options: OPTIONS,
         create,
     }

@@ -1,0 +1,348 @@
+//! The CPU and a GPU side by side: `matup upscale` and `matup batch` with the defaults on
+//! `--device cpu` and `--device cuda`, one process per run. Prints a table: seconds (end to
+//! end, and the per-map SR stage: each map through the network under the self-ensemble's
+//! passes, encoded for it and decoded, the back-projection not included), peak host memory (the process's high-water mark), peak
+//! GPU memory (nvidia-smi, sampled every 100 ms, less what was in use before the run), and for
+//! a row run on both devices the largest difference between their maps as 8-bit files store
+//! them.
+//!
+//! `cargo bench -p matup-cli --features cuda --bench device`
+//!
+//! Rows: the README's main job (the shipped 128² sample → 512²); a 1K² material → 4K²; the
+//! same repeated 2 × 2 → 8K² and 4 × 4 → 16K²; a library of 100 materials (128² crops of the
+//! repository's test materials) through `matup batch`. Settings, by environment variable:
+//! - `MATUP_BIN`: the `matup` binary to run (default: this build's);
+//! - `MATUP_BENCH_MATERIAL`: the 1K² material (default `../shared/materials/ambientcg_Metal053C`);
+//! - `MATUP_BENCH_ROWS`: which rows, of `main,1k,2k,4k,library` (default all);
+//! - `MATUP_BENCH_CPU_ROWS`: the rows also run on the CPU (default `main,1k,2k,library`:
+//!   4K² → 16K² takes about 11 minutes on 2 cores).
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use matup_core::map::Map;
+use matup_core::material::{MapKind, Material};
+use matup_core::{load_material, save_material, LoadOptions, SaveOptions};
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn matup() -> PathBuf {
+    std::env::var_os("MATUP_BIN").map_or(PathBuf::from(env!("CARGO_BIN_EXE_matup")), PathBuf::from)
+}
+
+/// One run's measurements.
+struct Measured {
+    seconds: f64,
+    /// The per-map SR stage (`residual base` in run.json), summed over the run's reports.
+    network_seconds: f64,
+    host_mib: f64,
+    gpu_mib: Option<f64>,
+}
+
+/// GPU memory in use now, in MiB, summed over the GPUs (None without nvidia-smi).
+fn gpu_memory_used() -> Option<f64> {
+    let o = Command::new("nvidia-smi")
+        .args(["--query-gpu=memory.used", "--format=csv,noheader,nounits"])
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&o.stdout);
+    o.status.success().then(|| {
+        text.lines()
+            .filter_map(|l| l.trim().parse::<f64>().ok())
+            .sum()
+    })
+}
+
+/// Runs `matup ARGS`, sampling the process's peak host memory and the GPU's memory in use
+/// while it runs.
+fn measure(name: &str, args: &[&str]) -> (Measured, String) {
+    let before = gpu_memory_used();
+    let gpu_peak = Arc::new(AtomicU64::new(0));
+    let done = Arc::new(AtomicBool::new(false));
+    let sampler = before.map(|_| {
+        let (peak, done) = (gpu_peak.clone(), done.clone());
+        let mut smi = Command::new("nvidia-smi")
+            .args([
+                "--query-gpu=memory.used",
+                "--format=csv,noheader,nounits",
+                "-lms",
+                "100",
+            ])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("nvidia-smi answered a moment ago");
+        let out = smi.stdout.take().unwrap();
+        let reader = std::thread::spawn(move || {
+            for line in BufReader::new(out).lines().map_while(|l| l.ok()) {
+                if let Ok(mib) = line.trim().parse::<f64>() {
+                    peak.fetch_max(mib as u64, Ordering::Relaxed);
+                }
+                if done.load(Ordering::Relaxed) {
+                    break;
+                }
+            }
+        });
+        (smi, reader)
+    });
+    let start = Instant::now();
+    let mut child = Command::new(matup())
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let status = format!("/proc/{}/status", child.id());
+    let mut host_kib = 0u64;
+    let stdout = child.stdout.take().unwrap();
+    let collect = std::thread::spawn(move || {
+        let mut s = String::new();
+        std::io::Read::read_to_string(&mut BufReader::new(stdout), &mut s).map(|_| s)
+    });
+    while child.try_wait().unwrap().is_none() {
+        // VmHWM: the process's peak resident memory so far.
+        if let Ok(text) = std::fs::read_to_string(&status) {
+            let hwm = text.lines().find_map(|l| l.strip_prefix("VmHWM:"));
+            if let Some(kib) = hwm.and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+            {
+                host_kib = host_kib.max(kib);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let output = child.wait_with_output().unwrap();
+    let stdout = collect.join().unwrap().unwrap();
+    assert!(
+        output.status.success(),
+        "{name}: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    done.store(true, Ordering::Relaxed);
+    if let Some((mut smi, reader)) = sampler {
+        let _ = smi.kill();
+        let _ = reader.join();
+    }
+    let gpu_mib = before.map(|b| (gpu_peak.load(Ordering::Relaxed) as f64 - b).max(0.0));
+    let measured = Measured {
+        seconds,
+        network_seconds: 0.0,
+        host_mib: host_kib as f64 / 1024.0,
+        gpu_mib,
+    };
+    (measured, stdout)
+}
+
+/// Seconds in the stages named `residual base` of one run's report (every level).
+fn network_seconds(report: &serde_json::Value) -> f64 {
+    (report["timings"].as_array().into_iter().flatten())
+        .filter(|t| t[0].as_str().is_some_and(|s| s.ends_with("residual base")))
+        .filter_map(|t| t[1].as_f64())
+        .sum()
+}
+
+/// `matup upscale FOLDER` with the defaults on `device`, its maps written to `out`.
+fn upscale(name: &str, folder: &Path, out: &Path, device: &str) -> Measured {
+    let args = [
+        "upscale",
+        folder.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+        "--device",
+        device,
+    ];
+    let (mut m, stdout) = measure(name, &args);
+    let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    m.network_seconds = network_seconds(&report);
+    eprintln!("{name}: stages {}", report["timings"]);
+    m
+}
+
+/// `matup batch LIBRARY` with the defaults on `device`.
+fn batch(name: &str, library: &Path, out: &Path, device: &str) -> Measured {
+    let args = [
+        "batch",
+        library.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--quiet",
+        "--device",
+        device,
+    ];
+    let (mut m, _) = measure(name, &args);
+    // Each material's run.json, beside its maps.
+    let mut reports = vec![out.to_path_buf()];
+    while let Some(dir) = reports.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                reports.push(path);
+            } else if path.file_name().is_some_and(|n| n == "run.json") {
+                let text = std::fs::read_to_string(&path).unwrap();
+                m.network_seconds += network_seconds(&serde_json::from_str(&text).unwrap());
+            }
+        }
+    }
+    m
+}
+
+/// The largest difference, in 8-bit levels, between two outputs' maps as their files hold them.
+fn levels_apart(a: &Path, b: &Path) -> f64 {
+    let load = |p: &Path| load_material(Some(p), &LoadOptions::default()).unwrap();
+    let (a, b) = (load(a), load(b));
+    let mut worst = 0f32;
+    for kind in MapKind::ALL {
+        if let (Some(x), Some(y)) = (a.map(kind), b.map(kind)) {
+            let stored = |m: &Map| match kind {
+                MapKind::BaseColor => m.clone().map_values(matup_core::color::linear_to_srgb),
+                MapKind::Normal => m.clone().map_values(|v| 0.5 * (v + 1.0)),
+                _ => m.clone(),
+            };
+            let (x, y) = (stored(x), stored(y));
+            for (p, q) in x.data().iter().zip(y.data()) {
+                worst = worst.max((p - q).abs());
+            }
+        }
+    }
+    (worst * 255.0) as f64
+}
+
+/// `m` repeated `k × k` times.
+fn repeated(m: &Material, k: usize) -> Material {
+    m.map_maps(|map| {
+        let (w, h) = (map.width(), map.height());
+        Map::from_fn(w * k, h * k, map.channels(), |c, y, x| {
+            map.get(c, y % h, x % w)
+        })
+    })
+}
+
+/// 100 materials of 128²: crops of the repository's test materials at 8 offsets each.
+fn library(dir: &Path) {
+    let root = repo().join("tests/data/materials");
+    let mut names: Vec<PathBuf> = std::fs::read_dir(&root)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .collect();
+    names.sort();
+    let materials: Vec<Material> = (names.iter())
+        .map(|p| load_material(Some(p), &LoadOptions::default()).unwrap())
+        .collect();
+    for i in 0..100 {
+        let m = &materials[i % materials.len()];
+        let offset = (i / materials.len()) * 16;
+        let (x, y) = (offset % (m.width() - 128), offset % (m.height_px() - 128));
+        let folder = dir.join(format!("material{i:03}"));
+        save_material(&m.crop(x, y, 128, 128), &folder, &SaveOptions::default()).unwrap();
+    }
+}
+
+fn main() {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let list = |var: &str, default: &str| -> Vec<String> {
+        let v = std::env::var(var).unwrap_or_else(|_| default.into());
+        v.split(',').map(|s| s.trim().to_string()).collect()
+    };
+    let rows = list("MATUP_BENCH_ROWS", "main,1k,2k,4k,library");
+    let cpu_rows = list("MATUP_BENCH_CPU_ROWS", "main,1k,2k,library");
+    let material = std::env::var_os("MATUP_BENCH_MATERIAL").map_or(
+        repo().join("../shared/materials/ambientcg_Metal053C"),
+        PathBuf::from,
+    );
+    let gpu = gpu_memory_used().is_some();
+    let scratch = tempfile::tempdir().unwrap();
+    let inputs = scratch.path().join("inputs");
+    let mut table = Vec::new();
+    for row in &rows {
+        let (name, input): (String, PathBuf) = match row.as_str() {
+            "main" => (
+                "sample 128² → 512² (README main job)".into(),
+                repo().join("samples/victorian_wood"),
+            ),
+            "1k" | "2k" | "4k" => {
+                let k = match row.as_str() {
+                    "1k" => 1,
+                    "2k" => 2,
+                    _ => 4,
+                };
+                let m = load_material(Some(&material), &LoadOptions::default())
+                    .unwrap_or_else(|e| panic!("{e}: set MATUP_BENCH_MATERIAL to a 1K² material"));
+                let folder = inputs.join(row);
+                save_material(&repeated(&m, k), &folder, &SaveOptions::default()).unwrap();
+                let side = m.width() * k;
+                let label = |s: usize| match s % 1024 {
+                    0 => format!("{}K²", s / 1024),
+                    _ => format!("{s}²"),
+                };
+                let name = material.file_name().unwrap().to_string_lossy();
+                let name = format!(
+                    "{name}{} {} → {}",
+                    if k > 1 {
+                        format!(" {k}×{k}")
+                    } else {
+                        String::new()
+                    },
+                    label(side),
+                    label(4 * side)
+                );
+                (name, folder)
+            }
+            "library" => {
+                let folder = inputs.join("library");
+                library(&folder);
+                (
+                    "library of 100 materials, 128² → 512² (matup batch)".into(),
+                    folder,
+                )
+            }
+            other => panic!("unknown row '{other}': use main, 1k, 2k, 4k, library"),
+        };
+        let mut devices = vec![];
+        if cpu_rows.contains(row) {
+            devices.push("cpu");
+        }
+        if gpu {
+            devices.push("cuda");
+        }
+        let mut outputs = vec![];
+        for device in devices {
+            let out = scratch.path().join(format!("{row}-{device}"));
+            let label = format!("{name}, {device}");
+            eprintln!("running {label}");
+            let m = if row == "library" {
+                batch(&label, &input, &out, device)
+            } else {
+                upscale(&label, &input, &out, device)
+            };
+            table.push((name.clone(), device, m));
+            outputs.push(out);
+        }
+        if let ([cpu, gpu], true) = (&outputs[..], row != "library") {
+            let apart = levels_apart(cpu, gpu);
+            println!("{name}: CPU and GPU maps at most {apart:.2} of 255 apart");
+        }
+    }
+    println!(
+        "\nmatup, defaults, {cores} CPU cores{}\n",
+        if gpu { " and the GPU" } else { "" }
+    );
+    println!("| run | device | seconds | SR stage s | peak host MiB | peak GPU MiB |");
+    println!("|---|---|---|---|---|---|");
+    for (name, device, m) in &table {
+        println!(
+            "| {name} | {device} | {:.1} | {:.1} | {:.0} | {} |",
+            m.seconds,
+            m.network_seconds,
+            m.host_mib,
+            m.gpu_mib.map_or("-".into(), |g| format!("{g:.0}")),
+        );
+    }
+}
