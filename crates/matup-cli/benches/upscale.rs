@@ -205,8 +205,8 @@ fn main() {
     }
 
     println!("\nmatup upscale, {cores} cores (times in seconds; per-megatexel figures are per output megatexel)\n");
-    println!("| run | residual base | render LR | targets | train | epochs | train/epoch/MTx | infer | height | total | total/MTx | peak MiB |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| run | residual base | back-projection | render LR | targets | train | epochs | train/epoch/MTx | infer | height | total | total/MTx | peak MiB |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for row in &rows {
         let r = &row.report;
         let megatexels = (row.output * row.output) as f64 / 1e6;
@@ -224,9 +224,10 @@ fn main() {
             "-".to_string()
         };
         println!(
-            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} |",
             row.name,
             stage(r, "residual base"),
+            stage(r, "back-projection"),
             stage(r, "render LR"),
             stage(r, "targets"),
             train,

@@ -28,6 +28,22 @@ use clap::{Parser, Subcommand};
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// mimalloc's `purge_delay` option (mimalloc.h, v3).
+const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+
+/// Freed memory stays with the process for a second before mimalloc returns it (its default is
+/// 10 ms), unless `MIMALLOC_PURGE_DELAY` says otherwise. The per-map path frees and allocates
+/// output-size maps (64–192 MB at 4K²) one after another, and each fresh one was page-faulted
+/// and zeroed by the kernel anew: a third of a 1K² → 4K² run's CPU time in perf. Kept, they
+/// are reused: that run's CPU stages (bicubic upsampler) went from 6.4 to 4.7 s on 2 cores,
+/// with a peak resident memory no higher (1259 against 1301 MB).
+fn keep_freed_memory_a_while() {
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: sets one of mimalloc's integer options, which it reads at its next purge.
+        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, 1000) };
+    }
+}
+
 // Link every built-in plugin so the registries see them.
 use matup_shading as _;
 use matup_upsamplers as _;
@@ -94,6 +110,7 @@ fn configure_threads() {
 /// the binary.
 pub fn main() -> ExitCode {
     configure_threads();
+    keep_freed_memory_a_while();
     let cli = Cli::parse();
     if let Some(dir) = &cli.models_dir {
         let mut dirs = vec![dir.clone()];

@@ -2,6 +2,10 @@
 
 use rayon::prelude::*;
 
+/// Values from which whole-map operations run on rayon's threads (smaller maps take longer
+/// to share out than to compute).
+const PARALLEL_TEXELS: usize = 1 << 16;
+
 /// A 2D image of `channels` planes of `width × height` f32 values, stored plane after plane,
 /// each plane row-major. Every texture, render and intermediate image in matup is a `Map`.
 #[derive(Clone, Debug, PartialEq)]
@@ -46,15 +50,20 @@ impl Map {
         width: usize,
         height: usize,
         channels: usize,
-        f: impl Fn(usize, usize, usize) -> f32,
+        f: impl Fn(usize, usize, usize) -> f32 + Sync,
     ) -> Self {
-        let mut data = Vec::with_capacity(width * height * channels);
-        for c in 0..channels {
-            for y in 0..height {
-                for x in 0..width {
-                    data.push(f(c, y, x));
-                }
+        let mut data = vec![0f32; width * height * channels];
+        let row = |(r, out): (usize, &mut [f32])| {
+            let (c, y) = (r / height, r % height);
+            for (x, v) in out.iter_mut().enumerate() {
+                *v = f(c, y, x);
             }
+        };
+        // Rows in parallel where there are enough of them to pay for it.
+        if data.len() >= PARALLEL_TEXELS {
+            data.par_chunks_mut(width.max(1)).enumerate().for_each(row);
+        } else {
+            data.chunks_mut(width.max(1)).enumerate().for_each(row);
         }
         Map::from_planar(width, height, channels, data)
     }
@@ -109,8 +118,12 @@ impl Map {
     }
 
     /// Applies `f` to every value.
-    pub fn map_values(mut self, f: impl Fn(f32) -> f32) -> Self {
-        self.data.iter_mut().for_each(|v| *v = f(*v));
+    pub fn map_values(mut self, f: impl Fn(f32) -> f32 + Sync + Send) -> Self {
+        if self.data.len() >= PARALLEL_TEXELS {
+            self.data.par_iter_mut().for_each(|v| *v = f(*v));
+        } else {
+            self.data.iter_mut().for_each(|v| *v = f(*v));
+        }
         self
     }
 

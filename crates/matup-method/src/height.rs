@@ -1,6 +1,7 @@
 //! Height from normals (METHOD.md): integrate the slope field with a Poisson solve, keep its
 //! high-pass part, scale it to the height map's units, and add it to the upsampled LR height.
 
+use rayon::prelude::*;
 use rustdct::DctPlanner;
 use rustfft::num_complex::Complex;
 use rustfft::FftPlanner;
@@ -42,23 +43,37 @@ fn integrate_over(normal: &Map, tileable: bool, size: [usize; 2]) -> Map {
 /// Both slope fields are real, so one complex transform carries them: with `z = gx + i·gy`,
 /// `Ĝx(k) = (Ẑ(k) + conj Ẑ(−k)) / 2` and `Ĝy(k) = (Ẑ(k) − conj Ẑ(−k)) / 2i`, and the solution
 /// is written over `Ẑ` a pair of frequencies (k, −k) at a time: one buffer instead of three.
-fn solve_periodic(slopes: impl Fn(usize, usize) -> (f64, f64), w: usize, h: usize) -> Vec<f64> {
+fn solve_periodic(
+    slopes: impl Fn(usize, usize) -> (f64, f64) + Sync,
+    w: usize,
+    h: usize,
+) -> Vec<f64> {
     let mut planner = FftPlanner::<f64>::new();
     let mut z: Vec<Complex<f64>> = (0..w * h)
+        .into_par_iter()
         .map(|i| {
             let (gx, gy) = slopes(i % w, i / w);
             Complex::new(gx, gy)
         })
         .collect();
     fft2(&mut planner, &mut z, w, h, false);
-    let tau = std::f64::consts::TAU;
+    // Per frequency along an axis of n: (sin ω, 4 sin²(ω/2)) with ω = 2πk/n.
+    let table = |n: usize| -> Vec<(f64, f64)> {
+        (0..n)
+            .map(|k| {
+                let omega = std::f64::consts::TAU * k as f64 / n as f64;
+                (omega.sin(), 4.0 * (omega / 2.0).sin().powi(2))
+            })
+            .collect()
+    };
+    let (along_x, along_y) = (table(w), table(h));
     let solution = |gx: Complex<f64>, gy: Complex<f64>, u: usize, v: usize| {
-        let (wx, wy) = (tau * u as f64 / w as f64, tau * v as f64 / h as f64);
-        let denom = 4.0 * ((wx / 2.0).sin().powi(2) + (wy / 2.0).sin().powi(2));
+        let ((sin_x, sq_x), (sin_y, sq_y)) = (along_x[u], along_y[v]);
+        let denom = sq_x + sq_y;
         if denom < 1e-12 {
             return Complex::new(0.0, 0.0); // the mean is free
         }
-        let num = gx * wx.sin() + gy * wy.sin();
+        let num = gx * sin_x + gy * sin_y;
         Complex::new(num.im, -num.re) / denom // −i·num
     };
     for v in 0..h {
@@ -78,7 +93,7 @@ fn solve_periodic(slopes: impl Fn(usize, usize) -> (f64, f64), w: usize, h: usiz
     }
     fft2(&mut planner, &mut z, w, h, true);
     let norm = 1.0 / (w * h) as f64; // rustfft does not normalise
-    z.iter().map(|c| c.re * norm).collect()
+    z.par_iter().map(|c| c.re * norm).collect()
 }
 
 /// The same least-squares integration with Neumann borders: the periodic solve of the even
@@ -90,56 +105,96 @@ fn solve_periodic(slopes: impl Fn(usize, usize) -> (f64, f64), w: usize, h: usiz
 /// (4 sin²(πk/2w) + 4 sin²(πl/2h))`, inverted by DCT-III. Two real buffers the size of the map,
 /// where solving the mirror itself took a complex one of four times its area: at 8K², 1.1 GB
 /// instead of 4.3 GB.
-fn solve_neumann(slopes: impl Fn(usize, usize) -> (f64, f64), w: usize, h: usize) -> Vec<f64> {
+fn solve_neumann(
+    slopes: impl Fn(usize, usize) -> (f64, f64) + Sync,
+    w: usize,
+    h: usize,
+) -> Vec<f64> {
     let mut planner = DctPlanner::<f64>::new();
     let (along_x, along_y) = (planner.plan_dct2(w), planner.plan_dct2(h));
     let (mut gx, mut gy) = (vec![0f64; w * h], vec![0f64; w * h]);
-    for i in 0..w * h {
-        (gx[i], gy[i]) = slopes(i % w, i / w);
-    }
-    gx.chunks_mut(w).for_each(|row| along_x.process_dst2(row));
-    gy.chunks_mut(w).for_each(|row| along_x.process_dct2(row));
+    (gx.par_chunks_mut(w).zip(gy.par_chunks_mut(w)))
+        .enumerate()
+        .for_each(|(y, (gx, gy))| {
+            for x in 0..w {
+                (gx[x], gy[x]) = slopes(x, y);
+            }
+        });
+    gx.par_chunks_mut(w)
+        .for_each(|row| along_x.process_dst2(row));
+    gy.par_chunks_mut(w)
+        .for_each(|row| along_x.process_dct2(row));
     for_each_column(&mut gx, w, h, |column| along_y.process_dct2(column));
     for_each_column(&mut gy, w, h, |column| along_y.process_dst2(column));
+    // Per frequency k along an axis of n: (sin(πk/n), 4 sin²(πk/2n)).
+    let table = |n: usize| -> Vec<(f64, f64)> {
+        (0..n)
+            .map(|k| {
+                let angle = std::f64::consts::PI * k as f64 / n as f64;
+                (angle.sin(), 4.0 * (angle / 2.0).sin().powi(2))
+            })
+            .collect()
+    };
+    let (freq_x, freq_y) = (table(w), table(h));
     // DST-II's output k holds frequency k + 1. H is written over Gx from the highest k down,
-    // so each Gx(k − 1) is read before it is overwritten.
-    let pi = std::f64::consts::PI;
-    for l in 0..h {
+    // so each Gx(k − 1) is read before it is overwritten; rows are independent.
+    gx.par_chunks_mut(w).enumerate().for_each(|(l, row)| {
+        let (sin_y, sq_y) = freq_y[l];
         for k in (0..w).rev() {
-            let denom = 4.0
-                * ((pi * k as f64 / (2 * w) as f64).sin().powi(2)
-                    + (pi * l as f64 / (2 * h) as f64).sin().powi(2));
-            let across = if k > 0 { gx[l * w + k - 1] } else { 0.0 };
+            let (sin_x, sq_x) = freq_x[k];
+            let denom = sq_x + sq_y;
+            let across = if k > 0 { row[k - 1] } else { 0.0 };
             let down = if l > 0 { gy[(l - 1) * w + k] } else { 0.0 };
-            let num =
-                (pi * k as f64 / w as f64).sin() * across + (pi * l as f64 / h as f64).sin() * down;
-            gx[l * w + k] = if denom < 1e-12 { 0.0 } else { -num / denom }; // the mean is free
+            let num = sin_x * across + sin_y * down;
+            row[k] = if denom < 1e-12 { 0.0 } else { -num / denom }; // the mean is free
         }
-    }
+    });
     drop(gy);
-    gx.chunks_mut(w).for_each(|row| along_x.process_dct3(row));
+    gx.par_chunks_mut(w)
+        .for_each(|row| along_x.process_dct3(row));
     for_each_column(&mut gx, w, h, |column| along_y.process_dct3(column));
     let norm = 4.0 / (w * h) as f64; // DCT-III inverts DCT-II up to 2/n along each axis
-    gx.iter_mut().for_each(|v| *v *= norm);
+    gx.par_iter_mut().for_each(|v| *v *= norm);
     gx
 }
 
-/// Runs `f` on each column of a row-major `w × h` grid, through a buffer.
-fn for_each_column<T: Copy + Default>(
+/// Runs `f` on each column of a row-major `w × h` grid, in parallel: in rounds, each task
+/// gathering a block of columns into a buffer of its own (a column's values contiguous) and
+/// transforming them, then every row taking its values back. A round's buffers hold a few
+/// columns per thread, not a transposed copy of the grid (at 16K², 4 GB of complex values).
+fn for_each_column<T: Copy + Default + Send + Sync>(
     data: &mut [T],
     w: usize,
     h: usize,
-    mut f: impl FnMut(&mut [T]),
+    f: impl Fn(&mut [T]) + Sync,
 ) {
-    let mut buffer = vec![T::default(); h];
-    for x in 0..w {
-        for y in 0..h {
-            buffer[y] = data[y * w + x];
-        }
-        f(&mut buffer);
-        for y in 0..h {
-            data[y * w + x] = buffer[y];
-        }
+    const BLOCK: usize = 8;
+    let round = BLOCK * 4 * rayon::current_num_threads().max(1);
+    for first in (0..w).step_by(round) {
+        let last = (first + round).min(w);
+        let starts: Vec<usize> = (first..last).step_by(BLOCK).collect();
+        let shared = &*data;
+        let blocks: Vec<(usize, Vec<T>)> = starts
+            .into_par_iter()
+            .map(|x0| {
+                let n = BLOCK.min(last - x0);
+                let mut buffer = vec![T::default(); n * h];
+                for y in 0..h {
+                    for i in 0..n {
+                        buffer[i * h + y] = shared[y * w + x0 + i];
+                    }
+                }
+                buffer.chunks_mut(h).for_each(&f);
+                (x0, buffer)
+            })
+            .collect();
+        data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (x0, buffer) in &blocks {
+                for (i, column) in buffer.chunks(h).enumerate() {
+                    row[x0 + i] = column[y];
+                }
+            }
+        });
     }
 }
 
@@ -155,9 +210,7 @@ fn fft2(
     } else {
         planner.plan_fft_forward(w)
     };
-    for r in data.chunks_mut(w) {
-        row.process(r);
-    }
+    data.par_chunks_mut(w).for_each(|r| row.process(r));
     let col = if inverse {
         planner.plan_fft_inverse(h)
     } else {

@@ -14,7 +14,7 @@ use crate::context::{Context, RunOptions};
 use crate::fit::{infer_material, learn_level, TrainedFilter};
 use crate::height::{band_margin, detail_scale, rebuild_height};
 use crate::report::{peak_memory_mib, timed, LevelReport, RunReport};
-use crate::residual::{self, residual_base};
+use crate::residual::{self, project_onto_input, upsampled_base};
 use crate::select::choose_settings;
 use crate::train::TrainStats;
 use matup_core::material::Material;
@@ -267,7 +267,14 @@ fn run_level(
             + if config.filter.residual_base == ResidualBase::Upsampler
                 && config.filter.self_ensemble > 1
             {
-                ENSEMBLE_BYTES_PER_BAND_TEXEL
+                // The sum of the passes; where they run in one call, each pass's output too
+                // (the one pass made at a time is in the band's own bytes).
+                let held = if ctx.upsampler.batches_images() {
+                    config.filter.self_ensemble as u64
+                } else {
+                    1
+                };
+                ENSEMBLE_BYTES_PER_BAND_TEXEL * held
             } else {
                 0
             },
@@ -298,14 +305,20 @@ fn run_level(
             Some(base) if whole => base,
             _ => {
                 inner.stage(&tag("residual base"), 1);
-                let base = timed(timings, tag("residual base"), || {
-                    residual_base(
+                // residual_base in its two stages, timed apart: the upsampler's and the
+                // projection onto the input's.
+                let mut base = timed(timings, tag("residual base"), || {
+                    upsampled_base(
                         lr_band,
                         &config.filter,
                         ctx.upsampler.as_ref(),
                         scale,
                         ctx.border,
                     )
+                })?;
+                timed(timings, tag("back-projection"), || {
+                    project_onto_input(&mut base, lr_band, &config.filter, scale, ctx.border);
+                    Ok(())
                 })?;
                 inner.advance(1, None);
                 Arc::new(base)

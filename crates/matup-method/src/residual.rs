@@ -30,15 +30,30 @@ pub fn residual_base(
     border: Border,
 ) -> Result<Map> {
     let mut base = upsampled_base(lr, config, upsampler, scale, border)?;
+    project_onto_input(&mut base, lr, config, scale, border);
+    Ok(base)
+}
+
+/// What [`residual_base`] does after the upsampling: the back-projection onto `lr` and the
+/// chroma clamp, where `config` asks for them.
+pub fn project_onto_input(
+    base: &mut Map,
+    lr: &Material,
+    config: &FilterConfig,
+    scale: usize,
+    border: Border,
+) {
+    if !(config.back_project || config.clamp_chroma) {
+        return;
+    }
     let lr_features = features(lr);
     if config.back_project {
-        back_project(&mut base, &lr_features, scale, border);
+        back_project(base, &lr_features, scale, border);
     }
     if config.clamp_chroma {
         // The base colour is the features' first three channels.
-        clamp_chroma_to_input(&mut base, &lr_features, scale, border);
+        clamp_chroma_to_input(base, &lr_features, scale, border);
     }
-    Ok(base)
 }
 
 /// LR texels of context around a region that change its residual base: the upsampler's (or
@@ -103,7 +118,7 @@ fn feature_range(feature: usize) -> (f32, f32) {
 }
 
 /// The residual base before any back-projection.
-fn upsampled_base(
+pub fn upsampled_base(
     lr: &Material,
     config: &FilterConfig,
     upsampler: &dyn RgbUpsampler,

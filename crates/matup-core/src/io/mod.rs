@@ -5,6 +5,7 @@ mod discover;
 mod image_file;
 mod stream;
 
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -580,7 +581,10 @@ impl MaterialWriter {
         }
         let missing =
             || Error::Invalid("a band of the output lacks one of the material's maps".into());
-        for map in self.maps.iter_mut() {
+        let convention = self.convention;
+        // The files are independent: each map encoded and compressed on its own thread (a 4K²
+        // PNG's compression is single-threaded and takes seconds).
+        self.maps.par_iter_mut().try_for_each(|map| {
             let float = map.file.format().is_float();
             let (encoded, alpha) = match map.what {
                 Written::Core(kind) => {
@@ -589,7 +593,7 @@ impl MaterialWriter {
                         map.all_stand_in = (0..rows.channels())
                             .all(|c| (rows.plane(c).iter()).all(|&v| (v - value[c]).abs() <= 1e-5));
                     }
-                    let encoded = encode_map(kind, rows, float, self.convention);
+                    let encoded = encode_map(kind, rows, float, convention);
                     (encoded, band.carried.alpha.get(&kind))
                 }
                 Written::Gloss => (
@@ -614,21 +618,19 @@ impl MaterialWriter {
                 Some(alpha) => Map::stack(&[&encoded, alpha]),
                 None => encoded,
             };
-            map.file.write_rows(&encoded)?;
-        }
-        Ok(())
+            map.file.write_rows(&encoded)
+        })
     }
 
-    /// Completes every file; returns their paths.
+    /// Completes every file (each on its own thread: JPEG and TIFF are encoded here); returns
+    /// their paths.
     pub fn finish(self) -> Result<Vec<PathBuf>> {
-        let mut written = Vec::new();
-        for map in self.maps {
-            if map.stand_in.is_some() && map.all_stand_in {
-                continue; // dropped: its temporary file goes with it
-            }
-            written.push(map.file.finish()?);
-        }
-        Ok(written)
+        self.maps
+            .into_par_iter()
+            // A stand-in never changed is dropped: its temporary file goes with it.
+            .filter(|map| !(map.stand_in.is_some() && map.all_stand_in))
+            .map(|map| map.file.finish())
+            .collect()
     }
 
     /// The input file a map of `kind` came from, if it did.
