@@ -688,7 +688,42 @@ impl RgbUpsampler for OnnxUpsampler {
     }
 }
 
+/// How images of one size are cut into tiles: each axis's tiling, where its tiles start and the
+/// output texels each keeps with their blending weights, and every tile of `images` images as
+/// (image, row of tiles, column of tiles), row by row.
+struct Tiling {
+    rows: TileAxis,
+    columns: TileAxis,
+    row_starts: Vec<usize>,
+    column_starts: Vec<usize>,
+    kept_rows: Vec<Kept>,
+    kept_columns: Vec<Kept>,
+    grid: Vec<(usize, usize, usize)>,
+}
+
 impl OnnxUpsampler {
+    /// The [`Tiling`] of `images` images of `w × h`. Tiles keep half their context, blended
+    /// with their neighbours'.
+    fn tiling(&self, w: usize, h: usize, images: usize) -> Result<Tiling> {
+        let (s, margin) = (self.info.scale, self.info.overlap / 2);
+        let rows = self.tile_axis(h, self.fixed[1])?;
+        let columns = self.tile_axis(w, self.fixed[2])?;
+        let row_starts = tile_starts(h, rows.core);
+        let column_starts = tile_starts(w, columns.core);
+        let (n_rows, n_columns) = (row_starts.len(), column_starts.len());
+        Ok(Tiling {
+            kept_rows: blend_weights(&row_starts, rows, h, margin, s),
+            kept_columns: blend_weights(&column_starts, columns, w, margin, s),
+            rows,
+            columns,
+            row_starts,
+            column_starts,
+            grid: (0..images)
+                .flat_map(|k| (0..n_rows).flat_map(move |i| (0..n_columns).map(move |j| (k, i, j))))
+                .collect(),
+        })
+    }
+
     /// [`OnnxUpsampler::upsample_tiled`] on the candle engine's device: the images are
     /// uploaded once; the tiles' windows are cut, run, mapped to [0, 1], weighted and blended
     /// along each row of tiles there; each finished row of tiles comes back to be added into
@@ -703,16 +738,16 @@ impl OnnxUpsampler {
         let s = self.info.scale;
         let (w, h) = (images[0].width(), images[0].height());
         let device = net.device();
-        let margin = self.info.overlap / 2;
-        let axis = |len, fixed| {
-            self.tile_axis(len, fixed)
-                .map_err(|e| candle_core::Error::Msg(e.to_string()))
-        };
-        let (rows, columns) = (axis(h, self.fixed[1])?, axis(w, self.fixed[2])?);
-        let row_starts = tile_starts(h, rows.core);
-        let column_starts = tile_starts(w, columns.core);
-        let kept_rows = blend_weights(&row_starts, rows, h, margin, s);
-        let kept_columns = blend_weights(&column_starts, columns, w, margin, s);
+        let Tiling {
+            rows,
+            columns,
+            row_starts,
+            column_starts,
+            kept_rows,
+            kept_columns,
+            grid,
+        } = (self.tiling(w, h, images.len()))
+            .map_err(|e| candle_core::Error::Msg(e.to_string()))?;
         // Each tile's window as indices into the image (the border decides beyond its edges).
         let window = |start: usize, axis: TileAxis, len: usize| {
             let at =
@@ -771,12 +806,6 @@ impl OnnxUpsampler {
                 });
             Ok(())
         };
-        let grid: Vec<(usize, usize, usize)> = (0..images.len())
-            .flat_map(|k| {
-                let n_columns = column_starts.len();
-                (0..row_starts.len()).flat_map(move |i| (0..n_columns).map(move |j| (k, i, j)))
-            })
-            .collect();
         let batch = self.tiles_per_call(rows.window, columns.window);
         for group in grid.chunks(batch) {
             let mut windows = (group.iter())
@@ -852,19 +881,15 @@ impl OnnxUpsampler {
     fn upsample_tiled(&self, images: &[&Map], border: Border) -> Result<Vec<Map>> {
         let s = self.info.scale;
         let (w, h) = (images[0].width(), images[0].height());
-        // Tiles keep half their context, blended with their neighbours'.
-        let margin = self.info.overlap / 2;
-        let rows = self.tile_axis(h, self.fixed[1])?;
-        let columns = self.tile_axis(w, self.fixed[2])?;
-        let row_starts = tile_starts(h, rows.core);
-        let column_starts = tile_starts(w, columns.core);
-        let kept_rows = blend_weights(&row_starts, rows, h, margin, s);
-        let kept_columns = blend_weights(&column_starts, columns, w, margin, s);
-        // Tiles by (image, index of their row, index of their column).
-        let (n_rows, n_columns) = (row_starts.len(), column_starts.len());
-        let grid: Vec<(usize, usize, usize)> = (0..images.len())
-            .flat_map(|k| (0..n_rows).flat_map(move |i| (0..n_columns).map(move |j| (k, i, j))))
-            .collect();
+        let Tiling {
+            rows,
+            columns,
+            row_starts,
+            column_starts,
+            kept_rows,
+            kept_columns,
+            grid,
+        } = self.tiling(w, h, images.len())?;
         let (out_w, out_h) = (w * s, h * s);
         let mut accs = vec![vec![0f32; 3 * out_w * out_h]; images.len()];
         let batch = self.tiles_per_call(rows.window, columns.window);
