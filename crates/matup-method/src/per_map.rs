@@ -97,7 +97,7 @@ fn upscale_map(
     Ok(up.into_iter().next().expect("one map in, one out"))
 }
 
-/// Maps of `kind`, all of one size, upsampled in one call of the upsampler and decoded.
+/// Maps of `kind` upsampled in one call of the upsampler, and decoded.
 fn upscale_maps(
     kind: MapKind,
     maps: &[Map],
