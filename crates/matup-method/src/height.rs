@@ -57,16 +57,8 @@ fn solve_periodic(
         })
         .collect();
     fft2(&mut planner, &mut z, w, h, false);
-    // Per frequency along an axis of n: (sin ω, 4 sin²(ω/2)) with ω = 2πk/n.
-    let table = |n: usize| -> Vec<(f64, f64)> {
-        (0..n)
-            .map(|k| {
-                let omega = std::f64::consts::TAU * k as f64 / n as f64;
-                (omega.sin(), 4.0 * (omega / 2.0).sin().powi(2))
-            })
-            .collect()
-    };
-    let (along_x, along_y) = (table(w), table(h));
+    let tau = std::f64::consts::TAU;
+    let (along_x, along_y) = (sines(w, tau), sines(h, tau));
     let solution = |gx: Complex<f64>, gy: Complex<f64>, u: usize, v: usize| {
         let ((sin_x, sq_x), (sin_y, sq_y)) = (along_x[u], along_y[v]);
         let denom = sq_x + sq_y;
@@ -126,16 +118,8 @@ fn solve_neumann(
         .for_each(|row| along_x.process_dct2(row));
     for_each_column(&mut gx, w, h, |column| along_y.process_dct2(column));
     for_each_column(&mut gy, w, h, |column| along_y.process_dst2(column));
-    // Per frequency k along an axis of n: (sin(πk/n), 4 sin²(πk/2n)).
-    let table = |n: usize| -> Vec<(f64, f64)> {
-        (0..n)
-            .map(|k| {
-                let angle = std::f64::consts::PI * k as f64 / n as f64;
-                (angle.sin(), 4.0 * (angle / 2.0).sin().powi(2))
-            })
-            .collect()
-    };
-    let (freq_x, freq_y) = (table(w), table(h));
+    let pi = std::f64::consts::PI;
+    let (freq_x, freq_y) = (sines(w, pi), sines(h, pi));
     // DST-II's output k holds frequency k + 1. H is written over Gx from the highest k down,
     // so each Gx(k − 1) is read before it is overwritten; rows are independent.
     gx.par_chunks_mut(w).enumerate().for_each(|(l, row)| {
@@ -156,6 +140,18 @@ fn solve_neumann(
     let norm = 4.0 / (w * h) as f64; // DCT-III inverts DCT-II up to 2/n along each axis
     gx.par_iter_mut().for_each(|v| *v *= norm);
     gx
+}
+
+/// Per frequency k of an axis of `n` texels, with ω = `period`·k/n: (sin ω, 4 sin²(ω/2)), the
+/// factors of the Poisson solve's spectral division, tabulated rather than computed twice
+/// a texel.
+fn sines(n: usize, period: f64) -> Vec<(f64, f64)> {
+    (0..n)
+        .map(|k| {
+            let omega = period * k as f64 / n as f64;
+            (omega.sin(), 4.0 * (omega / 2.0).sin().powi(2))
+        })
+        .collect()
 }
 
 /// Runs `f` on each column of a row-major `w × h` grid, in parallel: in rounds, each task
