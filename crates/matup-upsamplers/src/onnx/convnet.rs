@@ -580,16 +580,9 @@ impl ConvNet {
                 output: step.output,
             })
             .collect();
-        let mut last_use = vec![0; graph.values];
-        for (i, step) in steps.iter().enumerate() {
-            for &v in &step.inputs {
-                last_use[v] = i;
-            }
-        }
-        last_use[graph.output] = usize::MAX;
         Ok(ConvNet {
+            last_use: last_uses(&steps, graph.values, graph.output),
             steps,
-            last_use,
             output: graph.output,
         })
     }
@@ -642,6 +635,19 @@ impl ConvNet {
             written(values, v).clone()
         }
     }
+}
+
+/// Per value slot, the index of the last step that reads it (then its memory can go); the
+/// output's is `usize::MAX`.
+pub(super) fn last_uses<C>(steps: &[Step<C>], values: usize, output: usize) -> Vec<usize> {
+    let mut last_use = vec![0; values];
+    for (i, step) in steps.iter().enumerate() {
+        for &v in &step.inputs {
+            last_use[v] = i;
+        }
+    }
+    last_use[output] = usize::MAX;
+    last_use
 }
 
 fn written(values: &[Option<Features>], v: usize) -> &Features {

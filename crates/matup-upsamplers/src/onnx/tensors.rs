@@ -5,7 +5,7 @@
 
 use candle_core::{DType, Device, Tensor};
 
-use super::convnet::{Graph, Op, Step};
+use super::convnet::{last_uses, Graph, Op, Step};
 use super::kernels::{Arith, Padding, PerTexel};
 
 /// Runs `steps` on `input`, the network's input values (slot 0) as `[B, C, H, W]`;
@@ -20,13 +20,7 @@ pub fn run_steps<C>(
     input: Tensor,
     mut convolve: impl FnMut(usize, &Tensor) -> candle_core::Result<Tensor>,
 ) -> candle_core::Result<Tensor> {
-    let mut last_use = vec![0; values];
-    for (i, step) in steps.iter().enumerate() {
-        for &v in &step.inputs {
-            last_use[v] = i;
-        }
-    }
-    last_use[output] = usize::MAX;
+    let last_use = last_uses(steps, values, output);
     let mut slots: Vec<Option<Tensor>> = vec![None; values];
     slots[0] = Some(input);
     for (index, step) in steps.iter().enumerate() {
@@ -230,13 +224,7 @@ pub struct TileCost {
 
 /// [`TileCost`] of `graph` on an `h × w` tile.
 pub fn tile_cost(graph: &Graph, h: usize, w: usize) -> TileCost {
-    let mut last_use = vec![0; graph.values];
-    for (i, step) in graph.steps.iter().enumerate() {
-        for &v in &step.inputs {
-            last_use[v] = i;
-        }
-    }
-    last_use[graph.output] = usize::MAX;
+    let last_use = last_uses(&graph.steps, graph.values, graph.output);
     // Per value: channels × the square of its scale, its floats per input texel.
     let mut floats = vec![0usize; graph.values];
     let mut scales = vec![1usize; graph.values];
