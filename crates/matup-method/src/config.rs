@@ -662,8 +662,20 @@ impl Config {
 
     /// Parses TOML; `origin` (a file name) prefixes errors, which carry the line and key.
     pub fn from_toml(text: &str, origin: &str) -> Result<Config> {
-        let config: Config =
-            toml::from_str(text).map_err(|e| Error::Invalid(format!("{origin}: {e}")))?;
+        let config: Config = toml::from_str(text).map_err(|e| {
+            // A `device` under [train] gets a pointer to where it belongs.
+            let moved = toml::from_str::<toml::Table>(text).is_ok_and(|t| {
+                (t.get("train").and_then(|t| t.as_table()))
+                    .is_some_and(|t| t.contains_key("device"))
+            });
+            let hint = if moved {
+                "\n`device` is a top-level setting (it places the SR network too): move it out of \
+                 [train]"
+            } else {
+                ""
+            };
+            Error::Invalid(format!("{origin}: {e}{hint}"))
+        })?;
         config.validate()?;
         Ok(config)
     }
@@ -829,6 +841,14 @@ mod tests {
                 maps: EnsembleMaps::All
             }
         );
+    }
+
+    #[test]
+    fn a_device_under_train_says_where_it_moved() {
+        let e = Config::from_toml("[train]\ndevice = \"cpu\"\n", "old.toml").unwrap_err();
+        assert!(e.to_string().contains("move it out of [train]"), "{e}");
+        let c = Config::from_toml("device = \"cpu\"\n", "new.toml").unwrap();
+        assert_eq!(c.device, "cpu");
     }
 
     #[test]
