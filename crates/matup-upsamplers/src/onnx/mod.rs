@@ -313,6 +313,19 @@ impl OnnxUpsampler {
         data
     }
 
+    /// The candle engine's output `[B, 3, H, W]` in RGB order with values in [0, 1] (the
+    /// sidecar's output range mapped, then clamped), on its device.
+    fn unit_rgb(&self, out: &candle_core::Tensor) -> candle_core::Result<candle_core::Tensor> {
+        let [olo, ohi] = self.info.output_range;
+        let out = if self.info.channel_order == "bgr" {
+            let bgr = candle_core::Tensor::from_vec(vec![2u32, 1, 0], 3, out.device())?;
+            out.index_select(&bgr, 1)?
+        } else {
+            out.clone()
+        };
+        (out.affine(1.0 / (ohi - olo) as f64, -(olo / (ohi - olo)) as f64)?).clamp(0f32, 1f32)
+    }
+
     /// Runs the network on tiles of one shape (each 3 planes of `h × w`, values in [0, 1]);
     /// matup's executor pads its convolutions as `padding` says, tract with zeros.
     fn run_batch(
@@ -372,15 +385,13 @@ impl OnnxUpsampler {
                         format!("shape {:?}, want [batch, 3, height, width]", out.dims()),
                     ));
                 }
-                let data = out.flatten_all().and_then(|t| t.to_vec1::<f32>());
-                let data = data.map_err(failed)?;
-                let plane = oh * ow;
-                Ok((0..b)
-                    .into_par_iter()
-                    .map(|i| {
-                        let at = |c: usize| (i * 3 + channel(c)) * plane;
-                        Map::from_fn(ow, oh, 3, |c, y, x| output(data[at(c) + y * ow + x]))
-                    })
+                let out = self
+                    .unit_rgb(&out)
+                    .and_then(|t| t.flatten_all()?.to_vec1::<f32>());
+                let data = out.map_err(failed)?;
+                let image = 3 * oh * ow;
+                Ok((data.chunks(image))
+                    .map(|planes| Map::from_planar(ow, oh, 3, planes.to_vec()))
                     .collect())
             }
             Engine::Tract { executor, .. } => {
@@ -772,16 +783,6 @@ impl OnnxUpsampler {
         let planes: Vec<&[f32]> = images.iter().map(|m| &m.data()[..3 * w * h]).collect();
         let uploaded =
             Tensor::from_vec(self.network_input(&planes), (images.len(), 3, h, w), device)?;
-        let [olo, ohi] = self.info.output_range;
-        let rgb = Tensor::from_vec(
-            if self.info.channel_order == "bgr" {
-                vec![2u32, 1, 0]
-            } else {
-                vec![0u32, 1, 2]
-            },
-            3,
-            device,
-        )?;
 
         let (out_w, out_h) = (w * s, h * s);
         let mut accs = vec![vec![0f32; 3 * out_w * out_h]; images.len()];
@@ -822,10 +823,7 @@ impl OnnxUpsampler {
                 windows.resize(fixed, last);
             }
             let out = net.run(Tensor::cat(&windows, 0)?, Padding::Zero)?;
-            let out = out
-                .index_select(&rgb, 1)?
-                .affine(1.0 / (ohi - olo) as f64, -(olo / (ohi - olo)) as f64)?
-                .clamp(0f32, 1f32)?;
+            let out = self.unit_rgb(&out)?;
             for (b, &(k, i, j)) in group.iter().enumerate() {
                 let (kr, kc) = (&kept_rows[i], &kept_columns[j]);
                 let tile = out

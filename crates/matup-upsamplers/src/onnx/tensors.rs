@@ -138,7 +138,6 @@ fn wrapped(x: &Tensor, dim: usize, by: usize) -> candle_core::Result<Tensor> {
 struct Kernel {
     weights: Tensor,
     bias: Option<Tensor>,
-    kernel: (usize, usize),
 }
 
 /// A network of matup's executor as candle operations on one device, its weights uploaded
@@ -163,7 +162,6 @@ impl TensorNet {
                     bias: (conv.bias.as_ref())
                         .map(|b| Tensor::from_slice(b, (1, cout, 1, 1), device))
                         .transpose()?,
-                    kernel: (kh, kw),
                 }))
             })
             .collect::<candle_core::Result<_>>()?;
@@ -191,7 +189,7 @@ impl TensorNet {
             let k = self.kernels[index]
                 .as_ref()
                 .expect("a convolution step has weights");
-            let (kh, kw) = k.kernel;
+            let (_, _, kh, kw) = k.weights.dims4()?;
             // candle's conv2d pads both axes alike; other cases are padded here.
             let y = match padding {
                 Padding::Zero if kh == kw => x.conv2d(&k.weights, kh / 2, 1, 1, 1)?,
