@@ -17,6 +17,8 @@
 //! - `MATUP_BENCH_CPU_ROWS`: the rows also run on the CPU (default `main,1k,2k,library`:
 //!   4K² → 16K² takes about 11 minutes on 2 cores).
 
+mod common;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -24,6 +26,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use common::stage;
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::{load_material, save_material, LoadOptions, SaveOptions};
@@ -40,7 +43,7 @@ fn matup() -> PathBuf {
 struct Measured {
     seconds: f64,
     /// The per-map SR stage (`residual base` in run.json), summed over the run's reports.
-    network_seconds: f64,
+    sr_stage_seconds: f64,
     host_mib: f64,
     gpu_mib: Option<f64>,
 }
@@ -131,19 +134,11 @@ fn measure(name: &str, args: &[&str]) -> (Measured, String) {
     let gpu_mib = before.map(|b| (gpu_peak.load(Ordering::Relaxed) as f64 - b).max(0.0));
     let measured = Measured {
         seconds,
-        network_seconds: 0.0,
+        sr_stage_seconds: 0.0,
         host_mib: host_kib as f64 / 1024.0,
         gpu_mib,
     };
     (measured, stdout)
-}
-
-/// Seconds in the stages named `residual base` of one run's report (every level).
-fn network_seconds(report: &serde_json::Value) -> f64 {
-    (report["timings"].as_array().into_iter().flatten())
-        .filter(|t| t[0].as_str().is_some_and(|s| s.ends_with("residual base")))
-        .filter_map(|t| t[1].as_f64())
-        .sum()
 }
 
 /// `matup upscale FOLDER` with the defaults on `device`, its maps written to `out`.
@@ -159,7 +154,7 @@ fn upscale(name: &str, folder: &Path, out: &Path, device: &str) -> Measured {
     ];
     let (mut m, stdout) = measure(name, &args);
     let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
-    m.network_seconds = network_seconds(&report);
+    m.sr_stage_seconds = stage(&report, "residual base");
     eprintln!("{name}: stages {}", report["timings"]);
     m
 }
@@ -185,7 +180,7 @@ fn batch(name: &str, library: &Path, out: &Path, device: &str) -> Measured {
                 reports.push(path);
             } else if path.file_name().is_some_and(|n| n == "run.json") {
                 let text = std::fs::read_to_string(&path).unwrap();
-                m.network_seconds += network_seconds(&serde_json::from_str(&text).unwrap());
+                m.sr_stage_seconds += stage(&serde_json::from_str(&text).unwrap(), "residual base");
             }
         }
     }
@@ -340,7 +335,7 @@ fn main() {
         println!(
             "| {name} | {device} | {:.1} | {:.1} | {:.0} | {} |",
             m.seconds,
-            m.network_seconds,
+            m.sr_stage_seconds,
             m.host_mib,
             m.gpu_mib.map_or("-".into(), |g| format!("{g:.0}")),
         );

@@ -17,9 +17,12 @@
 //! to 512² → 128² → ×4, SPAN, render PSNR / FLIP under 16 held-out lights, means over the
 //! materials (`MATUP_BENCH_QUALITY=0` skips it; it takes about 6 minutes on 2 cores).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use common::stage;
 use matup_core::{load_material, save_material, LoadOptions, SaveOptions};
 
 fn repo() -> PathBuf {
@@ -100,17 +103,6 @@ fn shared_materials_of_side(side: usize) -> Vec<(String, PathBuf)> {
         .collect();
     found.sort();
     found
-}
-
-/// Seconds in the stages whose name ends with `suffix`, over every level (0 for none).
-fn stage(report: &serde_json::Value, suffix: &str) -> f64 {
-    report["timings"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|t| t[0].as_str().unwrap().ends_with(suffix))
-        .map(|t| t[1].as_f64().unwrap())
-        .fold(0.0, |a, b| a + b)
 }
 
 /// The flags of METHOD.md's settings (`configs/paper.toml`, `paper`) with `lanczos3` targets,
