@@ -6,10 +6,9 @@ mod common;
 use std::sync::OnceLock;
 
 use matup::batch::{run_batch, BatchOptions, BatchProgress, Outcome};
-use matup::color::linear_to_srgb;
 use matup::config::Config;
 use matup::lights::Light;
-use matup::material::{MapKind, Material};
+use matup::material::{MapKind, Material, NormalConvention};
 use matup::pipeline::{upscale, wrap_seam_ratio};
 use matup::progress::Silent;
 use matup::render::{render, RenderOptions};
@@ -368,11 +367,7 @@ fn an_interrupted_batch_resumes_its_material_from_the_checkpoint() {
 
 /// A map's values as its 8-bit file holds them, before rounding.
 fn as_stored(kind: MapKind, map: &Map) -> Map {
-    match kind {
-        MapKind::BaseColor => map.clone().map_values(linear_to_srgb),
-        MapKind::Normal => map.clone().map_values(|v| 0.5 * (v + 1.0)),
-        _ => map.clone(),
-    }
+    matup::io::encode_map(kind, map, false, NormalConvention::DirectX)
 }
 
 #[test]

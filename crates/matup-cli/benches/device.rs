@@ -27,8 +27,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::stage;
+use matup_core::io::encode_map;
 use matup_core::map::Map;
-use matup_core::material::{MapKind, Material};
+use matup_core::material::{MapKind, Material, NormalConvention};
 use matup_core::{load_material, save_material, LoadOptions, SaveOptions};
 
 fn repo() -> PathBuf {
@@ -194,11 +195,7 @@ fn levels_apart(a: &Path, b: &Path) -> f64 {
     let mut worst = 0f32;
     for kind in MapKind::ALL {
         if let (Some(x), Some(y)) = (a.map(kind), b.map(kind)) {
-            let stored = |m: &Map| match kind {
-                MapKind::BaseColor => m.clone().map_values(matup_core::color::linear_to_srgb),
-                MapKind::Normal => m.clone().map_values(|v| 0.5 * (v + 1.0)),
-                _ => m.clone(),
-            };
+            let stored = |m: &Map| encode_map(kind, m, false, NormalConvention::DirectX);
             let (x, y) = (stored(x), stored(y));
             for (p, q) in x.data().iter().zip(y.data()) {
                 worst = worst.max((p - q).abs());

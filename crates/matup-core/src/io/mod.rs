@@ -820,7 +820,7 @@ pub fn retag(stem: &str, from: usize, to: usize) -> String {
 
 /// A map's values as its file stores them: sRGB base colour in integer formats, normals as
 /// colours in `convention`, anisotropy directions as turns.
-fn encode_map(kind: MapKind, map: &Map, float: bool, convention: NormalConvention) -> Map {
+pub fn encode_map(kind: MapKind, map: &Map, float: bool, convention: NormalConvention) -> Map {
     match kind {
         MapKind::BaseColor if !float => map.clone().map_values(linear_to_srgb),
         MapKind::Normal => encode_normals(map, convention),
