@@ -4,7 +4,7 @@ use rayon::prelude::*;
 
 /// Values from which whole-map operations run on rayon's threads (smaller maps take longer
 /// to share out than to compute).
-const PARALLEL_TEXELS: usize = 1 << 16;
+pub(crate) const PARALLEL_TEXELS: usize = 1 << 16;
 
 /// A 2D image of `channels` planes of `width × height` f32 values, stored plane after plane,
 /// each plane row-major. Every texture, render and intermediate image in matup is a `Map`.
@@ -99,6 +99,18 @@ impl Map {
     pub fn plane_mut(&mut self, c: usize) -> &mut [f32] {
         let n = self.texels();
         &mut self.data[c * n..(c + 1) * n]
+    }
+
+    /// Every channel plane, mutable at once (to write several in one parallel pass).
+    pub fn planes_mut<const C: usize>(&mut self) -> [&mut [f32]; C] {
+        assert_eq!(
+            self.channels, C,
+            "planes_mut of a {}-channel map",
+            self.channels
+        );
+        let n = self.texels();
+        let mut planes = self.data.chunks_exact_mut(n.max(1));
+        std::array::from_fn(|_| planes.next().unwrap_or_default())
     }
 
     #[inline]

@@ -6,7 +6,7 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use crate::map::Map;
+use crate::map::{Map, PARALLEL_TEXELS};
 use crate::{Error, Result};
 
 /// What lies beyond an image's edge.
@@ -149,33 +149,114 @@ pub fn upsample(map: &Map, scale: usize, kernel: Kernel, border: Border) -> Map 
     let taps = kernel.phase_taps(scale);
     let (w, h, channels) = (map.width(), map.height(), map.channels());
     let (ow, oh) = (w * scale, h * scale);
-
-    // Horizontal pass: every input row becomes an output-width row.
-    let mut wide = vec![0f32; channels * h * ow];
-    wide.par_chunks_mut(ow)
-        .zip(map.data().par_chunks(w))
-        .for_each(|(out, row)| {
-            for (o, v) in out.iter_mut().enumerate() {
-                let (i, phase) = ((o / scale) as isize, o % scale);
-                *v = taps[phase]
-                    .iter()
-                    .map(|&(k, wt)| wt * row[border.index(i + k, w)])
-                    .sum();
-            }
-        });
-
-    // Vertical pass: each output row mixes a few wide rows.
+    let rows = rows_per_task(ow * scale);
     let mut out = vec![0f32; channels * oh * ow];
-    out.par_chunks_mut(ow).enumerate().for_each(|(r, row)| {
-        let (c, y) = (r / oh, r % oh);
-        let (i, phase) = ((y / scale) as isize, y % scale);
-        let plane = &wide[c * h * ow..(c + 1) * h * ow];
-        for &(k, wt) in &taps[phase] {
-            let src = &plane[border.index(i + k, h) * ow..][..ow];
-            row.iter_mut().zip(src).for_each(|(o, s)| *o += wt * s);
-        }
-    });
+    out.par_chunks_mut(oh * ow)
+        .zip(map.data().par_chunks(h * w))
+        .for_each(|(out_plane, plane)| {
+            out_plane
+                .par_chunks_mut(rows * scale * ow)
+                .enumerate()
+                .for_each(|(task, chunk)| {
+                    let mut out_rows = chunk.chunks_mut(ow);
+                    let first = task * rows;
+                    let lr_rows = first..(first + rows).min(h);
+                    for_each_upsampled_row(
+                        plane,
+                        [w, h],
+                        scale,
+                        &taps,
+                        border,
+                        lr_rows,
+                        |_, row| {
+                            out_rows
+                                .next()
+                                .expect("a row per output row")
+                                .copy_from_slice(row)
+                        },
+                    );
+                });
+        });
     Map::from_planar(ow, oh, channels, out)
+}
+
+/// Input rows a parallel task of [`for_each_upsampled_row`] takes, each `texels_per_row`
+/// output texels: enough for a task to outweigh its scheduling, and at least 16, since each
+/// task widens the kernel's reach of rows either side of its own again.
+pub fn rows_per_task(texels_per_row: usize) -> usize {
+    PARALLEL_TEXELS.div_ceil(texels_per_row.max(1)).max(16)
+}
+
+/// The output rows of the input rows `lr_rows` of a `w × h` plane upsampled by `scale` with
+/// `taps` (a kernel's [`Kernel::phase_taps`]), top to bottom: `each(output_row, values)`.
+/// What [`upsample`] computes, a few rows at a time, so that work on the output (a
+/// back-projection's correction, say) need not hold it whole. Each input row is widened once
+/// (along the row), then each output row mixes a few widened rows.
+pub fn for_each_upsampled_row(
+    plane: &[f32],
+    [w, h]: [usize; 2],
+    scale: usize,
+    taps: &[Vec<(isize, f32)>],
+    border: Border,
+    lr_rows: std::ops::Range<usize>,
+    mut each: impl FnMut(usize, &[f32]),
+) {
+    let ow = w * scale;
+    let reach = taps.iter().flatten().map(|t| t.0.abs()).max().unwrap_or(0);
+    let widen = |source: usize, out: &mut [f32]| {
+        let row = &plane[source * w..][..w];
+        for (i, texels) in out.chunks_exact_mut(scale).enumerate() {
+            let i = i as isize;
+            // Away from the edges the taps read the row directly (no border lookup).
+            let inside = i >= reach && i + reach < w as isize;
+            for (v, taps) in texels.iter_mut().zip(taps) {
+                *v = if inside {
+                    taps.iter().map(|&(k, wt)| wt * row[(i + k) as usize]).sum()
+                } else {
+                    taps.iter()
+                        .map(|&(k, wt)| wt * row[border.index(i + k, w)])
+                        .sum()
+                };
+            }
+        }
+    };
+    // The widened rows of the input rows `i + k` that output rows of row `i` read, by `i + k`
+    // (not yet wrapped by the border): a sliding window down the rows, whose rows leaving it
+    // are reused.
+    let mut widened: Vec<(isize, Vec<f32>)> = Vec::new();
+    let mut spare: Vec<Vec<f32>> = Vec::new();
+    let mut row = vec![0f32; ow];
+    for i in lr_rows {
+        let i = i as isize;
+        let mut kept = Vec::with_capacity(widened.len());
+        for (j, wide) in widened.drain(..) {
+            if j >= i - reach {
+                kept.push((j, wide));
+            } else {
+                spare.push(wide);
+            }
+        }
+        widened = kept;
+        for (phase, phase_taps) in taps.iter().enumerate() {
+            let y = i as usize * scale + phase;
+            row.fill(0.0);
+            for &(k, wt) in phase_taps {
+                let at = i + k;
+                let slot = match widened.iter().position(|(j, _)| *j == at) {
+                    Some(slot) => slot,
+                    None => {
+                        let mut wide = spare.pop().unwrap_or_else(|| vec![0f32; ow]);
+                        widen(border.index(at, h), &mut wide);
+                        widened.push((at, wide));
+                        widened.len() - 1
+                    }
+                };
+                let src = &widened[slot].1;
+                row.iter_mut().zip(src).for_each(|(o, s)| *o += wt * s);
+            }
+            each(y, &row);
+        }
+    }
 }
 
 /// Averages `factor × factor` blocks (a box filter): how a lower-resolution capture, or an
@@ -363,6 +444,38 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn upsampling_weighs_each_input_texel_by_the_kernel_along_both_axes() {
+        // The definition, texel by texel, against the row-wise implementation: sizes below the
+        // kernel's reach, odd ones, and more rows than one parallel task takes.
+        for (w, h) in [(1, 3), (3, 2), (9, 41)] {
+            let map = Map::from_fn(w, h, 2, |c, y, x| ((x * 7 + y * 3 + c * 5) % 11) as f32);
+            for kernel in KERNELS {
+                let taps = kernel.phase_taps(4);
+                for border in BORDERS {
+                    let up = upsample(&map, 4, kernel, border);
+                    let mut worst = 0f32;
+                    for (c, y, x) in every_texel(2, 4 * h, 4 * w) {
+                        let (i, j) = ((y / 4) as isize, (x / 4) as isize);
+                        let mut want = 0.0;
+                        for &(ky, wy) in &taps[y % 4] {
+                            for &(kx, wx) in &taps[x % 4] {
+                                let (sy, sx) = (border.index(i + ky, h), border.index(j + kx, w));
+                                want += wy * wx * map.get(c, sy, sx);
+                            }
+                        }
+                        worst = worst.max((up.get(c, y, x) - want).abs());
+                    }
+                    assert!(worst < 1e-4, "{w}×{h} {kernel:?} {border}: {worst}");
+                }
+            }
+        }
+    }
+
+    fn every_texel(a: usize, b: usize, c: usize) -> impl Iterator<Item = (usize, usize, usize)> {
+        (0..a).flat_map(move |i| (0..b).flat_map(move |j| (0..c).map(move |k| (i, j, k))))
     }
 
     #[test]

@@ -3,6 +3,8 @@
 //! once. Colours here are sRGB-encoded, split into luma (Rec. 709 weights) and chroma
 //! (R′ − G′, B′ − G′), the chroma `matup eval`'s false-colour count judges.
 
+use rayon::prelude::*;
+
 use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::map::Map;
 use matup_core::resample::{lr_texel, neighbourhood_ranges, Border};
@@ -67,20 +69,27 @@ pub fn with_chroma_of(luma_from: &Map, chroma_from: &Map) -> Map {
 pub fn clamp_chroma_to_input(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
     let lr_chroma: Vec<[f32; 2]> = (0..lr.texels()).map(|i| chroma(encoded(lr, i))).collect();
     let ranges = neighbourhood_ranges(&lr_chroma, lr.width(), border);
-    let w = hr.width();
-    for i in 0..hr.texels() {
-        let range = &ranges[lr_texel(i, w, scale, lr.width())];
-        let colour = encoded(hr, i);
-        let own = chroma(colour);
-        let clamped = [0, 1].map(|k| own[k].clamp(range[k][0], range[k][1]));
-        if clamped == own {
-            continue;
-        }
-        let rgb = from_luma_chroma(luma(colour), clamped);
-        for (c, v) in rgb.into_iter().enumerate() {
-            hr.plane_mut(c)[i] = srgb_to_linear(v);
-        }
-    }
+    let (w, n) = (hr.width(), hr.texels());
+    let (red, rest) = hr.data_mut().split_at_mut(n);
+    let (green, rest) = rest.split_at_mut(n);
+    let blue = &mut rest[..n];
+    // Row by row on rayon's threads: three sRGB encodings a texel make this a whole-map cost.
+    (red.par_chunks_mut(w).zip(green.par_chunks_mut(w)))
+        .zip(blue.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((red, green), blue))| {
+            for x in 0..w {
+                let range = &ranges[lr_texel(y * w + x, w, scale, lr.width())];
+                let colour = [red[x], green[x], blue[x]].map(linear_to_srgb);
+                let own = chroma(colour);
+                let clamped = [0, 1].map(|k| own[k].clamp(range[k][0], range[k][1]));
+                if clamped == own {
+                    continue;
+                }
+                [red[x], green[x], blue[x]] =
+                    from_luma_chroma(luma(colour), clamped).map(srgb_to_linear);
+            }
+        });
 }
 
 #[cfg(test)]

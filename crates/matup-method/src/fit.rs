@@ -324,32 +324,44 @@ pub(crate) fn infer_material(
     hr.normal = Map::filled(w, h, 3, 0.0);
     hr.roughness = Map::filled(w, h, 1, 0.0);
     hr.metallic = Map::filled(w, h, 1, 0.0);
+    let [red, green, blue] = hr.base_color.planes_mut();
+    let [nx, ny, nz] = hr.normal.planes_mut();
+    let (metallic, roughness) = (hr.metallic.data_mut(), hr.roughness.data_mut());
     for start in (0..n).step_by(16384) {
-        let chunk: &[usize] = &(start..n.min(start + 16384)).collect::<Vec<_>>();
+        let end = n.min(start + 16384);
         let raw = match (filter, &folded) {
             (Some(filter), Some(folded)) => {
-                let (windows, phases) = filter.lr_windows(&lr_features, border, chunk);
+                let chunk: Vec<usize> = (start..end).collect();
+                let (windows, phases) = filter.lr_windows(&lr_features, border, &chunk);
                 filter.infer(folded, &windows, &phases)?
             }
-            _ => vec![0.0; chunk.len() * FEATURES],
+            _ => vec![0.0; (end - start) * FEATURES],
         };
-        let decoded: Vec<_> = chunk
-            .par_iter()
-            .zip(raw.par_chunks(FEATURES))
-            .map(|(&t, r)| {
-                let base: [f32; FEATURES] = residual_base.texel(t);
-                decode(r, &base, &fixed).params
-            })
-            .collect();
-        for (&t, p) in chunk.iter().zip(&decoded) {
-            for c in 0..3 {
-                hr.base_color.plane_mut(c)[t] = p.base_color[c];
-                hr.normal.plane_mut(c)[t] = p.normal[c];
-            }
-            hr.metallic.data_mut()[t] = p.metallic;
-            hr.roughness.data_mut()[t] = p.alpha.sqrt();
-        }
-        progress.advance(chunk.len() as u64, None);
+        // Decoded and written into the maps texel by texel on rayon's threads.
+        (
+            (start..end).into_par_iter(),
+            raw.par_chunks(FEATURES),
+            red[start..end].par_iter_mut(),
+            green[start..end].par_iter_mut(),
+            blue[start..end].par_iter_mut(),
+            nx[start..end].par_iter_mut(),
+            ny[start..end].par_iter_mut(),
+            nz[start..end].par_iter_mut(),
+            metallic[start..end].par_iter_mut(),
+            roughness[start..end].par_iter_mut(),
+        )
+            .into_par_iter()
+            .for_each(
+                |(t, r, red, green, blue, nx, ny, nz, metallic, roughness)| {
+                    let base: [f32; FEATURES] = residual_base.texel(t);
+                    let p = decode(r, &base, &fixed).params;
+                    [*red, *green, *blue] = p.base_color;
+                    [*nx, *ny, *nz] = p.normal;
+                    *metallic = p.metallic;
+                    *roughness = p.alpha.sqrt();
+                },
+            );
+        progress.advance((end - start) as u64, None);
     }
     hr.anisotropy = lr
         .anisotropy

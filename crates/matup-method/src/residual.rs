@@ -12,7 +12,9 @@ use crate::features::{features, pack_features};
 use crate::per_map::upscale_each_map;
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material, MIN_ALPHA};
-use matup_core::resample::{box_downsample, upsample, Border, Kernel};
+use matup_core::resample::{
+    box_downsample, for_each_upsampled_row, rows_per_task, upsample, Border, Kernel,
+};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
 
@@ -81,28 +83,62 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
 }
 
 /// [`back_project`] for any map, channel `c`'s values kept in `range(c)`.
+///
+/// One pass over `hr` a round: the correction is spread a few rows at a time (never held at
+/// the output size), and each corrected block of rows is box-summed there for the next round's
+/// mismatch. The values are those of `box_downsample` and `upsample` done apart.
 pub fn back_project_within(
     hr: &mut Map,
     lr: &Map,
     scale: usize,
     border: Border,
-    range: impl Fn(usize) -> (f32, f32),
+    range: impl Fn(usize) -> (f32, f32) + Sync,
 ) {
-    for _ in 0..BACK_PROJECTIONS {
-        let seen = box_downsample(hr, scale);
-        // One feature at a time: the correction of all of them at once, at the output size,
-        // was this stage's largest buffer.
+    let (w, h) = (lr.width(), lr.height());
+    let ow = w * scale;
+    let taps = Kernel::Bilinear.phase_taps(scale);
+    let norm = 1.0 / (scale * scale) as f32;
+    let rows = rows_per_task(ow * scale);
+    // What a capture at the LR size sees of `hr`, kept up to date round by round.
+    let mut seen = box_downsample(hr, scale);
+    for round in 0..BACK_PROJECTIONS {
+        let last = round + 1 == BACK_PROJECTIONS;
         for c in 0..hr.channels() {
             let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
                 .map(|(l, s)| l - s)
                 .collect();
-            let mismatch = Map::from_planar(lr.width(), lr.height(), 1, mismatch);
-            let correction = upsample(&mismatch, scale, Kernel::Bilinear, border);
             let (lo, hi) = range(c);
             hr.plane_mut(c)
-                .par_iter_mut()
-                .zip(correction.data())
-                .for_each(|(v, f)| *v = (*v + f).clamp(lo, hi));
+                .par_chunks_mut(rows * scale * ow)
+                .zip(seen.plane_mut(c).par_chunks_mut(rows * w))
+                .enumerate()
+                .for_each(|(task, (hr_rows, seen_rows))| {
+                    let first = task * rows;
+                    seen_rows.fill(0.0);
+                    let lr_rows = first..(first + rows).min(h);
+                    for_each_upsampled_row(
+                        &mismatch,
+                        [w, h],
+                        scale,
+                        &taps,
+                        border,
+                        lr_rows,
+                        |y, correction| {
+                            let local = y - first * scale;
+                            let row = &mut hr_rows[local * ow..][..ow];
+                            row.iter_mut()
+                                .zip(correction)
+                                .for_each(|(v, f)| *v = (*v + f).clamp(lo, hi));
+                            if !last {
+                                let sums = &mut seen_rows[local / scale * w..][..w];
+                                for (sum, block) in sums.iter_mut().zip(row.chunks_exact(scale)) {
+                                    block.iter().for_each(|v| *sum += v);
+                                }
+                            }
+                        },
+                    );
+                    seen_rows.iter_mut().for_each(|s| *s *= norm);
+                });
         }
     }
 }
@@ -185,6 +221,42 @@ mod tests {
                 _ => 0.1 + 0.8 * v,
             }
         })
+    }
+
+    #[test]
+    fn back_projection_is_rounds_of_box_downsample_and_bilinear_spread() {
+        // The fused rounds compute what the two resampling steps compute apart, bit for bit:
+        // odd sizes and more rows than one parallel task takes, both borders.
+        let lr = Map::from_fn(13, 37, FEATURES, |c, y, x| {
+            let v = ((x * 5 + y * 3 + c * 11) % 13) as f32 / 12.0;
+            if c == 4 || c == 5 {
+                v - 0.5
+            } else {
+                v
+            }
+        });
+        for border in [Border::Wrap, Border::Mirror] {
+            let start = upsample(&lr, 4, Kernel::Bicubic { a: -0.5 }, border)
+                .map_values(|v| 0.9 * v + 0.03);
+            let mut fused = start.clone();
+            back_project(&mut fused, &lr, 4, border);
+            let mut apart = start;
+            for _ in 0..BACK_PROJECTIONS {
+                let seen = box_downsample(&apart, 4);
+                for c in 0..FEATURES {
+                    let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
+                        .map(|(l, s)| l - s)
+                        .collect();
+                    let mismatch = Map::from_planar(lr.width(), lr.height(), 1, mismatch);
+                    let correction = upsample(&mismatch, 4, Kernel::Bilinear, border);
+                    let (lo, hi) = feature_range(c);
+                    for (v, f) in apart.plane_mut(c).iter_mut().zip(correction.data()) {
+                        *v = (*v + f).clamp(lo, hi);
+                    }
+                }
+            }
+            assert_eq!(fused.data(), apart.data(), "{border}");
+        }
     }
 
     #[test]
