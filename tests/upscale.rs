@@ -367,7 +367,7 @@ fn an_interrupted_batch_resumes_its_material_from_the_checkpoint() {
 
 /// A map's values as its 8-bit file holds them, before rounding.
 fn as_stored(kind: MapKind, map: &Map) -> Map {
-    matup::io::encode_map(kind, map, false, NormalConvention::DirectX)
+    matup::io::encode_map(kind, map, false, NormalConvention::DirectX).into_owned()
 }
 
 #[test]

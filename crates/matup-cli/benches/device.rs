@@ -195,7 +195,8 @@ fn levels_apart(a: &Path, b: &Path) -> f64 {
     let mut worst = 0f32;
     for kind in MapKind::ALL {
         if let (Some(x), Some(y)) = (a.map(kind), b.map(kind)) {
-            let stored = |m: &Map| encode_map(kind, m, false, NormalConvention::DirectX);
+            let stored =
+                |m: &Map| encode_map(kind, m, false, NormalConvention::DirectX).into_owned();
             let (x, y) = (stored(x), stored(y));
             for (p, q) in x.data().iter().zip(y.data()) {
                 worst = worst.max((p - q).abs());

@@ -194,8 +194,16 @@ fn upscale_map_ensemble(
         // Turned back: the directions first (texel by texel), then the texels, into the sum.
         let back = t.inverse();
         turn_with_surface(kind, &mut up, back);
-        sum.get_or_insert_with(|| Map::filled(w, h, up.channels(), 0.0))
-            .add_transformed(&up, back);
+        match sum.as_mut() {
+            // The identity's pass is the sum so far as it stands: no map of zeros to add it to.
+            None if back == Dihedral::default() => sum = Some(up),
+            None => {
+                let mut first = Map::filled(w, h, up.channels(), 0.0);
+                first.add_transformed(&up, back);
+                sum = Some(first);
+            }
+            Some(sum) => sum.add_transformed(&up, back),
+        }
     };
     if upsampler.batches_images() {
         // All passes in one call (a GPU's batch), their outputs held at once.

@@ -6,6 +6,7 @@ mod image_file;
 mod stream;
 
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -597,25 +598,27 @@ impl MaterialWriter {
                     (encoded, band.carried.alpha.get(&kind))
                 }
                 Written::Gloss => (
-                    band.roughness.clone().map_values(|r| 1.0 - r),
+                    Cow::Owned(band.roughness.clone().map_values(|r| 1.0 - r)),
                     band.carried.alpha.get(&MapKind::Roughness),
                 ),
                 Written::Extra(i) => {
                     let extra = band.carried.extras.get(i).ok_or_else(missing)?;
                     (encode_extra(&extra.map, float), extra.alpha.as_ref())
                 }
-                Written::NormalIn(convention) => (encode_normals(&band.normal, convention), None),
+                Written::NormalIn(convention) => {
+                    (Cow::Owned(encode_normals(&band.normal, convention)), None)
+                }
                 Written::Packed(occlusion) => {
                     let occlusion = match occlusion {
                         Some(i) => band.carried.extras.get(i).ok_or_else(missing)?.map.clone(),
                         None => Map::filled(band.width(), band.height_px(), 1, 1.0),
                     };
                     let packed = Map::stack(&[&occlusion, &band.roughness, &band.metallic]);
-                    (packed, None)
+                    (Cow::Owned(packed), None)
                 }
             };
             let encoded = match alpha {
-                Some(alpha) => Map::stack(&[&encoded, alpha]),
+                Some(alpha) => Cow::Owned(Map::stack(&[&encoded, alpha])),
                 None => encoded,
             };
             map.file.write_rows(&encoded)
@@ -779,11 +782,11 @@ impl MaterialWriter {
 }
 
 /// An extra map's values as its file stores them: RGB sRGB-encoded in integer formats.
-fn encode_extra(map: &Map, float: bool) -> Map {
+fn encode_extra(map: &Map, float: bool) -> Cow<'_, Map> {
     if map.channels() == 3 && !float {
-        map.clone().map_values(linear_to_srgb)
+        Cow::Owned(map.clone().map_values(linear_to_srgb))
     } else {
-        map.clone()
+        Cow::Borrowed(map)
     }
 }
 
@@ -819,15 +822,26 @@ pub fn retag(stem: &str, from: usize, to: usize) -> String {
 }
 
 /// A map's values as its file stores them: sRGB base colour in integer formats, normals as
-/// colours in `convention`, anisotropy directions as turns.
-pub fn encode_map(kind: MapKind, map: &Map, float: bool, convention: NormalConvention) -> Map {
+/// colours in `convention`, anisotropy directions as turns; other maps as they are (borrowed:
+/// at 4K² a copy is 64 MB a channel).
+pub fn encode_map(
+    kind: MapKind,
+    map: &Map,
+    float: bool,
+    convention: NormalConvention,
+) -> Cow<'_, Map> {
+    let each = |f: fn(f32) -> f32| {
+        Map::from_fn(map.width(), map.height(), map.channels(), |c, y, x| {
+            f(map.get(c, y, x))
+        })
+    };
     match kind {
-        MapKind::BaseColor if !float => map.clone().map_values(linear_to_srgb),
-        MapKind::Normal => encode_normals(map, convention),
-        MapKind::AnisotropyAngle => map
-            .clone()
-            .map_values(|a| (a / std::f32::consts::TAU).rem_euclid(1.0)),
-        _ => map.clone(),
+        MapKind::BaseColor if !float => Cow::Owned(each(linear_to_srgb)),
+        MapKind::Normal => Cow::Owned(encode_normals(map, convention)),
+        MapKind::AnisotropyAngle => {
+            Cow::Owned(each(|a| (a / std::f32::consts::TAU).rem_euclid(1.0)))
+        }
+        _ => Cow::Borrowed(map),
     }
 }
 
@@ -838,13 +852,15 @@ pub fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
     } else {
         1.0
     };
-    let n = normal.texels();
-    let mut out = normal.clone();
-    for (i, v) in out.data_mut().iter_mut().enumerate() {
-        let sign = if i / n == 1 { flip } else { 1.0 };
-        *v = 0.5 * (sign * *v + 1.0);
-    }
-    out
+    Map::from_fn(
+        normal.width(),
+        normal.height(),
+        normal.channels(),
+        |c, y, x| {
+            let sign = if c == 1 { flip } else { 1.0 };
+            0.5 * (sign * normal.get(c, y, x) + 1.0)
+        },
+    )
 }
 
 /// Writes a display-space RGB image (a render or a preview) as an 8-bit PNG, atomically.

@@ -16,6 +16,7 @@ use std::thread::JoinHandle;
 use exr::block::writer::ChunksWriter;
 use exr::prelude as ex;
 use image::DynamicImage;
+use rayon::prelude::*;
 use tempfile::NamedTempFile;
 
 use crate::color::to_u8;
@@ -190,10 +191,6 @@ impl ImageWriter {
             "rows past the end"
         );
         self.rows_written += rows.height();
-        let interleaved = || {
-            let n = rows.texels();
-            (0..n).flat_map(move |i| (0..rows.channels()).map(move |c| rows.data()[c * n + i]))
-        };
         match &mut self.encoder {
             Encoder::Png {
                 stream,
@@ -201,11 +198,9 @@ impl ImageWriter {
                 ..
             } => {
                 let bytes: Vec<u8> = if *sixteen_bits {
-                    interleaved()
-                        .flat_map(|v| to_u16(v).to_be_bytes())
-                        .collect()
+                    interleaved(rows, |v| to_u16(v).to_be_bytes()).into_flattened()
                 } else {
-                    interleaved().map(to_u8).collect()
+                    interleaved(rows, to_u8)
                 };
                 let stream = stream.as_mut().expect("open until finished");
                 stream
@@ -214,9 +209,9 @@ impl ImageWriter {
             }
             Encoder::Gathered(samples) => {
                 match samples {
-                    Samples::U8(s) => s.extend(interleaved().map(to_u8)),
-                    Samples::U16(s) => s.extend(interleaved().map(to_u16)),
-                    Samples::F32(s) => s.extend(interleaved()),
+                    Samples::U8(s) => s.append(&mut interleaved(rows, to_u8)),
+                    Samples::U16(s) => s.append(&mut interleaved(rows, to_u16)),
+                    Samples::F32(s) => s.append(&mut interleaved(rows, |v| v)),
                 }
                 Ok(())
             }
@@ -496,6 +491,23 @@ pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
 }
 
 /// A [0, 1] value as a 16-bit sample (rounded, clamped).
+/// `rows`' samples converted and interleaved texel by texel (as files store them), a row a
+/// task on rayon's threads.
+fn interleaved<T: Copy + Default + Send>(rows: &Map, convert: impl Fn(f32) -> T + Sync) -> Vec<T> {
+    let (w, channels, n) = (rows.width(), rows.channels(), rows.texels());
+    let mut out = vec![T::default(); n * channels];
+    out.par_chunks_mut((w * channels).max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, texel) in row.chunks_exact_mut(channels).enumerate() {
+                for (c, sample) in texel.iter_mut().enumerate() {
+                    *sample = convert(rows.plane(c)[y * w + x]);
+                }
+            }
+        });
+    out
+}
+
 fn to_u16(v: f32) -> u16 {
     (v.clamp(0.0, 1.0) * 65535.0).round() as u16
 }
