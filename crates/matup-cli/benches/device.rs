@@ -15,7 +15,9 @@
 //! - `MATUP_BENCH_MATERIAL`: the 1K² material (default `../shared/materials/ambientcg_Metal053C`);
 //! - `MATUP_BENCH_ROWS`: which rows, of `main,1k,2k,4k,library` (default all);
 //! - `MATUP_BENCH_CPU_ROWS`: the rows also run on the CPU (default `main,1k,2k,library`:
-//!   4K² → 16K² takes about 11 minutes on 2 cores).
+//!   4K² → 16K² takes about 11 minutes on 2 cores);
+//! - `MATUP_BENCH_HOST_ROWS`: the rows also run with `--upsampler bicubic` on the CPU (default
+//!   `1k`): the CPU's part of the path alone, what a GPU's host does besides the network.
 
 mod common;
 
@@ -142,17 +144,11 @@ fn measure(name: &str, args: &[&str]) -> (Measured, String) {
     (measured, stdout)
 }
 
-/// `matup upscale FOLDER` with the defaults on `device`, its maps written to `out`.
-fn upscale(name: &str, folder: &Path, out: &Path, device: &str) -> Measured {
-    let args = [
-        "upscale",
-        folder.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--json",
-        "--device",
-        device,
-    ];
+/// `matup upscale FOLDER` with the defaults and `settings`, its maps written to `out`.
+fn upscale(name: &str, folder: &Path, out: &Path, settings: &[&str]) -> Measured {
+    let (folder, out) = (folder.to_str().unwrap(), out.to_str().unwrap());
+    let mut args = vec!["upscale", folder, "-o", out, "--json"];
+    args.extend(settings);
     let (mut m, stdout) = measure(name, &args);
     let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     m.sr_stage_seconds = stage(&report, "residual base");
@@ -160,17 +156,11 @@ fn upscale(name: &str, folder: &Path, out: &Path, device: &str) -> Measured {
     m
 }
 
-/// `matup batch LIBRARY` with the defaults on `device`.
-fn batch(name: &str, library: &Path, out: &Path, device: &str) -> Measured {
-    let args = [
-        "batch",
-        library.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--quiet",
-        "--device",
-        device,
-    ];
+/// `matup batch LIBRARY` with the defaults and `settings`.
+fn batch(name: &str, library: &Path, out: &Path, settings: &[&str]) -> Measured {
+    let (library, out_dir) = (library.to_str().unwrap(), out.to_str().unwrap());
+    let mut args = vec!["batch", library, "-o", out_dir, "--quiet"];
+    args.extend(settings);
     let (mut m, _) = measure(name, &args);
     // Each material's run.json, beside its maps.
     let mut reports = vec![out.to_path_buf()];
@@ -246,6 +236,7 @@ fn main() {
     };
     let rows = list("MATUP_BENCH_ROWS", "main,1k,2k,4k,library");
     let cpu_rows = list("MATUP_BENCH_CPU_ROWS", "main,1k,2k,library");
+    let host_rows = list("MATUP_BENCH_HOST_ROWS", "1k");
     let material = std::env::var_os("MATUP_BENCH_MATERIAL").map_or(
         repo().join("../shared/materials/ambientcg_Metal053C"),
         PathBuf::from,
@@ -298,25 +289,32 @@ fn main() {
             }
             other => panic!("unknown row '{other}': use main, 1k, 2k, 4k, library"),
         };
-        let mut devices = vec![];
+        // (what the table calls the run, its settings, whether its maps are compared)
+        let mut runs: Vec<(&str, &[&str], bool)> = vec![];
         if cpu_rows.contains(row) {
-            devices.push("cpu");
+            runs.push(("cpu", &["--device", "cpu"], true));
         }
         if gpu {
-            devices.push("cuda");
+            runs.push(("cuda", &["--device", "cuda"], true));
+        }
+        if host_rows.contains(row) {
+            let bicubic: &[&str] = &["--device", "cpu", "--upsampler", "bicubic"];
+            runs.push(("cpu, bicubic for the network", bicubic, false));
         }
         let mut outputs = vec![];
-        for device in devices {
-            let out = scratch.path().join(format!("{row}-{device}"));
+        for (i, (device, settings, compared)) in runs.into_iter().enumerate() {
+            let out = scratch.path().join(format!("{row}-{i}"));
             let label = format!("{name}, {device}");
             eprintln!("running {label}");
             let m = if row == "library" {
-                batch(&label, &input, &out, device)
+                batch(&label, &input, &out, settings)
             } else {
-                upscale(&label, &input, &out, device)
+                upscale(&label, &input, &out, settings)
             };
             table.push((name.clone(), device, m));
-            outputs.push(out);
+            if compared {
+                outputs.push(out);
+            }
         }
         if let ([cpu, gpu], true) = (&outputs[..], row != "library") {
             let apart = levels_apart(cpu, gpu);
