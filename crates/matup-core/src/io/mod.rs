@@ -587,41 +587,45 @@ impl MaterialWriter {
         // PNG's compression is single-threaded and takes seconds).
         self.maps.par_iter_mut().try_for_each(|map| {
             let float = map.file.format().is_float();
-            let (encoded, alpha) = match map.what {
+            let (rows, storing, alpha) = match map.what {
                 Written::Core(kind) => {
                     let rows = band.map(kind).ok_or_else(missing)?;
                     if let (Some(value), true) = (map.stand_in, map.all_stand_in) {
                         map.all_stand_in = (0..rows.channels())
                             .all(|c| (rows.plane(c).iter()).all(|&v| (v - value[c]).abs() <= 1e-5));
                     }
-                    let encoded = encode_map(kind, rows, float, convention);
-                    (encoded, band.carried.alpha.get(&kind))
+                    let storing = Storing::of(kind, float, convention);
+                    (Cow::Borrowed(rows), storing, band.carried.alpha.get(&kind))
                 }
                 Written::Gloss => (
-                    Cow::Owned(band.roughness.clone().map_values(|r| 1.0 - r)),
+                    Cow::Borrowed(&band.roughness),
+                    Storing::Gloss,
                     band.carried.alpha.get(&MapKind::Roughness),
                 ),
                 Written::Extra(i) => {
                     let extra = band.carried.extras.get(i).ok_or_else(missing)?;
-                    (encode_extra(&extra.map, float), extra.alpha.as_ref())
+                    let storing = storing_extra(&extra.map, float);
+                    (Cow::Borrowed(&extra.map), storing, extra.alpha.as_ref())
                 }
-                Written::NormalIn(convention) => {
-                    (Cow::Owned(encode_normals(&band.normal, convention)), None)
-                }
+                Written::NormalIn(convention) => (
+                    Cow::Borrowed(&band.normal),
+                    Storing::NormalColours(convention),
+                    None,
+                ),
                 Written::Packed(occlusion) => {
                     let occlusion = match occlusion {
                         Some(i) => band.carried.extras.get(i).ok_or_else(missing)?.map.clone(),
                         None => Map::filled(band.width(), band.height_px(), 1, 1.0),
                     };
                     let packed = Map::stack(&[&occlusion, &band.roughness, &band.metallic]);
-                    (Cow::Owned(packed), None)
+                    (Cow::Owned(packed), Storing::AsIs, None)
                 }
             };
-            let encoded = match alpha {
-                Some(alpha) => Cow::Owned(Map::stack(&[&encoded, alpha])),
-                None => encoded,
+            let rows = match alpha {
+                Some(alpha) => Cow::Owned(Map::stack(&[&rows, alpha])),
+                None => rows,
             };
-            map.file.write_rows(&encoded)
+            map.file.write_stored_rows(&rows, storing)
         })
     }
 
@@ -781,12 +785,12 @@ impl MaterialWriter {
     }
 }
 
-/// An extra map's values as its file stores them: RGB sRGB-encoded in integer formats.
-fn encode_extra(map: &Map, float: bool) -> Cow<'_, Map> {
+/// How an extra map is stored: RGB sRGB-encoded in integer formats.
+fn storing_extra(map: &Map, float: bool) -> Storing {
     if map.channels() == 3 && !float {
-        Cow::Owned(map.clone().map_values(linear_to_srgb))
+        Storing::Srgb
     } else {
-        Cow::Borrowed(map)
+        Storing::AsIs
     }
 }
 
@@ -821,46 +825,75 @@ pub fn retag(stem: &str, from: usize, to: usize) -> String {
     out
 }
 
-/// A map's values as its file stores them: sRGB base colour in integer formats, normals as
-/// colours in `convention`, anisotropy directions as turns; other maps as they are (borrowed:
-/// at 4K² a copy is 64 MB a channel).
+/// How a map's values become its file's, value by value: sRGB base colour (and colour maps
+/// carried along) in integer formats, normals as colours in a convention, anisotropy
+/// directions as turns, gloss as one minus roughness. Channels past a map's own (an alpha
+/// stacked on it) are stored as they are. Applied as a file's samples are made, a map needs no
+/// encoded copy (at 4K² 64 MB a channel).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Storing {
+    AsIs,
+    Srgb,
+    NormalColours(NormalConvention),
+    Turns,
+    Gloss,
+}
+
+impl Storing {
+    /// How a map of `kind` is stored in a file of a float (`float`) or integer format.
+    pub fn of(kind: MapKind, float: bool, convention: NormalConvention) -> Storing {
+        match kind {
+            MapKind::BaseColor if !float => Storing::Srgb,
+            MapKind::Normal => Storing::NormalColours(convention),
+            MapKind::AnisotropyAngle => Storing::Turns,
+            _ => Storing::AsIs,
+        }
+    }
+
+    /// The stored value of `v`, a value of channel `channel`.
+    #[inline]
+    pub fn value(self, channel: usize, v: f32) -> f32 {
+        match self {
+            Storing::Srgb if channel < 3 => linear_to_srgb(v),
+            Storing::NormalColours(convention) if channel < 3 => {
+                let flip = channel == 1 && convention == NormalConvention::OpenGl;
+                0.5 * (if flip { -v } else { v } + 1.0)
+            }
+            Storing::Turns if channel == 0 => (v / std::f32::consts::TAU).rem_euclid(1.0),
+            Storing::Gloss if channel == 0 => 1.0 - v,
+            _ => v,
+        }
+    }
+
+    /// `map` as its file stores it (borrowed where nothing changes).
+    pub fn apply(self, map: &Map) -> Cow<'_, Map> {
+        match self {
+            Storing::AsIs => Cow::Borrowed(map),
+            _ => Cow::Owned(Map::from_fn(
+                map.width(),
+                map.height(),
+                map.channels(),
+                |c, y, x| self.value(c, map.get(c, y, x)),
+            )),
+        }
+    }
+}
+
+/// A map's values as its file stores them ([`Storing`]).
 pub fn encode_map(
     kind: MapKind,
     map: &Map,
     float: bool,
     convention: NormalConvention,
 ) -> Cow<'_, Map> {
-    let each = |f: fn(f32) -> f32| {
-        Map::from_fn(map.width(), map.height(), map.channels(), |c, y, x| {
-            f(map.get(c, y, x))
-        })
-    };
-    match kind {
-        MapKind::BaseColor if !float => Cow::Owned(each(linear_to_srgb)),
-        MapKind::Normal => Cow::Owned(encode_normals(map, convention)),
-        MapKind::AnisotropyAngle => {
-            Cow::Owned(each(|a| (a / std::f32::consts::TAU).rem_euclid(1.0)))
-        }
-        _ => Cow::Borrowed(map),
-    }
+    Storing::of(kind, float, convention).apply(map)
 }
 
 /// Unit normals → [0, 1] encoding in `convention`.
 pub fn encode_normals(normal: &Map, convention: NormalConvention) -> Map {
-    let flip = if convention == NormalConvention::OpenGl {
-        -1.0
-    } else {
-        1.0
-    };
-    Map::from_fn(
-        normal.width(),
-        normal.height(),
-        normal.channels(),
-        |c, y, x| {
-            let sign = if c == 1 { flip } else { 1.0 };
-            0.5 * (sign * normal.get(c, y, x) + 1.0)
-        },
-    )
+    Storing::NormalColours(convention)
+        .apply(normal)
+        .into_owned()
 }
 
 /// Writes a display-space RGB image (a render or a preview) as an 8-bit PNG, atomically.

@@ -20,6 +20,7 @@ use rayon::prelude::*;
 use tempfile::NamedTempFile;
 
 use crate::color::to_u8;
+use crate::io::Storing;
 use crate::map::Map;
 use crate::material::FileFormat;
 use crate::{Error, Result};
@@ -185,6 +186,11 @@ impl ImageWriter {
 
     /// Appends `rows` (as wide as the image, as many channels) below the rows written so far.
     pub fn write_rows(&mut self, rows: &Map) -> Result<()> {
+        self.write_stored_rows(rows, Storing::AsIs)
+    }
+
+    /// [`Self::write_rows`] with each value stored as `storing` says.
+    pub fn write_stored_rows(&mut self, rows: &Map, storing: Storing) -> Result<()> {
         assert!(rows.width() == self.width && rows.channels() == self.channels);
         assert!(
             self.rows_written + rows.height() <= self.height,
@@ -198,9 +204,10 @@ impl ImageWriter {
                 ..
             } => {
                 let bytes: Vec<u8> = if *sixteen_bits {
-                    interleaved(rows, |v| to_u16(v).to_be_bytes()).into_flattened()
+                    interleaved(rows, |c, v| to_u16(storing.value(c, v)).to_be_bytes())
+                        .into_flattened()
                 } else {
-                    interleaved(rows, to_u8)
+                    interleaved(rows, |c, v| to_u8(storing.value(c, v)))
                 };
                 let stream = stream.as_mut().expect("open until finished");
                 stream
@@ -209,9 +216,13 @@ impl ImageWriter {
             }
             Encoder::Gathered(samples) => {
                 match samples {
-                    Samples::U8(s) => s.append(&mut interleaved(rows, to_u8)),
-                    Samples::U16(s) => s.append(&mut interleaved(rows, to_u16)),
-                    Samples::F32(s) => s.append(&mut interleaved(rows, |v| v)),
+                    Samples::U8(s) => {
+                        s.append(&mut interleaved(rows, |c, v| to_u8(storing.value(c, v))))
+                    }
+                    Samples::U16(s) => {
+                        s.append(&mut interleaved(rows, |c, v| to_u16(storing.value(c, v))))
+                    }
+                    Samples::F32(s) => s.append(&mut interleaved(rows, |c, v| storing.value(c, v))),
                 }
                 Ok(())
             }
@@ -219,7 +230,7 @@ impl ImageWriter {
                 let sent = bands
                     .as_ref()
                     .expect("open until finished")
-                    .send(rows.clone());
+                    .send(storing.apply(rows).into_owned());
                 // The writer thread stopped early: its error comes with `finish`.
                 if sent.is_err() {
                     return self.exr_error();
@@ -491,9 +502,12 @@ pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
 }
 
 /// A [0, 1] value as a 16-bit sample (rounded, clamped).
-/// `rows`' samples converted and interleaved texel by texel (as files store them), a row a
-/// task on rayon's threads.
-fn interleaved<T: Copy + Default + Send>(rows: &Map, convert: impl Fn(f32) -> T + Sync) -> Vec<T> {
+/// `rows`' samples converted (`convert(channel, value)`) and interleaved texel by texel (as
+/// files store them), a row a task on rayon's threads.
+fn interleaved<T: Copy + Default + Send>(
+    rows: &Map,
+    convert: impl Fn(usize, f32) -> T + Sync,
+) -> Vec<T> {
     let (w, channels, n) = (rows.width(), rows.channels(), rows.texels());
     let mut out = vec![T::default(); n * channels];
     out.par_chunks_mut((w * channels).max(1))
@@ -501,7 +515,7 @@ fn interleaved<T: Copy + Default + Send>(rows: &Map, convert: impl Fn(f32) -> T 
         .for_each(|(y, row)| {
             for (x, texel) in row.chunks_exact_mut(channels).enumerate() {
                 for (c, sample) in texel.iter_mut().enumerate() {
-                    *sample = convert(rows.plane(c)[y * w + x]);
+                    *sample = convert(c, rows.plane(c)[y * w + x]);
                 }
             }
         });
