@@ -228,14 +228,8 @@ pub fn for_each_upsampled_row(
     let mut row = vec![0f32; ow];
     for i in lr_rows {
         let i = i as isize;
-        let mut kept = Vec::with_capacity(widened.len());
-        for (j, wide) in widened.drain(..) {
-            if j >= i - reach {
-                kept.push((j, wide));
-            } else {
-                spare.push(wide);
-            }
-        }
+        let (kept, left): (Vec<_>, Vec<_>) = widened.drain(..).partition(|(j, _)| *j >= i - reach);
+        spare.extend(left.into_iter().map(|(_, wide)| wide));
         widened = kept;
         for (phase, phase_taps) in taps.iter().enumerate() {
             let y = i as usize * scale + phase;
