@@ -501,7 +501,6 @@ pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// A [0, 1] value as a 16-bit sample (rounded, clamped).
 /// `rows`' samples converted (`convert(channel, value)`) and interleaved texel by texel (as
 /// files store them), a row a task on rayon's threads.
 fn interleaved<T: Copy + Default + Send>(
@@ -522,6 +521,7 @@ fn interleaved<T: Copy + Default + Send>(
     out
 }
 
+/// A [0, 1] value as a 16-bit sample (rounded, clamped).
 fn to_u16(v: f32) -> u16 {
     (v.clamp(0.0, 1.0) * 65535.0).round() as u16
 }
