@@ -795,16 +795,16 @@ impl OnnxUpsampler {
             let kept = &kept_rows[i];
             let sum = sum.flatten_all()?.to_vec1::<f32>()?;
             let n = kept.weights.len() * out_w;
-            // Adds its rows into the output, a channel a thread.
-            accs[k]
-                .par_chunks_mut(out_w * out_h)
-                .enumerate()
-                .for_each(|(c, plane)| {
-                    let to = kept.in_image * out_w;
-                    for (d, v) in plane[to..to + n].iter_mut().zip(&sum[c * n..(c + 1) * n]) {
-                        *d += v;
-                    }
-                });
+            // Adds its rows into the output, a run of rows of one channel a task (a channel a
+            // task would leave all but three of a GPU host's cores idle).
+            let to = kept.in_image * out_w;
+            (accs[k].par_chunks_mut((out_w * out_h).max(1)))
+                .zip(sum.par_chunks(n.max(1)))
+                .flat_map(|(plane, rows)| {
+                    (plane[to..to + n].par_chunks_mut((out_w * BLEND_ROWS).max(1)))
+                        .zip(rows.par_chunks((out_w * BLEND_ROWS).max(1)))
+                })
+                .for_each(|(dst, src)| dst.iter_mut().zip(src).for_each(|(d, v)| *d += v));
             Ok(())
         };
         let batch = self.tiles_per_call(rows.window, columns.window);
