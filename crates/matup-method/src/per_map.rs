@@ -190,45 +190,35 @@ fn upscale_map_ensemble(
     }
     let (w, h) = (map.width() * scale, map.height() * scale);
     let mut sum: Option<Map> = None;
-    let mut add = |t: Dihedral, mut up: Map| {
-        // Turned back: the directions first (texel by texel), then the texels, into the sum.
-        let back = t.inverse();
-        turn_with_surface(kind, &mut up, back);
-        match sum.as_mut() {
-            // The identity's pass is the sum so far as it stands: no map of zeros to add it to.
-            None if back == Dihedral::default() => sum = Some(up),
-            None => {
-                let mut first = Map::filled(w, h, up.channels(), 0.0);
-                first.add_transformed(&up, back);
-                sum = Some(first);
-            }
-            Some(sum) => sum.add_transformed(&up, back),
-        }
+    // All passes in one call where the upsampler batches images (a GPU: their outputs held at
+    // once), else one pass a call (one output beside the sum).
+    let per_call = if upsampler.batches_images() {
+        symmetries.len()
+    } else {
+        1
     };
-    if upsampler.batches_images() {
-        // All passes in one call (a GPU's batch), their outputs held at once.
-        let passes: Vec<Map> = (symmetries.iter())
+    for turns in symmetries.chunks(per_call.max(1)) {
+        let passes: Vec<Map> = (turns.iter())
             .map(|&t| transformed_map(kind, map, t))
             .collect();
-        for (&t, up) in symmetries
+        for (&t, mut up) in turns
             .iter()
             .zip(upscale_maps(kind, &passes, upsampler, scale, border)?)
         {
-            add(t, up);
-        }
-    } else {
-        // One pass at a time: one output beside the sum.
-        for &t in symmetries {
-            add(
-                t,
-                upscale_map(
-                    kind,
-                    &transformed_map(kind, map, t),
-                    upsampler,
-                    scale,
-                    border,
-                )?,
-            );
+            // Turned back: the directions first (texel by texel), then the texels, into the sum.
+            let back = t.inverse();
+            turn_with_surface(kind, &mut up, back);
+            match sum.as_mut() {
+                // The identity's pass is the sum so far as it stands: no map of zeros to add
+                // it to.
+                None if back == Dihedral::default() => sum = Some(up),
+                None => {
+                    let mut first = Map::filled(w, h, up.channels(), 0.0);
+                    first.add_transformed(&up, back);
+                    sum = Some(first);
+                }
+                Some(sum) => sum.add_transformed(&up, back),
+            }
         }
     }
     let sum = sum.ok_or_else(|| Error::Invalid("a self-ensemble of no symmetries".into()))?;
