@@ -8,7 +8,8 @@ use candle_core::{Device, Tensor, Var};
 use matup_core::resample::Border;
 use matup_core::{Error, Result};
 use matup_upsamplers::onnx::{
-    read_graph, read_sidecar, run_steps, Graph, ModelInfo, ModelProto, Op, RawConv,
+    in_channel_order, read_graph, read_sidecar, run_steps, unit_rgb, Graph, ModelInfo, ModelProto,
+    Op, RawConv,
 };
 use prost::Message;
 use tract_onnx::pb::tensor_proto::DataType;
@@ -164,19 +165,7 @@ impl TrainableNet {
             (None, _) => None,
         };
         let [lo, hi] = self.info.input_range;
-        let [olo, ohi] = self.info.output_range;
-        let bgr = self.info.channel_order == "bgr";
-        let swap = |x: &Tensor| -> candle_core::Result<Tensor> {
-            if bgr {
-                Tensor::cat(
-                    &[x.narrow(1, 2, 1)?, x.narrow(1, 1, 1)?, x.narrow(1, 0, 1)?],
-                    1,
-                )
-            } else {
-                Ok(x.clone())
-            }
-        };
-        let input = swap(&images.affine((hi - lo) as f64, lo as f64)?)?;
+        let input = in_channel_order(&images.affine((hi - lo) as f64, lo as f64)?, &self.info)?;
         let g = &self.graph;
         let out = run_steps(&g.steps, g.values, g.output, input, |index, x| {
             let w = self.convs[index].as_ref().expect("a conv step has weights");
@@ -186,9 +175,7 @@ impl TrainableNet {
                 _ => Ok(y),
             }
         })?;
-        swap(&out)?
-            .affine(1.0 / (ohi - olo) as f64, -(olo / (ohi - olo)) as f64)?
-            .clamp(0f32, 1f32)
+        unit_rgb(&out, &self.info)
     }
 
     /// [`TrainableNet::forward_guided`] as matup's executor runs a whole image: read with

@@ -43,7 +43,7 @@ pub use source::{
     available_models, model_dirs, read_sidecar, read_sidecar_file, resolve, BuiltIn, ModelSource,
     BUILT_IN,
 };
-pub use tensors::{depth_to_space, per_texel, run_steps, TensorNet};
+pub use tensors::{depth_to_space, in_channel_order, per_texel, run_steps, unit_rgb, TensorNet};
 pub use tract_onnx::pb::ModelProto;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
@@ -313,19 +313,6 @@ impl OnnxUpsampler {
         data
     }
 
-    /// The candle engine's output `[B, 3, H, W]` in RGB order with values in [0, 1] (the
-    /// sidecar's output range mapped, then clamped), on its device.
-    fn unit_rgb(&self, out: &candle_core::Tensor) -> candle_core::Result<candle_core::Tensor> {
-        let [olo, ohi] = self.info.output_range;
-        let out = if self.info.channel_order == "bgr" {
-            let bgr = candle_core::Tensor::from_vec(vec![2u32, 1, 0], 3, out.device())?;
-            out.index_select(&bgr, 1)?
-        } else {
-            out.clone()
-        };
-        (out.affine(1.0 / (ohi - olo) as f64, -(olo / (ohi - olo)) as f64)?).clamp(0f32, 1f32)
-    }
-
     /// Runs the network on tiles of one shape (each 3 planes of `h × w`, values in [0, 1]);
     /// matup's executor pads its convolutions as `padding` says, tract with zeros.
     fn run_batch(
@@ -385,9 +372,8 @@ impl OnnxUpsampler {
                         format!("shape {:?}, want [batch, 3, height, width]", out.dims()),
                     ));
                 }
-                let out = self
-                    .unit_rgb(&out)
-                    .and_then(|t| t.flatten_all()?.to_vec1::<f32>());
+                let out =
+                    unit_rgb(&out, &self.info).and_then(|t| t.flatten_all()?.to_vec1::<f32>());
                 let data = out.map_err(failed)?;
                 let image = 3 * oh * ow;
                 Ok((data.chunks(image))
@@ -823,7 +809,7 @@ impl OnnxUpsampler {
                 windows.resize(fixed, last);
             }
             let out = net.run(Tensor::cat(&windows, 0)?, Padding::Zero)?;
-            let out = self.unit_rgb(&out)?;
+            let out = unit_rgb(&out, &self.info)?;
             for (b, &(k, i, j)) in group.iter().enumerate() {
                 let (kr, kc) = (&kept_rows[i], &kept_columns[j]);
                 let tile = out

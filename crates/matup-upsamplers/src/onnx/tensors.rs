@@ -7,6 +7,7 @@ use candle_core::{DType, Device, Tensor};
 
 use super::convnet::{last_uses, Graph, Op, Step};
 use super::kernels::{Arith, Padding, PerTexel};
+use super::ModelInfo;
 
 /// Runs `steps` on `input`, the network's input values (slot 0) as `[B, C, H, W]`;
 /// `convolve(index, x)` computes step `index`'s convolution (the caller holds the weights:
@@ -104,6 +105,28 @@ pub fn per_texel(x: &Tensor, chain: &[PerTexel]) -> candle_core::Result<Tensor> 
         };
     }
     Ok(x)
+}
+
+/// `x`'s three channels `[B, 3, H, W]` in the order a network with `info` takes them, or,
+/// the same permutation, its output's back in RGB order: a BGR network's first and last swap.
+pub fn in_channel_order(x: &Tensor, info: &ModelInfo) -> candle_core::Result<Tensor> {
+    if info.channel_order == "bgr" {
+        Tensor::cat(
+            &[x.narrow(1, 2, 1)?, x.narrow(1, 1, 1)?, x.narrow(1, 0, 1)?],
+            1,
+        )
+    } else {
+        Ok(x.clone())
+    }
+}
+
+/// A network's output `[B, 3, H, W]` as RGB in [0, 1]: its channel order undone, its output
+/// range mapped, clamped.
+pub fn unit_rgb(out: &Tensor, info: &ModelInfo) -> candle_core::Result<Tensor> {
+    let [olo, ohi] = info.output_range;
+    in_channel_order(out, info)?
+        .affine(1.0 / (ohi - olo) as f64, -(olo / (ohi - olo)) as f64)?
+        .clamp(0f32, 1f32)
 }
 
 /// `[B, C·r², H, W]` → `[B, C, H·r, W·r]`: CRD is PyTorch's pixel shuffle (channel, row,
