@@ -162,18 +162,36 @@ fn ambientcg_names_with_both_normal_conventions() {
     let default = load(dir.path()).unwrap();
     let origin = default.origin.as_ref().unwrap();
     assert_eq!(
-        origin.files[&MapKind::Normal].0.file_name().unwrap(),
+        origin
+            .source(MapKind::Normal)
+            .unwrap()
+            .path
+            .file_name()
+            .unwrap(),
         "Wood066_1K-JPG_NormalDX.png"
     );
     assert_eq!(
-        origin.files[&MapKind::BaseColor].0.file_name().unwrap(),
+        origin
+            .source(MapKind::BaseColor)
+            .unwrap()
+            .path
+            .file_name()
+            .unwrap(),
         "Wood066_1K-JPG_Color.jpg"
     );
     assert_eq!(
-        origin.files[&MapKind::Height].0.file_name().unwrap(),
+        origin
+            .source(MapKind::Height)
+            .unwrap()
+            .path
+            .file_name()
+            .unwrap(),
         "Wood066_1K-JPG_Displacement.png"
     );
-    assert_eq!(origin.files[&MapKind::BaseColor].1, FileFormat::Jpeg);
+    assert_eq!(
+        origin.source(MapKind::BaseColor).unwrap().format,
+        FileFormat::Jpeg
+    );
 
     let opengl = load_material(
         Some(dir.path()),
@@ -184,8 +202,9 @@ fn ambientcg_names_with_both_normal_conventions() {
     )
     .unwrap();
     assert_eq!(
-        opengl.origin.as_ref().unwrap().files[&MapKind::Normal]
-            .0
+        (opengl.origin.as_ref().unwrap().source(MapKind::Normal))
+            .unwrap()
+            .path
             .file_name()
             .unwrap(),
         "Wood066_1K-JPG_NormalGL.png"
@@ -279,9 +298,17 @@ fn polyhaven_names_with_packed_arm_and_exr_normal() {
         NormalConvention::OpenGl,
         "nor_gl says OpenGL"
     );
-    assert_eq!(origin.files[&MapKind::Normal].1, FileFormat::ExrHalf);
     assert_eq!(
-        origin.files[&MapKind::Roughness].0.file_name().unwrap(),
+        origin.source(MapKind::Normal).unwrap().format,
+        FileFormat::ExrHalf
+    );
+    assert_eq!(
+        origin
+            .source(MapKind::Roughness)
+            .unwrap()
+            .path
+            .file_name()
+            .unwrap(),
         "wood_cabinet_arm_1k.png"
     );
     assert!(mean_angle_degrees(&loaded.normal, &m.normal) < 0.1);
@@ -361,7 +388,12 @@ fn formats_round_trip_and_are_kept_on_save() {
             "{format}"
         );
         assert_eq!(
-            back.origin.as_ref().unwrap().files[&MapKind::Roughness].1,
+            back.origin
+                .as_ref()
+                .unwrap()
+                .source(MapKind::Roughness)
+                .unwrap()
+                .format,
             format
         );
 
@@ -374,7 +406,13 @@ fn formats_round_trip_and_are_kept_on_save() {
         );
         let reread = load(again.path()).unwrap();
         assert_eq!(
-            reread.origin.as_ref().unwrap().files[&MapKind::BaseColor].1,
+            reread
+                .origin
+                .as_ref()
+                .unwrap()
+                .source(MapKind::BaseColor)
+                .unwrap()
+                .format,
             format
         );
     }
@@ -416,9 +454,9 @@ fn a_16_bit_tiff_and_a_tga_material_upscale_into_their_own_formats() {
             let Some(map) = back.map(kind) else {
                 continue;
             };
-            let file = &back.origin.as_ref().unwrap().files[&kind];
-            assert_eq!(file.1, format, "{format} {kind}: kept");
-            assert_eq!(file.0.extension().unwrap(), extension);
+            let file = &back.origin.as_ref().unwrap().source(kind).unwrap();
+            assert_eq!(file.format, format, "{format} {kind}: kept");
+            assert_eq!(file.path.extension().unwrap(), extension);
             let worst = common::max_abs_diff(map, reference.map(kind).unwrap());
             assert!(worst < 1e-6, "{format} {kind}: {worst} from {png}");
         }

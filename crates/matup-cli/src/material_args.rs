@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use matup_core::io::DEFAULT_MAX_TEXELS;
+use matup_core::layout::Packing;
 use matup_core::{load_material, LoadOptions, Material, MaterialPaths, NormalConvention};
 
 #[derive(Args, Debug, Clone)]
@@ -33,15 +34,23 @@ pub struct MaterialArgs {
     /// Height (displacement) file.
     #[arg(long, value_name = "FILE")]
     pub height: Option<PathBuf>,
-    /// Packed occlusion (R) / roughness (G) / metallic (B) file.
+    /// A packed file: its channels as --packing says, else as its name says (glTF
+    /// metallicRoughness, Unreal OcclusionRoughnessMetallic, Unity MaskMap, ORM, RMA, …), else
+    /// occlusion (R) / roughness (G) / metallic (B).
     #[arg(long, value_name = "FILE")]
     pub packed: Option<PathBuf>,
+    /// What the --packed file's channels hold: gltf, unreal, hdrp-mask,
+    /// unity-metallic-smoothness, or the channels' letters in order (o or a occlusion, r
+    /// roughness, m metallic, h height, x nothing: orm, rma, xrm).
+    #[arg(long, value_name = "PACKING", requires = "packed")]
+    pub packing: Option<Packing>,
 }
 
 /// How maps are read, for one material or a library.
 #[derive(Args, Debug, Clone)]
 pub struct LoadArgs {
-    /// Convention of normal maps whose name does not say GL or DX.
+    /// Convention of normal maps whose name does not say GL or DX (by default the exporter's,
+    /// where the names mark one, else measured from the maps).
     #[arg(long, value_name = "directx|opengl")]
     pub normal_convention: Option<NormalConvention>,
     /// Refuse images with more texels than this (checked before decoding).
@@ -69,6 +78,7 @@ impl MaterialArgs {
             metallic: self.metallic.clone(),
             height: self.height.clone(),
             packed: self.packed.clone(),
+            packing: self.packing.clone(),
             ..Default::default()
         });
         load_material(Some(&self.material), &options)

@@ -330,13 +330,16 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         println!("{json}");
     } else if !args.quiet {
         println!(
-            "{}×{} → {}×{} in {:.1} s (final loss {}), peak memory {}",
+            "{}×{} → {}×{} by {} in {:.1} s{}, peak memory {}",
             report.input_size[0],
             report.input_size[1],
             report.output_size[0],
             report.output_size[1],
+            report.upsampler_used,
             report.total_seconds,
-            report.final_loss.map_or("-".into(), |l| format!("{l:.5}")),
+            report
+                .final_loss
+                .map_or(String::new(), |l| format!(" (final loss {l:.5})")),
             report
                 .peak_memory_mib
                 .map_or("-".into(), |m| format!("{m:.0} MiB")),

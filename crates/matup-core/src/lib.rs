@@ -10,8 +10,11 @@
 //! runner, pages and experiments in `matup-apps`; each crate builds only on the ones below it.
 
 pub mod color;
+pub mod convention;
 mod error;
 pub mod io;
+mod kinds;
+pub mod layout;
 pub mod lights;
 pub mod loss;
 pub mod map;

@@ -35,6 +35,8 @@ enum Method {
     Picture(MapKind),
     /// An extra map with values outside [0, 1] (HDR emission): Lanczos, no network.
     Lanczos,
+    /// A map of one value (a mask channel at 255, an opaque alpha): that value, exactly.
+    Constant,
 }
 
 /// How each of a material's carried maps is upsampled, in the order of [`Carried::maps`],
@@ -44,14 +46,18 @@ pub struct CarriedPlan(Vec<Method>);
 
 impl CarriedPlan {
     pub fn of(carried: &Carried) -> CarriedPlan {
+        let constant = |m: &Map| m.data().iter().all(|&v| v == m.data()[0]);
         let alpha = |a: &Map| {
-            if a.data().iter().all(|&v| v == 0.0 || v == 1.0) {
+            if constant(a) {
+                Method::Constant
+            } else if a.data().iter().all(|&v| v == 0.0 || v == 1.0) {
                 Method::Cutout
             } else {
                 Method::SoftAlpha
             }
         };
         let extra = |m: &Map| match m.data().iter().all(|v| (0.0..=1.0).contains(v)) {
+            _ if constant(m) => Method::Constant,
             false => Method::Lanczos,
             true if m.channels() == 3 => Method::Picture(MapKind::BaseColor),
             true => Method::Picture(MapKind::Height),
@@ -106,6 +112,7 @@ pub fn describe_carried(
         Method::Picture(MapKind::BaseColor) => format!("RGB, by {upsampler}{passes}{projected}"),
         Method::Picture(_) => format!("grey, by {upsampler}{passes}{projected}"),
         Method::Lanczos => format!("by lanczos3 (values outside [0, 1]){projected}"),
+        Method::Constant => "one value throughout: kept exactly".into(),
     };
     let file = |p: &std::path::Path| {
         p.file_name()
@@ -117,8 +124,8 @@ pub fn describe_carried(
     let mut out = Vec::new();
     for kind in material.carried.alpha.keys() {
         let source = (material.origin.as_ref())
-            .and_then(|o| o.files.get(kind))
-            .map_or_else(|| kind.to_string(), |(p, _)| file(p));
+            .and_then(|o| o.source(*kind))
+            .map_or_else(|| kind.to_string(), |f| file(&f.path));
         out.push(format!("{source}: {}", describe(methods.next().unwrap())));
     }
     for e in &material.carried.extras {
@@ -149,6 +156,12 @@ fn upscale(map: &Map, method: Method, how: CarriedUpsampling) -> Result<Map> {
         )
     };
     Ok(match method {
+        Method::Constant => Map::filled(
+            map.width() * how.scale,
+            map.height() * how.scale,
+            map.channels(),
+            map.data().first().copied().unwrap_or(0.0),
+        ),
         Method::Cutout => {
             // A smooth interpolant's half-level line is a smooth contour through the input's
             // edges; a network's output speckles there (it hallucinates texture at a hard
@@ -247,6 +260,14 @@ mod tests {
         };
         let plan = CarriedPlan::of(&carried);
         assert_eq!(plan, CarriedPlan(vec![Method::Cutout]));
+        let opaque = Carried {
+            alpha: [(MapKind::BaseColor, Map::filled(16, 16, 1, 1.0))].into(),
+            extras: Vec::new(),
+        };
+        assert_eq!(
+            CarriedPlan::of(&opaque),
+            CarriedPlan(vec![Method::Constant])
+        );
         let up = upscale_carried(&carried, &plan, how(&Lanczos))
             .unwrap()
             .alpha[&MapKind::BaseColor]

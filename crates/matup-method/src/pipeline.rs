@@ -90,6 +90,12 @@ pub fn upscale_streamed(
             if tileable { "yes" } else { "no" }
         ),
     });
+    let sources: Vec<String> = (material.origin.iter())
+        .flat_map(|o| o.sources().into_iter().chain(o.notes.iter().cloned()))
+        .collect();
+    for note in &sources {
+        progress.note(note);
+    }
     let stand_ins = stand_in_notes(material, config);
     for note in &stand_ins {
         progress.note(note);
@@ -197,6 +203,7 @@ pub fn upscale_streamed(
         final_loss,
         skipped,
         carried,
+        sources,
         stand_ins,
         left_out,
         memory_limit_mib: options.memory_limit.map(|b| b as f64 / (1024.0 * 1024.0)),

@@ -38,6 +38,9 @@ pub struct RunReport {
     /// The maps carried beside the rendered ones (alpha channels, occlusion, opacity, …) and
     /// how each was upsampled.
     pub carried: Vec<String>,
+    /// For every map read, the file and channels it came from and how they were stored; how
+    /// the normal convention was found; what a flag replaced.
+    pub sources: Vec<String>,
     /// Maps the input lacks, and what stood in for them.
     pub stand_ins: Vec<String>,
     /// Images of the input folder that were not upscaled, and why.

@@ -1,29 +1,52 @@
-//! Recognising which file in a folder holds which map, from the naming schemes in common use
-//! (`baseColor.png`, ambientCG `*_Color.jpg` / `*_NormalGL.png`, Poly Haven
-//! `*_diff_1k.jpg` / `*_nor_dx_1k.exr`, packed glTF `*_arm_*` / `*_orm_*`, …).
+//! Recognising what each file in a folder holds, from the names exporters write
+//! (`baseColor.png`, ambientCG `*_Color.jpg` / `*_NormalGL.png`, Poly Haven `*_diff_1k.jpg` /
+//! `*_arm_1k.png`, glTF `*_metallicRoughness.png`, Unreal `*_OcclusionRoughnessMetallic.png`,
+//! Unity `*_BaseMap.png` / `*_MaskMap.png`, Megascans `*_Albedo.jpg` / `*_Gloss.jpg`, …).
 
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::image_file::{is_image_file, IMAGE_EXTENSIONS};
-use crate::material::NormalConvention;
+use crate::layout::{packing_of_name, Packing, Stored};
+use crate::material::{MapKind, NormalConvention};
 use crate::{Error, Result};
 
-/// What a file in a material folder holds.
+/// A map a file can hold whole.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Role {
     BaseColor,
     Normal,
     Roughness,
-    /// Glossiness: roughness = 1 − gloss.
+    /// Glossiness: roughness = 1 − gloss. A roughness map beside it wins.
     Gloss,
     Metallic,
     Height,
-    /// glTF-style packing: occlusion (R), roughness (G), metallic (B).
-    Packed,
+    /// A bump map: the height where no height or displacement map is given.
+    Bump,
     Anisotropy,
     AnisotropyAngle,
+}
+
+impl Role {
+    /// The map a file of this role supplies, and how it stores it (integer files: `float`
+    /// false). Normals are read as DirectX until their convention is settled.
+    pub fn supplies(self, float: bool) -> (MapKind, Stored) {
+        let kind = match self {
+            Role::BaseColor => MapKind::BaseColor,
+            Role::Normal => MapKind::Normal,
+            Role::Roughness | Role::Gloss => MapKind::Roughness,
+            Role::Metallic => MapKind::Metallic,
+            Role::Height | Role::Bump => MapKind::Height,
+            Role::Anisotropy => MapKind::Anisotropy,
+            Role::AnisotropyAngle => MapKind::AnisotropyAngle,
+        };
+        let stored = match self {
+            Role::Gloss => Stored::Inverted,
+            _ => Stored::of(kind, float, NormalConvention::DirectX),
+        };
+        (kind, stored)
+    }
 }
 
 impl fmt::Display for Role {
@@ -35,60 +58,101 @@ impl fmt::Display for Role {
             Role::Gloss => "gloss",
             Role::Metallic => "metallic",
             Role::Height => "height",
-            Role::Packed => "packed occlusion/roughness/metallic",
+            Role::Bump => "bump",
             Role::Anisotropy => "anisotropy",
             Role::AnisotropyAngle => "anisotropy direction",
         })
     }
 }
 
-/// Name parts of maps that matup does not render with: such files are carried along (upsampled
-/// and written back, see [`Discovered::extras`]), never read as one of the roles.
-const CARRIED: &[&str] = &[
+/// What a file of a material folder holds.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FileRole {
+    /// A whole map, with the normal convention its name states.
+    Map {
+        role: Role,
+        convention: Option<NormalConvention>,
+    },
+    /// Channels packed by a convention.
+    Packed(Packing),
+    /// A map matup carries along. `data`: its name says it holds data (occlusion, masks),
+    /// whose channels are never colour; otherwise RGB with channels that differ is colour.
+    Carried { data: bool },
+}
+
+/// Name parts of maps that hold data matup does not render with: carried, each channel as
+/// data.
+const CARRIED_DATA: &[&str] = &[
     "ao",
     "ambientocclusion",
     "occlusion",
     "opacity",
     "alpha",
+    "transparency",
+    "mask",
+    "detailmask",
+    "cavity",
+    "curvature",
+    "thickness",
+    "transmission",
+];
+
+/// Name parts of maps matup carries whose RGB may be colour (emission, sheen, Megascans'
+/// specular and translucency).
+const CARRIED_COLOUR: &[&str] = &[
     "emission",
     "emissive",
+    "emissivecolormap",
     "specular",
     "spec",
     "sheen",
     "subsurface",
     "sss",
     "translucency",
-    "transmission",
-    "cavity",
-    "mask",
     "idmask",
-    "curvature",
+    "id",
 ];
 
 /// Name parts of images that are no maps (pictures of the material): skipped.
-const NOT_MAPS: &[&str] = &["preview", "thumbnail", "thumb", "swatch", "icon"];
+const NOT_MAPS: &[&str] = &["preview", "thumbnail", "thumb", "swatch", "icon", "render"];
 
 /// The name parts of each role, checked in this order (specific before generic).
 pub const ROLE_WORDS: &[(Role, &[&str])] = &[
-    (Role::Packed, &["arm", "orm"]),
     (
         Role::Normal,
-        &["normal", "normals", "normalmap", "nor", "nrm", "norm"],
+        &[
+            "normal",
+            "normals",
+            "normalmap",
+            "nor",
+            "nrm",
+            "norm",
+            // Unity's material property for the normal map.
+            "bumpmap",
+        ],
     ),
-    (Role::Gloss, &["gloss", "glossiness", "glossy"]),
+    (
+        Role::Gloss,
+        &["gloss", "glossiness", "glossy", "smoothness"],
+    ),
     (Role::Roughness, &["roughness", "rough", "rgh"]),
     (Role::Metallic, &["metallic", "metalness", "metal", "mtl"]),
     (
         Role::Height,
-        &["height", "heightmap", "displacement", "disp", "bump"],
+        &["height", "heightmap", "displacement", "disp", "parallax"],
     ),
+    (Role::Bump, &["bump"]),
     (Role::Anisotropy, &["anisotropy", "aniso"]),
     (
         Role::BaseColor,
         &[
             "basecolor",
             "basecolour",
+            "basecolormap",
+            "basemap",
+            "maintex",
             "albedo",
+            "albedotransparency",
             "diffuse",
             "diff",
             "color",
@@ -98,9 +162,22 @@ pub const ROLE_WORDS: &[(Role, &[&str])] = &[
     ),
 ];
 
+/// Name parts only one exporter writes, with the normal convention it writes normals in
+/// (packed files name theirs in [`crate::layout::PACKINGS`]).
+const EXPORTER_WORDS: &[(&str, &str, NormalConvention)] = &[
+    ("basemap", "Unity", NormalConvention::OpenGl),
+    ("maintex", "Unity", NormalConvention::OpenGl),
+    ("albedotransparency", "Unity", NormalConvention::OpenGl),
+];
+
 const ANISOTROPY_DIRECTION_WORDS: &[&str] = &["direction", "dir", "angle", "rotation"];
-const OPENGL_WORDS: &[&str] = &["gl", "opengl", "ogl"];
-const DIRECTX_WORDS: &[&str] = &["dx", "directx"];
+const OPENGL_WORDS: &[&str] = &["gl", "opengl", "ogl", "normalgl", "norgl"];
+const DIRECTX_WORDS: &[&str] = &["dx", "directx", "normaldx", "nordx"];
+
+/// Image formats matup does not read: a file of one in a material folder is refused by name,
+/// never passed over.
+const UNREAD_IMAGE_EXTENSIONS: &[&str] =
+    &["dds", "ktx", "ktx2", "psd", "webp", "bmp", "hdr", "gif"];
 
 /// Splits a file stem into lowercase words at separators and lower→upper case changes
 /// (`PavingStones092_1K-JPG_NormalGL` → paving, stones092, 1k, jpg, normal, gl).
@@ -128,91 +205,116 @@ fn words(stem: &str) -> Vec<String> {
     out
 }
 
-/// A file's role and, for normal maps, the convention its name states.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Recognised {
-    pub role: Role,
-    pub convention: Option<NormalConvention>,
+/// Name parts and runs of two and three adjacent ones glued together, so "base_color",
+/// "BaseColorMap" and "OcclusionRoughnessMetallic" read as one part too.
+fn candidates(parts: &[String]) -> Vec<String> {
+    let mut out: Vec<String> = parts.to_vec();
+    out.extend(parts.windows(2).map(|w| w.concat()));
+    out.extend(parts.windows(3).map(|w| w.concat()));
+    out
 }
 
-/// What a file of a material folder is, from its name.
-#[derive(Clone, Debug, PartialEq)]
-enum Kind {
-    Role(Recognised),
-    /// A map matup carries along: a known kind it does not render with, or an unknown name.
-    Carried,
-    /// A picture of the material, no map.
-    NotAMap,
-}
-
-/// What a file whose name parts (shared material-name prefix removed) are `parts` holds.
-fn classify(parts: &[String]) -> Kind {
-    // Words and adjacent pairs glued together, so "base_color" reads as "basecolor" too.
-    let mut candidates: Vec<String> = parts.to_vec();
-    candidates.extend(parts.windows(2).map(|w| format!("{}{}", w[0], w[1])));
+/// What a file whose name parts (shared material-name prefix removed) are `parts` holds;
+/// `None` for a picture of the material.
+fn classify(parts: &[String]) -> Option<FileRole> {
+    let candidates = candidates(parts);
     let has = |list: &[&str]| candidates.iter().any(|c| list.contains(&c.as_str()));
     // A file named after the material alone is its picture (ambientCG's `Leather025.png`).
     if parts.is_empty() || has(NOT_MAPS) {
-        return Kind::NotAMap;
+        return None;
     }
-    if has(CARRIED) {
-        return Kind::Carried;
+    // Packings first: their names hold role words ("metallicRoughness", "MaskMap").
+    if let Some(packing) = packing_of_name(&candidates, parts) {
+        return Some(FileRole::Packed(packing));
     }
-    match recognise(&candidates) {
-        Some(r) => Kind::Role(r),
-        None => Kind::Carried,
+    // A role named by glued words ("AlbedoTransparency", "BaseColorMap") is more specific
+    // than a carried map's single word ("transparency").
+    let glued = &candidates[parts.len()..];
+    let glued_role = ROLE_WORDS
+        .iter()
+        .find(|(_, list)| glued.iter().any(|c| list.contains(&c.as_str())));
+    if has(CARRIED_DATA) && glued_role.is_none() {
+        return Some(FileRole::Carried { data: true });
     }
-}
-
-/// The role named by `candidates` (name parts and adjacent pairs), if any.
-fn recognise(candidates: &[String]) -> Option<Recognised> {
-    let has = |list: &[&str]| candidates.iter().any(|c| list.contains(&c.as_str()));
-    let (role, _) = ROLE_WORDS.iter().find(|(_, list)| has(list))?;
+    if has(CARRIED_COLOUR) && glued_role.is_none() {
+        return Some(FileRole::Carried { data: false });
+    }
+    let Some((role, _)) = glued_role.or_else(|| ROLE_WORDS.iter().find(|(_, list)| has(list)))
+    else {
+        return Some(FileRole::Carried { data: false });
+    };
     let role = if *role == Role::Anisotropy && has(ANISOTROPY_DIRECTION_WORDS) {
         Role::AnisotropyAngle
     } else {
         *role
     };
-    let convention = (role == Role::Normal)
-        .then(|| {
-            if has(OPENGL_WORDS) || has(&["normalgl", "norgl"]) {
-                Some(NormalConvention::OpenGl)
-            } else if has(DIRECTX_WORDS) || has(&["normaldx", "nordx"]) {
-                Some(NormalConvention::DirectX)
-            } else {
-                None
-            }
-        })
-        .flatten();
-    Some(Recognised { role, convention })
+    let convention = if role != Role::Normal {
+        None
+    } else if has(OPENGL_WORDS) {
+        Some(NormalConvention::OpenGl)
+    } else if has(DIRECTX_WORDS) {
+        Some(NormalConvention::DirectX)
+    } else {
+        None
+    };
+    Some(FileRole::Map { role, convention })
 }
 
-/// The files of a folder assigned to roles.
+/// The files of a folder and what each holds.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Discovered {
-    pub files: BTreeMap<Role, (PathBuf, Option<NormalConvention>)>,
-    /// The other images that are maps (occlusion, opacity, emission, unknown names), sorted:
-    /// carried along. Previews and thumbnails are not among them.
-    pub extras: Vec<PathBuf>,
-    /// Normal maps in the other convention beside the one taken (ambientCG ships `NormalGL`
-    /// and `NormalDX`), with the convention their names state.
-    pub other_normals: Vec<(PathBuf, Option<NormalConvention>)>,
+    /// Every map file, in the order they are read: whole maps by role (roughness before gloss,
+    /// height before bump; a normal map in the preferred convention before the other), then
+    /// packed files, then carried maps. The first file that supplies a map is read for it.
+    pub files: Vec<(PathBuf, FileRole)>,
+    /// The exporter the names mark and the normal convention it writes, if they mark one.
+    pub exporter: Option<(String, NormalConvention)>,
 }
 
-/// Assigns the image files of `folder` to roles. When a normal map exists in both
-/// conventions (ambientCG and Poly Haven ship both), the one in `preferred` is taken; a
-/// dedicated roughness or metallic map wins over a packed one. Two files claiming the same
-/// role otherwise is an error naming both.
+/// Assigns the image files of `folder` to roles. When the normal map exists in both
+/// conventions (ambientCG and Poly Haven ship both), the one in `preferred` comes first.
+/// Two files claiming one role otherwise is an error naming both; an image in a format matup
+/// does not read (DDS) is an error naming it.
 pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered> {
     if !folder.is_dir() {
-        return Err(Error::material(folder, "no such folder"));
+        return Err(Error::material(
+            folder,
+            if folder.is_file() {
+                "is a file; MATERIAL is the folder holding the maps (give single maps with \
+                 --base-color, --normal, …)"
+            } else {
+                "no such folder"
+            },
+        ));
     }
-    let mut images: Vec<PathBuf> = std::fs::read_dir(folder)
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(folder)
         .map_err(|e| Error::io(folder, e))?
         .filter_map(|entry| entry.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && is_image_file(p))
+        .filter(|p| p.is_file())
         .collect();
-    images.sort();
+    paths.sort();
+    let stem_words = |p: &Path| words(&p.file_stem().unwrap_or_default().to_string_lossy());
+    for path in &paths {
+        let unread = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| UNREAD_IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()));
+        if unread
+            && !candidates(&stem_words(path))
+                .iter()
+                .any(|c| NOT_MAPS.contains(&c.as_str()))
+        {
+            return Err(Error::file(
+                path,
+                format!(
+                    "matup does not read this format (it reads {}); convert it, or move it out \
+                     of the folder",
+                    IMAGE_EXTENSIONS.join(", ")
+                ),
+            ));
+        }
+    }
+    let images: Vec<PathBuf> = paths.into_iter().filter(|p| is_image_file(p)).collect();
     if images.is_empty() {
         return Err(Error::material(
             folder,
@@ -223,10 +325,7 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         ));
     }
 
-    let stems: Vec<Vec<String>> = images
-        .iter()
-        .map(|p| words(&p.file_stem().unwrap_or_default().to_string_lossy()))
-        .collect();
+    let stems: Vec<Vec<String>> = images.iter().map(|p| stem_words(p)).collect();
     // The material's own name ("metal_plate_…") is a prefix shared by every file; its words
     // must not be read as roles.
     let shared = if stems.len() > 1 {
@@ -237,52 +336,56 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         0
     };
 
-    let mut claims: BTreeMap<Role, Vec<(PathBuf, Option<NormalConvention>)>> = BTreeMap::new();
-    let mut extras = Vec::new();
+    let mut maps: BTreeMap<Role, Vec<(PathBuf, Option<NormalConvention>)>> = BTreeMap::new();
+    let mut packed = Vec::new();
+    let mut carried = Vec::new();
+    let mut exporter = None;
     for (path, parts) in images.iter().zip(&stems) {
         let parts = &parts[shared.min(parts.len())..];
+        let names = candidates(parts);
+        if let Some((_, name, convention)) = EXPORTER_WORDS
+            .iter()
+            .find(|(word, _, _)| names.iter().any(|c| c == word))
+        {
+            exporter.get_or_insert((name.to_string(), *convention));
+        }
         match classify(parts) {
-            Kind::Role(r) => claims
-                .entry(r.role)
+            Some(FileRole::Map { role, convention }) => maps
+                .entry(role)
                 .or_default()
-                .push((path.clone(), r.convention)),
-            Kind::Carried => extras.push(path.clone()),
-            Kind::NotAMap => {}
+                .push((path.clone(), convention)),
+            Some(FileRole::Packed(p)) => {
+                if let Some(convention) = p.normals {
+                    exporter.get_or_insert((p.name.clone(), convention));
+                }
+                packed.push((path.clone(), FileRole::Packed(p)));
+            }
+            Some(role) => carried.push((path.clone(), role)),
+            None => {}
         }
     }
 
-    let mut files = BTreeMap::new();
-    let mut other_normals = Vec::new();
-    for (role, mut candidates) in claims {
-        if role == Role::Normal && candidates.len() > 1 {
-            // Keep the preferred convention if that settles it.
-            let preferred_only: Vec<_> = candidates
-                .iter()
-                .filter(|c| c.1 == Some(preferred))
-                .cloned()
-                .collect();
-            let conventions: Vec<_> = candidates.iter().map(|c| c.1).collect();
-            if preferred_only.len() == 1 && conventions.iter().all(|c| c.is_some()) {
-                // The other convention's file is the same normals: written back, not read.
-                other_normals.extend(
-                    candidates
-                        .iter()
-                        .filter(|c| c.1 != Some(preferred))
-                        .cloned(),
+    let mut files = Vec::new();
+    for (role, mut claims) in maps {
+        if role == Role::Normal && claims.len() > 1 {
+            // The same normals in both conventions: the preferred one is read, the other
+            // written back from it.
+            let named: Vec<_> = claims.iter().filter_map(|c| c.1).collect();
+            let distinct = named.len() == claims.len()
+                && named.iter().filter(|&&c| c == preferred).count() == 1
+                && named.iter().filter(|&&c| c != preferred).count() == 1;
+            if distinct {
+                claims.sort_by_key(|c| c.1 != Some(preferred));
+                files.extend(
+                    claims
+                        .into_iter()
+                        .map(|(path, convention)| (path, FileRole::Map { role, convention })),
                 );
-                candidates = preferred_only;
+                continue;
             }
         }
-        if candidates.len() > 1 {
-            let names: Vec<String> = candidates
-                .iter()
-                .map(|c| {
-                    c.0.file_name()
-                        .unwrap_or_default()
-                        .to_string_lossy()
-                        .into_owned()
-                })
-                .collect();
+        if claims.len() > 1 {
+            let names: Vec<String> = claims.iter().map(|c| file_name(&c.0)).collect();
             return Err(Error::material(
                 folder,
                 format!(
@@ -292,13 +395,26 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
                 ),
             ));
         }
-        files.insert(role, candidates.pop().unwrap());
+        let (path, convention) = claims.pop().expect("a claim per role");
+        files.push((path, FileRole::Map { role, convention }));
     }
-    Ok(Discovered {
-        files,
-        extras,
-        other_normals,
-    })
+    files.extend(packed);
+    files.extend(carried);
+    Ok(Discovered { files, exporter })
+}
+
+/// What a file holds by its own name alone (an explicit file, no folder around it).
+pub(crate) fn role_of_name(path: &Path) -> Option<FileRole> {
+    classify(&words(
+        &path.file_stem().unwrap_or_default().to_string_lossy(),
+    ))
+}
+
+pub(crate) fn file_name(path: &Path) -> String {
+    path.file_name()
+        .unwrap_or_default()
+        .to_string_lossy()
+        .into_owned()
 }
 
 /// The name parts matup looks for, for an error message about a missing map.
@@ -314,10 +430,18 @@ pub fn looked_for(roles: &[Role]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::layout::Packed;
 
     fn role_of(name: &str) -> Option<(Role, Option<NormalConvention>)> {
         match classify(&words(name)) {
-            Kind::Role(r) => Some((r.role, r.convention)),
+            Some(FileRole::Map { role, convention }) => Some((role, convention)),
+            _ => None,
+        }
+    }
+
+    fn packing_of(name: &str) -> Option<Vec<Packed>> {
+        match classify(&words(name)) {
+            Some(FileRole::Packed(p)) => Some(p.channels),
             _ => None,
         }
     }
@@ -346,11 +470,16 @@ mod tests {
             ("Diffuse", Some((BaseColor, None))),
             ("x_Color", Some((BaseColor, None))),
             ("x_diff_1k", Some((BaseColor, None))),
+            ("x_BaseMap", Some((BaseColor, None))),
+            ("x_BaseColorMap", Some((BaseColor, None))),
+            ("x_MainTex", Some((BaseColor, None))),
+            ("x_AlbedoTransparency", Some((BaseColor, None))),
             ("normal", Some((Normal, None))),
             ("x_NormalGL", Some((Normal, Some(OpenGl)))),
             ("x_NormalDX", Some((Normal, Some(DirectX)))),
             ("x_nor_gl_1k", Some((Normal, Some(OpenGl)))),
             ("x_nor_dx_1k", Some((Normal, Some(DirectX)))),
+            ("x_BumpMap", Some((Normal, None))),
             ("x_Roughness", Some((Roughness, None))),
             ("x_rough_2k", Some((Roughness, None))),
             ("x_gloss", Some((Gloss, None))),
@@ -358,8 +487,7 @@ mod tests {
             ("x_metal_1k", Some((Metallic, None))),
             ("x_Displacement", Some((Height, None))),
             ("x_disp_1k", Some((Height, None))),
-            ("x_arm_1k", Some((Packed, None))),
-            ("x_ORM", Some((Packed, None))),
+            ("x_Bump", Some((Bump, None))),
             ("x_AmbientOcclusion", None),
             ("x_ao_1k", None),
             ("x_Opacity", None),
@@ -373,18 +501,56 @@ mod tests {
     }
 
     #[test]
+    fn recognises_packed_files_by_their_conventions() {
+        use Packed::*;
+        let cases = [
+            ("x_metallicRoughness", vec![Unused, Roughness, Metallic]),
+            (
+                "x_OcclusionRoughnessMetallic",
+                vec![Occlusion, Roughness, Metallic],
+            ),
+            ("x_arm_1k", vec![Occlusion, Roughness, Metallic]),
+            ("x_ORM", vec![Occlusion, Roughness, Metallic]),
+            ("x_RMA", vec![Roughness, Metallic, Occlusion]),
+            (
+                "x_MaskMap",
+                vec![Metallic, Occlusion, DetailMask, Smoothness],
+            ),
+            (
+                "x_MetallicSmoothness",
+                vec![Metallic, Unused, Unused, Smoothness],
+            ),
+            (
+                "x_MetallicGlossMap",
+                vec![Metallic, Unused, Unused, Smoothness],
+            ),
+        ];
+        for (name, want) in cases {
+            assert_eq!(packing_of(name), Some(want), "{name}");
+        }
+    }
+
+    #[test]
     fn maps_without_a_role_are_carried_and_pictures_are_not() {
-        for name in [
-            "x_AmbientOcclusion",
-            "x_ao_1k",
-            "x_Opacity",
-            "x_Emission",
-            "x_wear",
+        for (name, data) in [
+            ("x_AmbientOcclusion", true),
+            ("x_ao_1k", true),
+            ("x_Opacity", true),
+            ("x_Cavity", true),
+            ("x_Emission", false),
+            ("x_Emissive", false),
+            ("x_Specular", false),
+            ("x_Translucency", false),
+            ("x_wear", false),
         ] {
-            assert_eq!(classify(&words(name)), Kind::Carried, "{name}");
+            assert_eq!(
+                classify(&words(name)),
+                Some(FileRole::Carried { data }),
+                "{name}"
+            );
         }
         for name in ["x_preview", "Thumbnail", "x_swatch_1k", ""] {
-            assert_eq!(classify(&words(name)), Kind::NotAMap, "{name}");
+            assert_eq!(classify(&words(name)), None, "{name}");
         }
     }
 }

@@ -20,20 +20,6 @@ pub(crate) struct ImageFile {
     pub format: FileFormat,
 }
 
-impl ImageFile {
-    /// The colour channels (grey or RGB) and the alpha channel, if the file has one.
-    pub fn split_alpha(self) -> (Map, Option<Map>) {
-        match self.map.channels() {
-            2 | 4 => {
-                let colour: Vec<usize> = (0..self.map.channels() - 1).collect();
-                let alpha = self.map.select_channels(&[self.map.channels() - 1]);
-                (self.map.select_channels(&colour), Some(alpha))
-            }
-            _ => (self.map, None),
-        }
-    }
-}
-
 /// The file extensions matup reads.
 pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "exr", "tif", "tiff", "tga"];
 

@@ -20,7 +20,6 @@ use rayon::prelude::*;
 use tempfile::NamedTempFile;
 
 use crate::color::to_u8;
-use crate::io::Storing;
 use crate::map::Map;
 use crate::material::FileFormat;
 use crate::{Error, Result};
@@ -95,10 +94,12 @@ impl ImageWriter {
         channels: usize,
         format: FileFormat,
     ) -> Result<ImageWriter> {
-        assert!(
-            (1..=4).contains(&channels),
-            "grey or RGB, with or without alpha"
-        );
+        if !(1..=4).contains(&channels) {
+            return Err(Error::file(
+                path,
+                format!("{channels} channels: files hold grey or RGB, with or without alpha"),
+            ));
+        }
         if format == FileFormat::Jpeg && channels % 2 == 0 {
             return Err(Error::file(
                 path,
@@ -186,17 +187,38 @@ impl ImageWriter {
 
     /// Appends `rows` (as wide as the image, as many channels) below the rows written so far.
     pub fn write_rows(&mut self, rows: &Map) -> Result<()> {
-        self.write_stored_rows(rows, Storing::AsIs)
+        let planes: Vec<&[f32]> = (0..rows.channels()).map(|c| rows.plane(c)).collect();
+        self.write_planes(&planes, |_, v| v)
     }
 
-    /// [`Self::write_rows`] with each value stored as `storing` says.
-    pub fn write_stored_rows(&mut self, rows: &Map, storing: Storing) -> Result<()> {
-        assert!(rows.width() == self.width && rows.channels() == self.channels);
-        assert!(
-            self.rows_written + rows.height() <= self.height,
-            "rows past the end"
-        );
-        self.rows_written += rows.height();
+    /// Appends rows given as one plane a channel (each a whole number of rows as wide as the
+    /// image), each value stored as `encode(channel, value)`.
+    pub fn write_planes(
+        &mut self,
+        planes: &[&[f32]],
+        encode: impl Fn(usize, f32) -> f32 + Sync,
+    ) -> Result<()> {
+        let rows = planes.first().map_or(0, |p| p.len()) / self.width.max(1);
+        if planes.len() != self.channels
+            || planes.iter().any(|p| p.len() != rows * self.width)
+            || self.rows_written + rows > self.height
+        {
+            return Err(Error::file(
+                &self.path,
+                format!(
+                    "rows that do not fit the file ({} planes of {:?} values for {} channels \
+                     of {}×{}, {} rows written)",
+                    planes.len(),
+                    planes.iter().map(|p| p.len()).collect::<Vec<_>>(),
+                    self.channels,
+                    self.width,
+                    self.height,
+                    self.rows_written
+                ),
+            ));
+        }
+        self.rows_written += rows;
+        let w = self.width;
         match &mut self.encoder {
             Encoder::Png {
                 stream,
@@ -204,10 +226,10 @@ impl ImageWriter {
                 ..
             } => {
                 let bytes: Vec<u8> = if *sixteen_bits {
-                    interleaved(rows, |c, v| to_u16(storing.value(c, v)).to_be_bytes())
+                    interleaved(planes, w, |c, v| to_u16(encode(c, v)).to_be_bytes())
                         .into_flattened()
                 } else {
-                    interleaved(rows, |c, v| to_u8(storing.value(c, v)))
+                    interleaved(planes, w, |c, v| to_u8(encode(c, v)))
                 };
                 let stream = stream.as_mut().expect("open until finished");
                 stream
@@ -217,20 +239,22 @@ impl ImageWriter {
             Encoder::Gathered(samples) => {
                 match samples {
                     Samples::U8(s) => {
-                        s.append(&mut interleaved(rows, |c, v| to_u8(storing.value(c, v))))
+                        s.append(&mut interleaved(planes, w, |c, v| to_u8(encode(c, v))))
                     }
                     Samples::U16(s) => {
-                        s.append(&mut interleaved(rows, |c, v| to_u16(storing.value(c, v))))
+                        s.append(&mut interleaved(planes, w, |c, v| to_u16(encode(c, v))))
                     }
-                    Samples::F32(s) => s.append(&mut interleaved(rows, |c, v| storing.value(c, v))),
+                    Samples::F32(s) => s.append(&mut interleaved(planes, w, &encode)),
                 }
                 Ok(())
             }
             Encoder::Exr { bands, .. } => {
-                let sent = bands
-                    .as_ref()
-                    .expect("open until finished")
-                    .send(storing.apply(rows).into_owned());
+                let data: Vec<f32> = (planes.iter().enumerate())
+                    .flat_map(|(c, p)| p.iter().map(move |&v| (c, v)))
+                    .map(|(c, v)| encode(c, v))
+                    .collect();
+                let band = Map::from_planar(w, rows, planes.len(), data);
+                let sent = bands.as_ref().expect("open until finished").send(band);
                 // The writer thread stopped early: its error comes with `finish`.
                 if sent.is_err() {
                     return self.exr_error();
@@ -501,20 +525,22 @@ pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// `rows`' samples converted (`convert(channel, value)`) and interleaved texel by texel (as
-/// files store them), a row a task on rayon's threads.
+/// The samples of `planes` (rows `width` wide) converted (`convert(channel, value)`) and
+/// interleaved texel by texel (as files store them), a row a task on rayon's threads.
 fn interleaved<T: Copy + Default + Send>(
-    rows: &Map,
+    planes: &[&[f32]],
+    width: usize,
     convert: impl Fn(usize, f32) -> T + Sync,
 ) -> Vec<T> {
-    let (w, channels, n) = (rows.width(), rows.channels(), rows.texels());
+    let channels = planes.len();
+    let n = planes.first().map_or(0, |p| p.len());
     let mut out = vec![T::default(); n * channels];
-    out.par_chunks_mut((w * channels).max(1))
+    out.par_chunks_mut((width * channels).max(1))
         .enumerate()
         .for_each(|(y, row)| {
             for (x, texel) in row.chunks_exact_mut(channels).enumerate() {
                 for (c, sample) in texel.iter_mut().enumerate() {
-                    *sample = convert(c, rows.plane(c)[y * w + x]);
+                    *sample = convert(c, planes[c][y * width + x]);
                 }
             }
         });
