@@ -225,8 +225,17 @@ fn normal_convention_comes_from_the_file_name_or_the_option() {
         copy(&gl.path().join(f), dir.path(), f);
     }
     copy(&gl.path().join("normal.png"), dir.path(), "normal.png");
-    // The name does not say: DirectX unless told otherwise, which flips y.
-    let as_dx = load(dir.path()).unwrap();
+    // The name does not say, nor does an exporter: measured from the maps (no height here:
+    // the curl of the normals' slopes), unless told.
+    let measured = load(dir.path()).unwrap();
+    let origin = measured.origin.as_ref().unwrap();
+    assert_eq!(origin.normal_convention, NormalConvention::OpenGl);
+    assert!(
+        origin.normal_evidence.starts_with("measured"),
+        "{}",
+        origin.normal_evidence
+    );
+    assert!(mean_angle_degrees(&measured.normal, &m.normal) < 0.3);
     let as_gl = load_material(
         Some(dir.path()),
         &LoadOptions {
@@ -236,6 +245,14 @@ fn normal_convention_comes_from_the_file_name_or_the_option() {
     )
     .unwrap();
     assert!(mean_angle_degrees(&as_gl.normal, &m.normal) < 0.3);
+    let as_dx = load_material(
+        Some(dir.path()),
+        &LoadOptions {
+            normal_convention: Some(NormalConvention::DirectX),
+            ..Default::default()
+        },
+    )
+    .unwrap();
     let flipped = Map::from_fn(128, 128, 3, |c, y, x| {
         if c == 1 {
             -as_dx.normal.get(c, y, x)
@@ -512,7 +529,8 @@ fn missing_maps_stand_in_and_a_folder_without_maps_lists_the_names_looked_for() 
     }
     let m = load(folder_without(&["metallic.png", "height.png"]).path()).unwrap();
     assert!(m.height.is_none() && m.metallic.data().iter().all(|&v| v == 0.0));
-    assert!(m.stand_ins().is_empty(), "metallic and height are optional");
+    // Height is optional; a missing metallic stands in as no metal, and is reported.
+    assert_eq!(m.stand_ins(), [MapKind::Metallic]);
     // A folder of images none of which is a map.
     let dir = tempfile::tempdir().unwrap();
     image::GrayImage::new(8, 8)
@@ -709,4 +727,89 @@ fn unwritable_output_is_an_error_and_writes_leave_no_temporaries() {
             "roughness.png"
         ]
     );
+}
+
+#[test]
+fn a_dds_file_a_file_as_material_and_an_output_inside_the_input_are_refused_by_name() {
+    let dir = folder_without(&[]);
+    fs::write(dir.path().join("wood_Emission.dds"), b"DDS ").unwrap();
+    let refused = error_of(load(dir.path()));
+    assert!(
+        refused.contains("wood_Emission.dds") && refused.contains("does not read this format"),
+        "{refused}"
+    );
+    fs::remove_file(dir.path().join("wood_Emission.dds")).unwrap();
+
+    let refused = error_of(load(&dir.path().join("baseColor.png")));
+    assert!(refused.contains("is a file"), "{refused}");
+
+    let m = load(dir.path()).unwrap();
+    let inside = dir.path().join("sub/out");
+    let refused = save_material(&m, &inside, &SaveOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(refused.contains("inside the input folder"), "{refused}");
+    assert!(
+        !dir.path().join("sub").exists(),
+        "nothing written into the input"
+    );
+}
+
+#[test]
+fn a_packed_file_given_by_a_relative_path_is_read_as_its_packing_says() {
+    // A relative path from the working folder, as a user types it, to a folder that also
+    // holds the file under a name matup recognises: it is read once, as --packing says.
+    let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
+    let m = sample();
+    let rough = m.roughness.data();
+    let metal = m.metallic.data();
+    let (w, h) = (m.width() as u32, m.height_px() as u32);
+    let packed = image::RgbImage::from_fn(w, h, |x, y| {
+        let i = (y * w + x) as usize;
+        let q = |v: f32| (v * 255.0).round() as u8;
+        // R roughness, G metallic, B nothing: "rmx".
+        image::Rgb([q(rough[i]), q(metal[i]), 77])
+    });
+    packed.save(dir.path().join("wood_rma.png")).unwrap();
+    copy(
+        &common::sample_material().join("baseColor.png"),
+        dir.path(),
+        "wood_color.png",
+    );
+    let cwd = std::env::current_dir().unwrap();
+    let relative = dir
+        .path()
+        .strip_prefix(&cwd)
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|_| {
+            // The target folder lies outside the working folder: go up to the root and down.
+            let ups: PathBuf = cwd.components().skip(1).map(|_| "..").collect();
+            ups.join(dir.path().strip_prefix("/").unwrap())
+        });
+    assert!(relative.is_relative());
+    let loaded = load_material(
+        Some(&relative),
+        &LoadOptions {
+            paths: MaterialPaths {
+                packed: Some(relative.join("wood_rma.png")),
+                packing: Some("rmx".parse().unwrap()),
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let origin = loaded.origin.as_ref().unwrap();
+    assert_eq!(origin.layout.len(), 2, "{:?}", origin.sources());
+    let worst_rough = common::max_abs_diff(&loaded.roughness, &m.roughness);
+    let worst_metal = common::max_abs_diff(&loaded.metallic, &m.metallic);
+    assert!(worst_rough <= 0.5 / 255.0 + 1e-6 && worst_metal <= 0.5 / 255.0 + 1e-6);
+    // Saved, it is one packed file again, its unused B kept.
+    let out = tempfile::tempdir().unwrap();
+    save_material(&loaded, out.path(), &SaveOptions::default()).unwrap();
+    let back = image::open(out.path().join("wood_rma.png"))
+        .unwrap()
+        .to_rgb8();
+    assert_eq!(back.get_pixel(3, 5)[2], 77);
+    assert_eq!(back.get_pixel(3, 5)[0], packed.get_pixel(3, 5)[0]);
 }

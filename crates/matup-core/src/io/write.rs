@@ -118,9 +118,27 @@ impl MaterialWriter {
                         }
                     }
                 }
+                let format = self.options.format.unwrap_or(file.format);
+                // Colour is sRGB-encoded in integer files and linear in float ones.
+                let is_colour = |holds: Holds| match holds {
+                    Holds::Map(kind, _) => kind == MapKind::BaseColor,
+                    Holds::Carried(_, c) => c > 0 || (file.channels.iter()).any(|other| {
+                        matches!((holds, other.holds), (Holds::Carried(e, _), Holds::Carried(o, 1)) if e == o)
+                    }),
+                    _ => false,
+                };
+                for channel in channels.iter_mut() {
+                    if is_colour(channel.holds) {
+                        channel.stored = if format.is_float() {
+                            Stored::Linear
+                        } else {
+                            Stored::Srgb
+                        };
+                    }
+                }
                 PlannedFile {
                     stem: self.retagged(&file_stem(&file.path)),
-                    format: self.options.format.unwrap_or(file.format),
+                    format,
                     channels,
                     stand_in: None,
                 }
