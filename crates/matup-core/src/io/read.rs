@@ -122,7 +122,7 @@ impl Reader {
         stored: Stored,
     ) -> Result<Vec<Channel>> {
         let n = file.map.channels();
-        let colour = if n % 2 == 0 { n - 1 } else { n };
+        let colour = colour_channels(n);
         let holds = |component| Channel {
             holds: Holds::Map(kind, component),
             stored,
@@ -202,28 +202,24 @@ impl Reader {
     /// channel is kept with the colour or grey.
     fn carried_channels(&mut self, path: &Path, file: &ImageFile, data: bool) -> Vec<Channel> {
         let n = file.map.channels();
-        let colour = if n % 2 == 0 { n - 1 } else { n };
+        let colour = colour_channels(n);
         let grey = colour == 1 || same_values(&file.map, &[0, 1, 2]);
         if data && !grey {
             return (0..n)
                 .map(|c| self.carry_channel(path, file, c, None))
                 .collect();
         }
-        let float = file.format.is_float();
-        let (planes, stored): (Vec<usize>, Stored) = if grey {
-            (vec![0], Stored::Linear)
+        let stored = if grey || file.format.is_float() {
+            Stored::Linear
         } else {
-            (
-                vec![0, 1, 2],
-                if float { Stored::Linear } else { Stored::Srgb },
-            )
+            Stored::Srgb
         };
         let (w, h) = (file.map.width(), file.map.height());
         let map = if grey {
             let all: Vec<usize> = (0..colour).collect();
             Map::from_planar(w, h, 1, mean_plane(&file.map, &all))
         } else {
-            (file.map.select_channels(&planes)).map_values(move |v| stored.decode(0, v))
+            (file.map.select_channels(&[0, 1, 2])).map_values(move |v| stored.decode(0, v))
         };
         let alpha = (colour < n).then(|| file.map.select_channels(&[n - 1]));
         let has_alpha = alpha.is_some();
@@ -356,6 +352,16 @@ fn same_values(map: &Map, planes: &[usize]) -> bool {
     planes[1..]
         .iter()
         .all(|&c| (map.plane(c).iter().zip(first)).all(|(a, b)| (a - b).abs() <= GREY_TOLERANCE))
+}
+
+/// The colour (or grey) channels of a file of `n` channels: all but an alpha, which grey +
+/// alpha and RGBA files have last.
+fn colour_channels(n: usize) -> usize {
+    if n % 2 == 0 {
+        n - 1
+    } else {
+        n
+    }
 }
 
 /// The mean of channels `planes` of `map`: one value stored in several (a JPEG's colour
