@@ -299,6 +299,54 @@ fn sixteen_times_in_two_levels_or_by_reusing_the_filter() {
     assert_ne!(single.base_color, two_level.base_color);
 }
 
+#[test]
+fn eight_times_and_sizes_between_scales_with_the_defaults() {
+    // ×8: ×4, then ×2 through the network's ×4 and an area filter; carried maps and height
+    // follow.
+    let lr = lr_material("ambientcg_Metal053C", 16);
+    let eight = Config {
+        scale: 8,
+        tileable: Some(true),
+        ..Config::default()
+    };
+    let (hr, report) = run(&lr, &eight);
+    assert_eq!((hr.width(), hr.height_px()), (128, 128));
+    let routes: Vec<&str> = report.levels.iter().map(|l| l.route.as_str()).collect();
+    assert_eq!(
+        routes,
+        [
+            "×4 by onnx:span_x4_materials (2 passes), back-projected",
+            "×2 by onnx:span_x4_materials at ×4, then ÷2 by area (2 passes), back-projected"
+        ]
+    );
+    assert_eq!(report.levels[1].input_size, [64, 64]);
+    assert!(hr.height.is_some());
+    // Back-projected at each level: ×8 box-filters back to the input.
+    let back = hr.box_downsample(8);
+    let drift = common::max_abs_diff(&back.metallic, &lr.metallic);
+    assert!(
+        drift < 0.02,
+        "metallic box-filters back {drift} from the input"
+    );
+    // A size between scales: the scale past it, then area-shrunk; tileable stays tileable.
+    let sized = Config {
+        size: Some("100".parse().unwrap()),
+        tileable: Some(true),
+        ..Config::default()
+    };
+    let (small, report) = run(&lr, &sized);
+    assert_eq!((small.width(), small.height_px()), (100, 100));
+    assert_eq!(report.route, "×8, then area-shrunk to 100×100");
+    assert_eq!(report.output_size, [100, 100]);
+    assert_eq!(report.config.size, sized.size);
+    // The ×8 output, area-shrunk: every map, the height and normals (renormalised) alike.
+    let shrunk = hr.area_resize(100, 100);
+    for (a, b) in small.maps().zip(shrunk.maps()) {
+        let d = common::max_abs_diff(a, b);
+        assert!(d < 1e-5, "{d}");
+    }
+}
+
 impl BatchProgress for common::StopAfter {}
 
 /// `matup batch` as a library (the command, with worker processes, shards and claims, is

@@ -52,7 +52,7 @@ pub fn upscale_to_folder(
         oracle: None,
         memory_limit,
     };
-    let size = output_size(material, config);
+    let size = output_size(material, config)?;
     let mut maps = MaterialWriter::new(out, size, material.origin.as_ref(), save)?;
     let mut centre = PreviewWindow::new(size);
     let mut report = upscale_streamed(material, config, &options, progress, &mut |first, band| {

@@ -11,7 +11,7 @@ use matup_core::{FileFormat, LossNorm, SaveOptions};
 use matup_method::bands::default_memory_limit;
 use matup_method::config::{
     Activation, Backend, Chain, EnsembleMaps, Interpolation, ResidualBase, Schedule, Selection,
-    TargetKind,
+    TargetKind, TargetSize,
 };
 use matup_method::train::Stop;
 use matup_method::Config;
@@ -49,9 +49,14 @@ pub struct SettingsArgs {
     /// A TOML configuration; flags given here override it.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Upsampling factor: 2, 3, 4, or 16 (two ×4 levels).
+    /// Upsampling factor: 2, 3, 4, 8 (×4, then ×2) or 16 (two ×4 levels). Every scale runs
+    /// the ×4 network: ×2 and ×3 through ×4 and an area filter down.
     #[arg(long)]
     pub scale: Option<String>,
+    /// An output size instead of a scale: 4096, 4K, or 4096x2048 for a non-square input. The
+    /// smallest scale that reaches it runs; a size between scales is then area-shrunk to.
+    #[arg(long, value_name = "TEXELS", conflicts_with = "scale")]
+    pub size: Option<TargetSize>,
     /// How ×16 is reached: two-level (train again on the ×4 result) or single (reuse the ×4 filter).
     #[arg(long)]
     pub chain: Option<Chain>,
@@ -234,8 +239,11 @@ impl SettingsArgs {
         };
         if let Some(s) = &self.scale {
             c.scale = s.parse().map_err(|_| {
-                anyhow::anyhow!("--scale '{s}' is not a whole number; use 2, 3, 4 or 16")
+                anyhow::anyhow!("--scale '{s}' is not a whole number; use 2, 3, 4, 8 or 16")
             })?;
+        }
+        if self.size.is_some() {
+            c.size = self.size;
         }
         macro_rules! set {
             ($($flag:ident => $($field:ident).+),* $(,)?) => {$(
@@ -330,12 +338,12 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         println!("{json}");
     } else if !args.quiet {
         println!(
-            "{}×{} → {}×{} by {} in {:.1} s{}, peak memory {}",
+            "{}×{} → {}×{} ({}) in {:.1} s{}, peak memory {}",
             report.input_size[0],
             report.input_size[1],
             report.output_size[0],
             report.output_size[1],
-            report.upsampler_used,
+            report.route,
             report.total_seconds,
             report
                 .final_loss
@@ -344,6 +352,9 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
                 .peak_memory_mib
                 .map_or("-".into(), |m| format!("{m:.0} MiB")),
         );
+        for (i, level) in report.levels.iter().enumerate() {
+            println!("  level {}: {}", i + 1, level.route);
+        }
         for (stage, seconds) in &report.timings {
             println!("  {stage:<28} {seconds:>7.2} s");
         }

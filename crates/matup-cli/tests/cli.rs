@@ -198,7 +198,10 @@ fn upscale_error_paths_are_clear() {
             "unknown shading model 'phong'; known: ggx, ggx-aniso, lambert",
         ),
         (&["--scale", "4.5"], "--scale '4.5' is not a whole number"),
-        (&["--scale", "5"], "unsupported scale ×5; use 2, 3, 4 or 16"),
+        (
+            &["--scale", "5"],
+            "unsupported scale ×5; use 2, 3, 4, 8 or 16",
+        ),
         (&["--window", "16"], "filter.window must be odd"),
         (&["--loss", "l3"], "unknown loss norm 'l3'"),
     ];

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use crate::layout::FileLayout;
 use crate::map::{Dihedral, Map};
-use crate::resample::{box_downsample, upsample, Border, Kernel};
+use crate::resample::{area_resize, box_downsample, upsample, Border, Kernel};
 use crate::shading::{Svbrdf, Texel};
 
 /// Perceptual roughness is clamped to at least this on load (METHOD.md).
@@ -286,6 +286,12 @@ impl Material {
     /// renormalised normals, averaged roughness, metallic and height.
     pub fn box_downsample(&self, factor: usize) -> Material {
         self.map_every(|m| box_downsample(m, factor))
+    }
+
+    /// Every map shrunk to `width × height` by area averaging (linear base colour; normals
+    /// renormalised after), as [`Material::box_downsample`] for any ratio.
+    pub fn area_resize(&self, width: usize, height: usize) -> Material {
+        self.map_every(|m| area_resize(m, width, height))
     }
 
     /// The material under a symmetry of the square, as if the surface itself were mirrored

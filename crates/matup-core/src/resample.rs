@@ -280,6 +280,58 @@ pub fn box_downsample(map: &Map, factor: usize) -> Map {
     Map::from_planar(ow, oh, map.channels(), out)
 }
 
+/// Each output texel's share of the input texels along one axis of `from` texels shrunk to
+/// `to`: the input texels its footprint `[i·r, (i+1)·r)` covers (r = from / to), weighted by
+/// how much of each it covers, normalised.
+fn area_taps(from: usize, to: usize) -> Vec<Vec<(usize, f32)>> {
+    let ratio = from as f64 / to as f64;
+    (0..to)
+        .map(|i| {
+            let (start, end) = (i as f64 * ratio, (i + 1) as f64 * ratio);
+            let first = start.floor() as usize;
+            let last = (end.ceil() as usize).min(from);
+            (first..last)
+                .map(|k| {
+                    let covered = end.min(k as f64 + 1.0) - start.max(k as f64);
+                    (k, (covered / ratio) as f32)
+                })
+                .filter(|&(_, w)| w > 0.0)
+                .collect()
+        })
+        .collect()
+}
+
+/// Shrinks `map` to `width × height` by area averaging: each output texel is the mean of the
+/// input it covers, fractions of texels weighted by their share (a box filter for whole
+/// ratios, what a capture at the smaller size would see for any ratio). Neither side may grow.
+pub fn area_resize(map: &Map, width: usize, height: usize) -> Map {
+    assert!(
+        (1..=map.width()).contains(&width) && (1..=map.height()).contains(&height),
+        "area_resize shrinks: {}×{} to {width}×{height}",
+        map.width(),
+        map.height()
+    );
+    let (columns, rows) = (
+        area_taps(map.width(), width),
+        area_taps(map.height(), height),
+    );
+    let mut out = vec![0f32; map.channels() * height * width];
+    out.par_chunks_mut(width).enumerate().for_each(|(r, row)| {
+        let (c, y) = (r / height, r % height);
+        let plane = map.plane(c);
+        // The output row's footprint first (input rows weighted), then its columns.
+        let mut line = vec![0f32; map.width()];
+        for &(k, w) in &rows[y] {
+            let input = &plane[k * map.width()..][..map.width()];
+            line.iter_mut().zip(input).for_each(|(l, v)| *l += w * v);
+        }
+        for (v, taps) in row.iter_mut().zip(&columns) {
+            *v = taps.iter().map(|&(k, w)| w * line[k]).sum();
+        }
+    });
+    Map::from_planar(width, height, map.channels(), out)
+}
+
 /// Separable Gaussian blur of a `w × h` plane, truncated at 3σ each side, normalised, with
 /// `border` beyond the edges. Both passes run as whole-row multiply-adds, which the compiler
 /// vectorises.
@@ -477,6 +529,29 @@ mod tests {
         let map = Map::from_fn(4, 2, 1, |_, y, x| (y * 4 + x) as f32);
         let down = box_downsample(&map, 2);
         assert_eq!(down.data(), &[2.5, 4.5]);
+    }
+
+    #[test]
+    fn area_resize_averages_what_each_output_texel_covers() {
+        // A whole ratio is the box filter.
+        let map = Map::from_fn(12, 8, 2, |c, y, x| ((x * 5 + y * 3 + c) % 7) as f32);
+        let (area, boxed) = (area_resize(&map, 6, 4), box_downsample(&map, 2));
+        let worst =
+            (area.data().iter().zip(boxed.data())).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst < 1e-5, "{worst}");
+        // 4 → 3: output texel 1 covers two thirds of inputs 1 and 2, texel 0 input 0 and a third
+        // of input 1.
+        let row = Map::from_fn(4, 1, 1, |_, _, x| [0.0, 3.0, 6.0, 9.0][x]);
+        let three = area_resize(&row, 3, 1);
+        for (got, want) in three.data().iter().zip([0.75, 4.5, 8.25]) {
+            assert!((got - want).abs() < 1e-5, "{:?}", three.data());
+        }
+        // The mean is kept at any ratio (every input texel is shared out whole).
+        let odd = area_resize(&map, 5, 3);
+        for c in 0..2 {
+            let mean = |m: &Map| m.plane(c).iter().sum::<f32>() / m.plane(c).len() as f32;
+            assert!((mean(&odd) - mean(&map)).abs() < 1e-4);
+        }
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
 use crate::map::Map;
 use crate::plugin::{find_registration, sorted_registry, PluginOption, PluginSpec, Registration};
-use crate::resample::Border;
+use crate::resample::{area_resize, Border};
 use crate::{Error, Result};
 
 /// Turns a batch of RGB images (3-channel [`Map`]s in display space, values in [0, 1]) into
@@ -40,10 +40,11 @@ pub trait RgbUpsampler: Send + Sync {
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>>;
 }
 
-/// Checks a requested scale against what an upsampler supports.
+/// Checks a requested scale against what an upsampler supports: any scale, or one up to its
+/// native scale (smaller ones go through it, [`route`]).
 pub fn check_scale(name: &str, upsampler: &dyn RgbUpsampler, scale: usize) -> Result<()> {
     match upsampler.native_scale() {
-        Some(native) if native != scale => Err(Error::Unsupported {
+        Some(native) if native < scale => Err(Error::Unsupported {
             plugin: name.to_string(),
             what: format!("scale ×{scale} (it upsamples by ×{native})"),
         }),
@@ -77,8 +78,132 @@ pub fn upsamplers() -> Result<Vec<&'static UpsamplerRegistration>> {
     )
 }
 
-/// Builds the upsampler a spec names (`lanczos3`, `bicubic:a=-0.75`, …).
+/// Builds the upsampler a spec names (`lanczos3`, `bicubic:a=-0.75`, …). One with a native
+/// scale serves the smaller scales too, through its own ([`route`]).
 pub fn upsampler(spec: &PluginSpec) -> Result<Box<dyn RgbUpsampler>> {
     let registration = find_registration("upsampler", upsamplers()?, &spec.name)?;
-    (registration.create)(spec.argument.as_deref())
+    Ok(serving_smaller_scales((registration.create)(
+        spec.argument.as_deref(),
+    )?))
+}
+
+/// `upsampler`, made to serve the scales below its native one through it ([`route`]); as it
+/// is where it has none.
+pub fn serving_smaller_scales(upsampler: Box<dyn RgbUpsampler>) -> Box<dyn RgbUpsampler> {
+    match upsampler.native_scale() {
+        Some(native) => Box::new(ThroughNative {
+            inner: upsampler,
+            native,
+        }),
+        None => upsampler,
+    }
+}
+
+/// How an upsampler of `native` scale (`None`: any) makes ×`scale`: `None` where it upsamples
+/// by `scale` itself, else the words for its route, ×native and then an area filter down to
+/// ×scale. A ×4 network at ×2 keeps what it sees at ×4: the output box-filtered to ×2 is
+/// sharper than a ×2 network's (docs/experiments/2026-11-26-every-scale.md).
+pub fn route(native: Option<usize>, scale: usize) -> Option<String> {
+    let native = native.filter(|&n| n > scale)?;
+    Some(if native % scale == 0 {
+        format!("×{native}, then ÷{} by area", native / scale)
+    } else {
+        format!("×{native}, then area-shrunk to ×{scale}")
+    })
+}
+
+/// An upsampler of one native scale serving smaller ones: each image ×native, then shrunk by
+/// area averaging to ×scale.
+struct ThroughNative {
+    inner: Box<dyn RgbUpsampler>,
+    native: usize,
+}
+
+impl RgbUpsampler for ThroughNative {
+    fn native_scale(&self) -> Option<usize> {
+        Some(self.native)
+    }
+
+    fn context(&self) -> usize {
+        self.inner.context()
+    }
+
+    fn tile(&self) -> Option<usize> {
+        self.inner.tile()
+    }
+
+    fn batches_images(&self) -> bool {
+        self.inner.batches_images()
+    }
+
+    fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        if scale >= self.native {
+            // Its own scale, or one it refuses.
+            return self.inner.upsample(images, scale, border);
+        }
+        let large = self.inner.upsample(images, self.native, border)?;
+        Ok((large.into_iter().zip(images))
+            .map(|(up, image)| {
+                let native = [image.width(), image.height()].map(|n| n * self.native);
+                if [up.width(), up.height()] == native {
+                    area_resize(&up, image.width() * scale, image.height() * scale)
+                } else {
+                    up // the wrong size, as the caller's check will say
+                }
+            })
+            .collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::resample::box_downsample;
+
+    /// A ×4-only upsampler: every texel repeated 4 × 4.
+    struct Nearest4;
+    impl RgbUpsampler for Nearest4 {
+        fn native_scale(&self) -> Option<usize> {
+            Some(4)
+        }
+        fn upsample(&self, images: &[Map], scale: usize, _: Border) -> Result<Vec<Map>> {
+            assert_eq!(scale, 4, "called at its own scale only");
+            Ok(images
+                .iter()
+                .map(|m| {
+                    Map::from_fn(m.width() * 4, m.height() * 4, m.channels(), |c, y, x| {
+                        m.get(c, y / 4, x / 4)
+                    })
+                })
+                .collect())
+        }
+    }
+
+    #[test]
+    fn a_native_scale_serves_the_smaller_ones_through_it() {
+        let image = Map::from_fn(6, 5, 3, |c, y, x| ((x * 3 + y * 7 + c) % 5) as f32 / 4.0);
+        let up = serving_smaller_scales(Box::new(Nearest4));
+        for scale in [2, 3, 4] {
+            check_scale("nearest4", up.as_ref(), scale).unwrap();
+            let out = up
+                .upsample(std::slice::from_ref(&image), scale, Border::Mirror)
+                .unwrap();
+            let out = &out[0];
+            assert_eq!((out.width(), out.height()), (6 * scale, 5 * scale));
+            // Whatever the route, the output box-filters back to the input (nearest keeps
+            // every block's mean; area filters keep means).
+            let back = box_downsample(out, scale);
+            let worst =
+                (back.data().iter().zip(image.data())).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(worst < 1e-5, "×{scale}: {worst}");
+        }
+        assert!(check_scale("nearest4", up.as_ref(), 8).is_err());
+        assert_eq!(route(Some(4), 2).as_deref(), Some("×4, then ÷2 by area"));
+        assert_eq!(
+            route(Some(4), 3).as_deref(),
+            Some("×4, then area-shrunk to ×3")
+        );
+        assert_eq!(route(Some(4), 4), None);
+        assert_eq!(route(None, 3), None);
+    }
 }

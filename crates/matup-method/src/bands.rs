@@ -23,6 +23,12 @@ pub const BYTES_PER_BAND_TEXEL: u64 = 80;
 /// at 757 MiB with two passes against 655 MiB with one (docs/experiments/2026-11-25-self-ensemble.md).
 pub const ENSEMBLE_BYTES_PER_BAND_TEXEL: u64 = 12;
 
+/// Heap bytes per texel of an upsampler's native scale where it serves a smaller one
+/// ([`matup_core::upsample::route`]): the image at the native scale (RGB f32) and the
+/// network's last feature map before it is rearranged into that image. At ×2 through ×4
+/// there are 4 of these texels to each output texel.
+pub const ROUTE_BYTES_PER_NATIVE_TEXEL: u64 = 24;
+
 /// Heap bytes per LR texel that do not shrink with the band: the level's input (36 bytes a
 /// texel with height), what the caller holds beside it, the writers' buffers.
 pub const BYTES_PER_LR_TEXEL: u64 = 100;

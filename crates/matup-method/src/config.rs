@@ -70,7 +70,7 @@ mod as_string {
     }
 }
 
-serde_through_strings!(Activation, Interpolation, ResidualBase, Chroma);
+serde_through_strings!(Activation, Interpolation, ResidualBase, Chroma, TargetSize);
 strings_through_serde!(
     Schedule: "schedule",
     Chain: "chain",
@@ -135,7 +135,7 @@ pub enum Schedule {
     Cosine,
 }
 
-/// How ×16 is reached.
+/// How ×16 (and ×8) is reached.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Chain {
@@ -170,6 +170,75 @@ impl fmt::Display for Interpolation {
             Kernel::Bicubic { .. } => "bicubic",
             Kernel::Lanczos3 => "lanczos3",
         })
+    }
+}
+
+/// An output size asked for instead of a scale: `4096` or `4K` (a square's side; K is 1024
+/// texels), or `4096x2048`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TargetSize {
+    pub width: usize,
+    /// `None`: the side of a square.
+    pub height: Option<usize>,
+}
+
+impl FromStr for TargetSize {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        let side = |t: &str| -> Option<usize> {
+            let t = t.trim();
+            let n = match t.strip_suffix(['K', 'k']) {
+                Some(k) => k.parse::<usize>().ok()?.checked_mul(1024)?,
+                None => t.parse().ok()?,
+            };
+            (n > 0).then_some(n)
+        };
+        let parsed = match s.split_once(['x', '×']) {
+            Some((w, h)) => side(w).zip(side(h)).map(|(w, h)| TargetSize {
+                width: w,
+                height: Some(h),
+            }),
+            None => side(s).map(|w| TargetSize {
+                width: w,
+                height: None,
+            }),
+        };
+        parsed.ok_or_else(|| {
+            Error::Invalid(format!("size '{s}': give texels as 4096, 4K or 4096x2048"))
+        })
+    }
+}
+
+impl fmt::Display for TargetSize {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.height {
+            Some(h) => write!(f, "{}x{h}", self.width),
+            None => write!(f, "{}", self.width),
+        }
+    }
+}
+
+/// How a run reaches its output size: the whole scale its levels make, and the size that
+/// output is then shrunk to where the size asked for is no whole scale.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reach {
+    pub scale: usize,
+    pub shrink_to: Option<[usize; 2]>,
+}
+
+impl Reach {
+    /// The output's size for an input of `input` texels.
+    pub fn output_size(&self, input: [usize; 2]) -> [usize; 2] {
+        self.shrink_to.unwrap_or(input.map(|n| n * self.scale))
+    }
+
+    /// The route in words, for the note and `run.json`: `×4` or `×2, then area-shrunk to
+    /// 1536×1536`.
+    pub fn describe(&self) -> String {
+        match self.shrink_to {
+            Some([w, h]) => format!("×{}, then area-shrunk to {w}×{h}", self.scale),
+            None => format!("×{}", self.scale),
+        }
     }
 }
 
@@ -562,8 +631,11 @@ impl Default for TrainConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
-    /// 2, 3 or 4 (one level), or 16 (two ×4 levels).
+    /// 2, 3 or 4 (one level), 8 (×4, then ×2) or 16 (two ×4 levels).
     pub scale: usize,
+    /// An output size in texels instead of `scale`: the smallest scale that reaches it runs,
+    /// and a whole output larger than it is area-shrunk to it ([`Config::reach`]).
+    pub size: Option<TargetSize>,
     pub chain: Chain,
     /// The RGB upsampler of the renders (`NAME[:ARGUMENT]`), or `auto`: the best the build
     /// has ([`MATERIAL_NETWORK`] where [`Config::upsamples_maps_only`], else
@@ -596,6 +668,7 @@ impl Default for Config {
     fn default() -> Self {
         Config {
             scale: 4,
+            size: None,
             chain: Chain::TwoLevel,
             upsampler: "auto".into(),
             shading: "ggx".into(),
@@ -625,15 +698,28 @@ pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
 /// The scales one level of the method handles.
 pub const LEVEL_SCALES: [usize; 3] = [2, 3, 4];
 
-/// The whole factors matup upsamples by: one level of [`LEVEL_SCALES`], or ×16 as two ×4
-/// levels. `what` names the value in the error (`scale`, `factor`).
+/// The whole factors matup upsamples by: one level of [`LEVEL_SCALES`], or two levels (×8 as
+/// ×4 then ×2, ×16 as two ×4). `what` names the value in the error (`scale`, `factor`).
 pub fn check_supported_scale(scale: usize, what: &str) -> Result<()> {
-    if LEVEL_SCALES.contains(&scale) || scale == 16 {
+    if SCALES.contains(&scale) {
         Ok(())
     } else {
         Err(Error::Invalid(format!(
-            "unsupported {what} ×{scale}; use 2, 3, 4 or 16"
+            "unsupported {what} ×{scale}; use 2, 3, 4, 8 or 16"
         )))
+    }
+}
+
+/// Every whole factor matup upsamples by.
+pub const SCALES: [usize; 5] = [2, 3, 4, 8, 16];
+
+/// The levels that make a supported `scale`: the scale itself for one level, else ×4 and then
+/// the rest (a network's ×4 goes first, on the smaller input).
+pub fn levels_of(scale: usize) -> Vec<usize> {
+    if LEVEL_SCALES.contains(&scale) {
+        vec![scale]
+    } else {
+        vec![4, scale / 4]
     }
 }
 
@@ -685,19 +771,68 @@ impl Config {
         toml::to_string(self).expect("a Config always serialises")
     }
 
-    /// The scale of each level: `[4, 4]` for ×16, `[s]` otherwise.
-    pub fn levels(&self) -> Vec<usize> {
-        if self.scale == 16 {
-            vec![4, 4]
-        } else {
-            vec![self.scale]
+    /// How a run of an `input`-sized material reaches its output: `scale`, or where a `size` is
+    /// asked for, the smallest supported scale that reaches it and the shrink to it. A size
+    /// smaller than the input, past ×16, or of another shape than the input is refused.
+    pub fn reach(&self, input: [usize; 2]) -> Result<Reach> {
+        let Some(size) = self.size else {
+            return Ok(Reach {
+                scale: self.scale,
+                shrink_to: None,
+            });
+        };
+        let [w, h] = input;
+        let target = match size.height {
+            Some(height) => [size.width, height],
+            None if w == h => [size.width; 2],
+            None => {
+                return Err(Error::Invalid(format!(
+                    "size {size}: the input is {w}×{h}, not square; give both sides \
+                     (--size {}x{}) or a --scale",
+                    size.width,
+                    size.width * h / w
+                )))
+            }
+        };
+        // Sides rounded by one texel to keep the shape are the same ratio.
+        if target[0].abs_diff(target[1] * w / h) > 1 && target[1].abs_diff(target[0] * h / w) > 1 {
+            return Err(Error::Invalid(format!(
+                "size {size}: {}×{} is not the shape of the {w}×{h} input",
+                target[0], target[1]
+            )));
         }
+        if target[0] <= w || target[1] <= h {
+            return Err(Error::Invalid(format!(
+                "size {size}: not larger than the {w}×{h} input (matup upsamples only)"
+            )));
+        }
+        let reaches = |s: usize| w * s >= target[0] && h * s >= target[1];
+        let Some(&scale) = SCALES.iter().find(|&&s| reaches(s)) else {
+            return Err(Error::Invalid(format!(
+                "size {size}: more than ×16 of the {w}×{h} input"
+            )));
+        };
+        let exact = [w * scale, h * scale] == target;
+        Ok(Reach {
+            scale,
+            shrink_to: (!exact).then_some(target),
+        })
+    }
+
+    /// The scale of each level: `[4, 4]` for ×16, `[4, 2]` for ×8, `[s]` otherwise.
+    pub fn levels(&self) -> Vec<usize> {
+        levels_of(self.scale)
     }
 
     /// Rejects values the method cannot run with, saying which and why.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::Invalid(m));
         check_supported_scale(self.scale, "scale")?;
+        if self.chain == Chain::Single && self.scale == 8 {
+            return bad(
+                "chain = \"single\" applies the ×4 level's filter again at ×4: it reaches ×16, not ×8 (use two-level)".into(),
+            );
+        }
         let f = &self.filter;
         if f.window == 0 || f.window % 2 == 0 {
             return bad(format!(
@@ -945,6 +1080,47 @@ mod tests {
     }
 
     #[test]
+    fn a_size_is_reached_by_the_smallest_scale_past_it() {
+        let with = |size: &str| Config {
+            size: Some(size.parse().unwrap()),
+            ..Config::default()
+        };
+        let reach = |size: &str, input: [usize; 2]| with(size).reach(input);
+        let exact = |scale| Reach {
+            scale,
+            shrink_to: None,
+        };
+        assert_eq!(reach("4K", [1024, 1024]).unwrap(), exact(4));
+        assert_eq!(reach("2048", [1024, 1024]).unwrap(), exact(2));
+        assert_eq!(reach("8192x4096", [1024, 512]).unwrap(), exact(8));
+        // Between scales: the next one past, then shrunk.
+        let between = reach("1536", [1024, 1024]).unwrap();
+        assert_eq!(between.scale, 2);
+        assert_eq!(between.shrink_to, Some([1536, 1536]));
+        assert_eq!(between.output_size([1024, 1024]), [1536, 1536]);
+        assert_eq!(between.describe(), "×2, then area-shrunk to 1536×1536");
+        assert_eq!(reach("400", [128, 128]).unwrap().scale, 4);
+        // Refused, saying why.
+        for (size, input, why) in [
+            ("1K", [1024, 1024], "not larger"),
+            ("512", [1024, 1024], "not larger"),
+            ("17K", [1024, 1024], "more than ×16"),
+            ("2048", [1024, 512], "not square"),
+            ("2048x2048", [1024, 512], "not the shape"),
+        ] {
+            let e = reach(size, input).unwrap_err().to_string();
+            assert!(e.contains(why), "{size} of {input:?}: {e}");
+        }
+        for bad in ["", "0", "4M", "x512", "1.5K"] {
+            assert!(bad.parse::<TargetSize>().is_err(), "{bad}");
+        }
+        // A scale alone is its own reach; the size round-trips through TOML.
+        assert_eq!(Config::default().reach([64, 64]).unwrap(), exact(4));
+        let c = with("4096x2048");
+        assert_eq!(Config::from_toml(&c.to_toml(), "s.toml").unwrap(), c);
+    }
+
+    #[test]
     fn toml_round_trips_and_rejects_unknown_keys() {
         let c = Config::default();
         assert_eq!(Config::from_toml(&c.to_toml(), "x.toml").unwrap(), c);
@@ -955,6 +1131,13 @@ mod tests {
         .unwrap();
         assert_eq!(c.train.loss, LossNorm::Lpq { p: 1.5, q: 1.0 });
         assert_eq!(c.levels(), vec![4, 4]);
+        let eight = Config::from_toml("scale = 8\n", "c.toml").unwrap();
+        assert_eq!(eight.levels(), vec![4, 2]);
+        let e = Config::from_toml("scale = 8\nchain = \"single\"\n", "d.toml").unwrap_err();
+        assert!(e.to_string().contains("not ×8"), "{e}");
+        for scale in [5, 6, 12, 32] {
+            assert!(check_supported_scale(scale, "scale").is_err(), "×{scale}");
+        }
         let e = Config::from_toml("[train]\nepoch = 3\n", "b.toml")
             .unwrap_err()
             .to_string();

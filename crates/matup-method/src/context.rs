@@ -31,6 +31,8 @@ pub(crate) struct Context<'a> {
     pub(crate) config: &'a Config,
     pub(crate) model: Arc<dyn ShadingModel>,
     pub(crate) upsampler: Box<dyn RgbUpsampler>,
+    /// The upsampler's name, as the run reports it.
+    pub(crate) upsampler_name: &'a str,
     pub(crate) lights: Vec<Light>,
     pub(crate) border: Border,
     pub(crate) options: &'a RunOptions,

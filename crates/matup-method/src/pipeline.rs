@@ -7,7 +7,10 @@ use std::borrow::Cow;
 use std::sync::Arc;
 use std::time::Instant;
 
-use crate::bands::{plan_bands, Assembler, BYTES_PER_BAND_TEXEL, ENSEMBLE_BYTES_PER_BAND_TEXEL};
+use crate::bands::{
+    plan_bands, Assembler, BYTES_PER_BAND_TEXEL, ENSEMBLE_BYTES_PER_BAND_TEXEL,
+    ROUTE_BYTES_PER_NATIVE_TEXEL,
+};
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
 use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
 use crate::context::{Context, RunOptions};
@@ -21,7 +24,7 @@ use matup_core::material::Material;
 use matup_core::progress::{Progress, Silent};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
-use matup_core::upsample::RgbUpsampler;
+use matup_core::upsample::{route, RgbUpsampler};
 use matup_core::{PluginSpec, Result};
 
 pub use crate::features::{constant_features, features};
@@ -36,7 +39,7 @@ pub fn upscale(
     options: &RunOptions,
     progress: &dyn Progress,
 ) -> Result<(Material, RunReport)> {
-    let mut assembler = Assembler::new(output_size(material, config)[1]);
+    let mut assembler = Assembler::new(output_size(material, config)?[1]);
     let report = upscale_streamed(material, config, options, progress, &mut |first, band| {
         assembler.add(first, band);
         Ok(())
@@ -46,10 +49,11 @@ pub fn upscale(
     Ok((result, report))
 }
 
-/// The size `config` upsamples `material` to: [width, height].
-pub fn output_size(material: &Material, config: &Config) -> [usize; 2] {
-    let scale: usize = config.levels().iter().product();
-    [material.width() * scale, material.height_px() * scale]
+/// The size `config` upsamples `material` to: [width, height] (an error for a size asked for
+/// that cannot be reached, [`Config::reach`]).
+pub fn output_size(material: &Material, config: &Config) -> Result<[usize; 2]> {
+    let input = [material.width(), material.height_px()];
+    Ok(config.reach(input)?.output_size(input))
 }
 
 /// [`upscale`], handing the output to `sink` in bands of whole rows, top to bottom, as they
@@ -64,6 +68,55 @@ pub fn upscale_streamed(
     sink: &mut dyn FnMut(usize, &Material) -> Result<()>,
 ) -> Result<RunReport> {
     config.validate()?;
+    let input = [material.width(), material.height_px()];
+    let reach = config.reach(input)?;
+    if let Some(size) = reach.shrink_to {
+        // No whole scale reaches the size asked for: the output is made whole at the scale
+        // past it, then shrunk by area, and handed over as one band.
+        progress.note(&format!(
+            "output {}×{}: {}",
+            size[0],
+            size[1],
+            reach.describe()
+        ));
+        let whole_config = Config {
+            scale: reach.scale,
+            size: None,
+            ..config.clone()
+        };
+        let mut assembler = Assembler::new(input[1] * reach.scale);
+        let mut report = upscale_streamed(
+            material,
+            &whole_config,
+            options,
+            progress,
+            &mut |first, band| {
+                assembler.add(first, band);
+                Ok(())
+            },
+        )?;
+        let whole = assembler.finish().expect("a run makes at least one band");
+        sink(0, &whole.area_resize(size[0], size[1]))?;
+        report.config.size = config.size;
+        report.route = reach.describe();
+        report.output_size = size;
+        return Ok(report);
+    }
+    let asked_size = config.size;
+    if let Some(size) = asked_size {
+        progress.note(&format!("output {size}: {}", reach.describe()));
+    }
+    let resolved;
+    let config = if config.size.is_some() {
+        resolved = Config {
+            scale: reach.scale,
+            size: None,
+            ..config.clone()
+        };
+        &resolved
+    } else {
+        config
+    };
     let start = Instant::now();
     let mut timings = Vec::new();
     let mut skipped = Vec::new();
@@ -144,6 +197,7 @@ pub fn upscale_streamed(
         config,
         model,
         upsampler,
+        upsampler_name: &upsampler_used,
         lights,
         border: Border::for_tiling(tileable),
         options,
@@ -186,14 +240,18 @@ pub fn upscale_streamed(
         .iter()
         .rev()
         .find_map(|l| l.training.epoch_losses.last().copied());
-    let [w, h] = output_size(material, config);
+    let [w, h] = reach.output_size(input);
     Ok(RunReport {
         matup_version: env!("CARGO_PKG_VERSION"),
         input_folder: material.origin.as_ref().map(|o| o.folder.clone()),
         input_size: [material.width(), material.height_px()],
         output_size: [w, h],
-        config: config.clone(),
+        config: Config {
+            size: asked_size,
+            ..config.clone()
+        },
         upsampler_used,
+        route: reach.describe(),
         tileable,
         seam_ratio: seam,
         selection,
@@ -231,8 +289,11 @@ fn run_level(
     let config = ctx.config;
     let tag = |stage: &str| format!("level {}: {stage}", level + 1);
     let reuse = config.chain == Chain::Single && level > 0 && single_filter.is_some();
+    let route = level_route(ctx, scale);
+    ctx.progress.note(&format!("level {}: {route}", level + 1));
     let mut report = LevelReport {
         scale,
+        route,
         input_size: [lr.width(), lr.height_px()],
         output_size: [lr.width() * scale, lr.height_px() * scale],
         lights_used: 0,
@@ -271,6 +332,7 @@ fn run_level(
         ctx.border,
         ctx.options.memory_limit,
         BYTES_PER_BAND_TEXEL
+            + route_bytes_per_texel(ctx, scale)
             + if config.filter.residual_base == ResidualBase::Upsampler
                 && config.filter.self_ensemble > 1
             {
@@ -371,6 +433,56 @@ fn run_level(
         *single_filter = Some(t);
     }
     Ok(report)
+}
+
+/// Heap bytes per output texel an upsampler adds to a band where it serves `scale` through
+/// its larger native scale (the per-map base is the only stage that upsamples in bands).
+fn route_bytes_per_texel(ctx: &Context, scale: usize) -> u64 {
+    match ctx.upsampler.native_scale() {
+        Some(native)
+            if native > scale && ctx.config.filter.residual_base == ResidualBase::Upsampler =>
+        {
+            (ROUTE_BYTES_PER_NATIVE_TEXEL * (native * native) as u64)
+                .div_ceil((scale * scale) as u64)
+        }
+        _ => 0,
+    }
+}
+
+/// What makes a ×`scale` level's maps, in words: the upsampler, its route to the scale
+/// (through its native one), the self-ensemble's passes and the back-projection, where they
+/// make the per-map base; the kernel and the filter otherwise.
+fn level_route(ctx: &Context, scale: usize) -> String {
+    let filter = &ctx.config.filter;
+    let upsampler = match route(ctx.upsampler.native_scale(), scale) {
+        Some(route) => format!("{} at {route}", ctx.upsampler_name),
+        None => ctx.upsampler_name.to_string(),
+    };
+    let trains = ctx.config.train.epochs > 0;
+    match filter.residual_base {
+        ResidualBase::Upsampler => format!(
+            "×{scale} by {upsampler}{}{}{}",
+            match filter.self_ensemble {
+                1 => String::new(),
+                n => format!(" ({n} passes)"),
+            },
+            if filter.back_project {
+                ", back-projected"
+            } else {
+                ""
+            },
+            if trains { ", then the filter" } else { "" }
+        ),
+        ResidualBase::Kernel(kernel) => format!(
+            "×{scale}: {} maps{}",
+            crate::config::Interpolation(kernel),
+            if trains {
+                format!(" and a filter fitted to renders upsampled by {upsampler}")
+            } else {
+                String::new()
+            }
+        ),
+    }
 }
 
 /// How a run upsamples the maps a material carries: with its upsampler and self-ensemble,

@@ -16,16 +16,27 @@ use matup_draw::labelled_sheet;
 /// `input` upsampled bilinearly to `output`'s size: what the preview and the viewer compare
 /// matup's result with.
 pub fn bilinear_baseline(input: &Material, output: &Material, tileable: bool) -> Material {
-    input.upsample(
-        scale_between(input, output.width()),
-        Kernel::Bilinear,
-        Border::for_tiling(tileable),
-    )
+    bilinear_to(input, [output.width(), output.height_px()], tileable)
 }
 
-/// How many times wider an output `output_width` wide is than `input` (at least 1).
+/// `input` upsampled bilinearly to `size`: by the whole scale that reaches it, area-shrunk to
+/// it where that overshoots (a size asked for between scales).
+fn bilinear_to(input: &Material, size: [usize; 2], tileable: bool) -> Material {
+    let up = input.upsample(
+        scale_between(input, size[0]),
+        Kernel::Bilinear,
+        Border::for_tiling(tileable),
+    );
+    if [up.width(), up.height_px()] == size {
+        up
+    } else {
+        up.area_resize(size[0], size[1])
+    }
+}
+
+/// The whole scale that makes `input` at least `output_width` wide (at least 1).
 fn scale_between(input: &Material, output_width: usize) -> usize {
-    (output_width / input.width().max(1)).max(1)
+    output_width.div_ceil(input.width().max(1)).max(1)
 }
 
 /// The side of the square the preview shows (the whole of a smaller output).
@@ -98,6 +109,10 @@ fn bilinear_centre(
     tileable: bool,
 ) -> Material {
     let scale = scale_between(input, output_size[0]);
+    if output_size != [input.width() * scale, input.height_px() * scale] {
+        // Between scales: the whole, shrunk (such outputs are made whole too).
+        return centre(&bilinear_to(input, output_size, tileable), side);
+    }
     let border = Border::for_tiling(tileable);
     let (x0, y0) = centre_origin(output_size, side);
     let window = |start: usize, len: usize| {
@@ -113,7 +128,7 @@ fn bilinear_centre(
             let up = window.upsample(scale, Kernel::Bilinear, border);
             up.map_maps(|m| m.crop(x0 - wx * scale, y0 - wy * scale, side, side))
         }
-        _ => centre(&input.upsample(scale, Kernel::Bilinear, border), side),
+        _ => centre(&bilinear_to(input, output_size, tileable), side),
     }
 }
 

@@ -22,6 +22,9 @@ pub struct RunReport {
     pub config: Config,
     /// The RGB upsampler that ran (what `auto` chose).
     pub upsampler_used: String,
+    /// How the output size was reached: `×4`, or a size asked for (`×2, then area-shrunk to
+    /// 1536×1536`); each level's route is in `levels`.
+    pub route: String,
     pub tileable: bool,
     /// The seam ratio the tileability was detected from (absent when it was given).
     pub seam_ratio: Option<f32>,
@@ -61,6 +64,9 @@ pub struct RunReport {
 #[derive(Clone, Debug, Serialize)]
 pub struct LevelReport {
     pub scale: usize,
+    /// What made the level's maps: `×2 by onnx:span_x4_materials at ×4, then ÷2 by area
+    /// (2 passes), back-projected`.
+    pub route: String,
     pub input_size: [usize; 2],
     pub output_size: [usize; 2],
     pub lights_used: usize,

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use walkdir::WalkDir;
 
-use matup_core::io::{discover, is_image_file};
+use matup_core::io::{discover, is_image_file, FileRole};
 use matup_core::material::NormalConvention;
 use matup_core::{Error, Result};
 
@@ -86,8 +86,15 @@ pub fn find_materials(root: &Path, exclude: Option<&Path>) -> Result<Library> {
                 .push((relative, "no image files".to_string()));
             continue;
         }
+        // Images that only ride along (a photo, an unnamed picture) do not make a material:
+        // one file must be a map or a packed file.
+        let holds_a_map = |files: &[(PathBuf, FileRole)]| {
+            files
+                .iter()
+                .any(|(_, role)| !matches!(role, FileRole::Carried { .. }))
+        };
         match discover(folder, NormalConvention::default()) {
-            Ok(found) if found.files.is_empty() => library.skipped.push((
+            Ok(found) if !holds_a_map(&found.files) => library.skipped.push((
                 relative,
                 format!("{images} image file(s), none named as a material map"),
             )),

@@ -20,7 +20,7 @@ pub struct BuiltIn {
 }
 
 /// The networks matup's defaults name: the SPAN ×4 tuned for material maps
-/// (`onnx:span_x4_materials`, the default at ×4 and ×16) and stock SPAN ×4
+/// (`onnx:span_x4_materials`, the default at every scale) and stock SPAN ×4
 /// (`onnx:span_x4_ch48`). `models/README.md` is their model card.
 pub const BUILT_IN: [BuiltIn; 2] = [
     BuiltIn {
