@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use matup_core::io::{check_output_folder, save_png, write_atomic, MaterialWriter, SaveOptions};
 use matup_core::material::Material;
 use matup_core::progress::Progress;
+use matup_core::shading::shading_model;
 use matup_core::{Error, Result};
+use matup_method::config::choose_upsampler;
 use matup_method::pipeline::{output_size, upscale_streamed};
 use matup_method::preview::{preview_of_centre, PreviewWindow};
 use matup_method::report::{peak_memory_mib, RunReport};
@@ -44,6 +46,12 @@ pub fn upscale_to_folder(
     if out.exists() && !out.is_dir() {
         return Err(Error::file(out, "output exists and is not a folder"));
     }
+    // Settings that cannot run (an unknown upsampler or shading model, a size that cannot be
+    // reached) are refused before the folder is made.
+    config.validate()?;
+    choose_upsampler(config)?;
+    shading_model(&config.shading.parse()?)?;
+    let size = output_size(material, config)?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let checkpoints = out.join(CHECKPOINT_FOLDER);
     let options = RunOptions {
@@ -52,7 +60,6 @@ pub fn upscale_to_folder(
         oracle: None,
         memory_limit,
     };
-    let size = output_size(material, config)?;
     let mut maps = MaterialWriter::new(out, size, material.origin.as_ref(), save)?;
     let mut centre = PreviewWindow::new(size);
     let mut report = upscale_streamed(material, config, &options, progress, &mut |first, band| {

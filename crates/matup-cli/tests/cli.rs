@@ -203,6 +203,10 @@ fn upscale_error_paths_are_clear() {
             "unsupported scale ×5; use 2, 3, 4, 8 or 16",
         ),
         (&["--window", "16"], "filter.window must be odd"),
+        (&["--size", "64"], "not larger than the 128×128 input"),
+        (&["--size", "3000"], "more than ×16 of the 128×128 input"),
+        (&["--size", "big"], "give texels as 4096, 4K or 4096x2048"),
+        (&["--size", "256", "--scale", "2"], "cannot be used with"),
         (&["--loss", "l3"], "unknown loss norm 'l3'"),
     ];
     for (extra, message) in cases {
@@ -213,6 +217,10 @@ fn upscale_error_paths_are_clear() {
         assert!(!o.status.success(), "{extra:?} should fail");
         assert!(stderr(&o).contains(message), "{extra:?}: {}", stderr(&o));
     }
+    assert!(
+        !std::path::Path::new(out).exists(),
+        "a refused run leaves no output folder"
+    );
     // The output folder may not be the input folder, nor a file.
     let o = matup(&["upscale", &sample(), "-o", &sample(), "--quiet"]);
     assert!(!o.status.success());
