@@ -290,13 +290,23 @@ fn bad_models_give_clear_errors() {
     let e = error_of(&format!("onnx:{}", lonely.display()));
     assert!(e.contains("lonely.toml") && e.contains("sidecar"), "{e}");
 
-    // A ×4 network cannot make ×2.
+    // A ×4 network cannot make ×8; it makes ×2 through its ×4 and an area filter: its ×4
+    // output box-filtered by 2.
     let up = build("onnx:span_x4_ch48");
+    let render = real_render();
     let e = up
-        .upsample(&[real_render()], 2, Border::Wrap)
+        .upsample(std::slice::from_ref(&render), 8, Border::Wrap)
         .unwrap_err()
         .to_string();
-    assert!(e.contains("×2") && e.contains("×4"), "{e}");
+    assert!(e.contains("×8") && e.contains("×4"), "{e}");
+    let two = up
+        .upsample(std::slice::from_ref(&render), 2, Border::Wrap)
+        .unwrap();
+    let four = up
+        .upsample(std::slice::from_ref(&render), 4, Border::Wrap)
+        .unwrap();
+    let worst = common::max_abs_diff(&two[0], &matup::resample::box_downsample(&four[0], 2));
+    assert!(worst < 1e-5, "{worst}");
 }
 
 /// The largest difference between two upsamplers' outputs for `image` upsampled ×`scale`.

@@ -425,8 +425,10 @@ fn bands_equal_the_whole_image() {
         &Default::default(),
     )
     .unwrap();
-    // 128² → 512² in one level, 32² → 512² in two (the second in bands).
-    for (scale, side) in [(4, 128), (16, 32)] {
+    // 128² → 512² in one level, 32² → 512² in two (the second in bands); ×2 and ×3 through
+    // the network's ×4 (its intermediate counted in the plan), with limits that make 3 or more
+    // bands of each.
+    for (scale, side, limit_mib) in [(4, 128, 16), (16, 32, 16), (2, 128, 12), (3, 128, 20)] {
         let mut lr = truth.box_downsample(truth.width() / side);
         // An alpha of 0 or 1 but in its last rows: a soft alpha as a whole, which every band
         // must upsample as one (a band that reads none of those rows looks like a cutout).
@@ -445,9 +447,9 @@ fn bands_equal_the_whole_image() {
                 ..Config::default()
             };
             let whole = upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
-            // 16 MiB: bands reading about 90 LR rows of 128, 36 of them context.
+            // 16 MiB at ×4: bands reading about 90 LR rows of 128, 36 of them context.
             let limited = RunOptions {
-                memory_limit: Some(16 << 20),
+                memory_limit: Some(limit_mib << 20),
                 ..RunOptions::default()
             };
             let (banded, report) = upscale(&lr, &config, &limited, &Silent).unwrap();
