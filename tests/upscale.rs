@@ -428,7 +428,7 @@ fn bands_equal_the_whole_image() {
     // 128² → 512² in one level, 32² → 512² in two (the second in bands); ×2 and ×3 through
     // the network's ×4 (its intermediate counted in the plan), with limits that make 3 or more
     // bands of each.
-    for (scale, side, limit_mib) in [(4, 128, 16), (16, 32, 16), (2, 128, 12), (3, 128, 20)] {
+    for (scale, side, limit_mib) in [(4, 128, 16), (16, 32, 16), (2, 128, 10), (3, 128, 16)] {
         let mut lr = truth.box_downsample(truth.width() / side);
         // An alpha of 0 or 1 but in its last rows: a soft alpha as a whole, which every band
         // must upsample as one (a band that reads none of those rows looks like a cutout).
