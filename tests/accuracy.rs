@@ -370,16 +370,21 @@ fn a_crop_of_a_tileable_material_is_not_called_tileable() {
     }
 }
 
+/// Rock035, a corpus validation set (never trained on), whole at 256².
+fn rock035() -> Material {
+    matup::load_material(
+        Some(&common::test_material("ambientcg_Rock035")),
+        &Default::default(),
+    )
+    .unwrap()
+}
+
 #[test]
 fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
     // A corpus validation set (never trained on), the whole set at 256² → 64² → ×4, scored as
     // `matup sweep` scores (16 held-out lights): what docs/experiments/2026-11-25-zoomed-out-crops.md
     // measures on 512² crops.
-    let truth = matup::load_material(
-        Some(&common::test_material("ambientcg_Rock035")),
-        &Default::default(),
-    )
-    .unwrap();
+    let truth = rock035();
     let lr = truth.box_downsample(4);
     let lights = LightSetSpec::held_out(16);
     let ggx = shading_model(&"ggx".parse().unwrap()).unwrap();
@@ -424,11 +429,7 @@ fn every_scale_runs_the_tuned_network_through_its_own_scale() {
     // A corpus validation set (never trained on), scored as `matup sweep` scores: ×2 from 128²
     // and ×3 from 85², each against the former default (Lanczos-3, back-projected) and
     // Lanczos-3 per map; sweeps/x2_route.toml and x3_route.toml measure the same on 16 sets.
-    let whole = matup::load_material(
-        Some(&common::test_material("ambientcg_Rock035")),
-        &Default::default(),
-    )
-    .unwrap();
+    let whole = rock035();
     let lights = LightSetSpec::held_out(16);
     let ggx = shading_model(&"ggx".parse().unwrap()).unwrap();
     let lanczos = upsampler(&"lanczos3".parse().unwrap()).unwrap();

@@ -70,44 +70,10 @@ pub fn upscale_streamed(
     config.validate()?;
     let input = [material.width(), material.height_px()];
     let reach = config.reach(input)?;
-    if let Some(size) = reach.shrink_to {
-        // No whole scale reaches the size asked for: the output is made whole at the scale
-        // past it, then shrunk by area, and handed over as one band.
-        progress.note(&format!(
-            "output {}×{}: {}",
-            size[0],
-            size[1],
-            reach.describe()
-        ));
-        let whole_config = Config {
-            scale: reach.scale,
-            size: None,
-            ..config.clone()
-        };
-        let mut assembler = Assembler::new(input[1] * reach.scale);
-        let mut report = upscale_streamed(
-            material,
-            &whole_config,
-            options,
-            progress,
-            &mut |first, band| {
-                assembler.add(first, band);
-                Ok(())
-            },
-        )?;
-        let whole = assembler.finish().expect("a run makes at least one band");
-        sink(0, &whole.area_resize(size[0], size[1]))?;
-        report.config.size = config.size;
-        report.route = reach.describe();
-        report.output_size = size;
-        return Ok(report);
-    }
     let asked_size = config.size;
-    if let Some(size) = asked_size {
-        progress.note(&format!("output {size}: {}", reach.describe()));
-    }
+    // A size asked for runs as the scale that reaches it.
     let resolved;
-    let config = if config.size.is_some() {
+    let config = if asked_size.is_some() {
         resolved = Config {
             scale: reach.scale,
             size: None,
@@ -117,6 +83,31 @@ pub fn upscale_streamed(
     } else {
         config
     };
+    if let Some(size) = reach.shrink_to {
+        // No whole scale reaches the size asked for: the output is made whole at the scale
+        // past it, then shrunk by area, and handed over as one band.
+        progress.note(&format!(
+            "output {}×{}: {}",
+            size[0],
+            size[1],
+            reach.describe()
+        ));
+        let mut assembler = Assembler::new(input[1] * reach.scale);
+        let mut report =
+            upscale_streamed(material, config, options, progress, &mut |first, band| {
+                assembler.add(first, band);
+                Ok(())
+            })?;
+        let whole = assembler.finish().expect("a run makes at least one band");
+        sink(0, &whole.area_resize(size[0], size[1]))?;
+        report.config.size = asked_size;
+        report.route = reach.describe();
+        report.output_size = size;
+        return Ok(report);
+    }
+    if let Some(size) = asked_size {
+        progress.note(&format!("output {size}: {}", reach.describe()));
+    }
     let start = Instant::now();
     let mut timings = Vec::new();
     let mut skipped = Vec::new();
