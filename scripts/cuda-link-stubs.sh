@@ -1,6 +1,7 @@
 #!/bin/sh
 # Link-time stand-ins for the CUDA libraries that candle's `cuda` feature links (through cudarc's
-# `dynamic-linking`): libcuda (the driver's), libcublas, libcublasLt and libcurand. With them
+# `dynamic-linking`): libcuda (the driver's), libcublas, libcublasLt, libcurand and, for the
+# `cudnn` feature, libcudnn. With them
 # `cargo build --features cuda` links on a machine without the NVIDIA driver or the (large) cuBLAS
 # wheels; at run time the loader takes the real libraries by their sonames. No crate makes such
 # stubs; each is one empty function per name cudarc declares, which is all a link needs.
@@ -18,3 +19,4 @@ stub cuda libcuda.so.1 "$cudarc/src/driver/sys/mod.rs"
 stub cublas libcublas.so.13 "$cudarc/src/cublas/sys/mod.rs"
 stub cublasLt libcublasLt.so.13 "$cudarc/src/cublaslt/sys/mod.rs"
 stub curand libcurand.so.10 "$cudarc/src/curand/sys/mod.rs"
+stub cudnn libcudnn.so.9 "$cudarc/src/cudnn/sys/mod.rs" # the `cudnn` feature's

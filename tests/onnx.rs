@@ -379,6 +379,48 @@ fn the_candle_graph_matches_matups_executor_on_both_shipped_networks() {
     }
 }
 
+/// `precision=f16` on the candle engine (what a GPU runs), here on candle's CPU device: the
+/// network computes in half-size values, so its output moves, by less than an 8-bit level on
+/// a real render (the GPU's whole path moved the files by up to 6: docs/experiments/
+/// 2026-11-26-gpu-time-and-precision.md). TF32 and bf16, a GPU's alone, and half precision
+/// on the CPU's own engines are refused.
+#[test]
+fn half_precision_moves_the_network_by_under_an_8_bit_level() {
+    let image = real_render();
+    let f32 = build("onnx:span_x4_materials,engine=candle,tile=64");
+    let want = f32
+        .upsample(std::slice::from_ref(&image), 4, Border::Mirror)
+        .unwrap();
+    let half = build("onnx:span_x4_materials,engine=candle,tile=64,precision=f16");
+    let got = half
+        .upsample(std::slice::from_ref(&image), 4, Border::Mirror)
+        .unwrap();
+    let diff = common::max_abs_diff(&want[0], &got[0]);
+    let mean = (want[0].data().iter().zip(got[0].data()))
+        .map(|(a, b)| (a - b).abs())
+        .sum::<f32>()
+        / want[0].data().len() as f32;
+    println!("f16: max |f16 − f32| {diff:e}, mean {mean:e}");
+    // Not equal: the half-size values are rounded.
+    assert!(diff > 1e-5 && diff < 1.0 / 255.0, "f16: {diff}");
+    for refused in [
+        "onnx:span_x4_materials,engine=candle,precision=tf32",
+        "onnx:span_x4_materials,engine=candle,precision=bf16",
+        "onnx:span_x4_materials,engine=matup,precision=f16",
+        "onnx:span_x4_materials,engine=candle,precision=f64",
+    ] {
+        let err = upsampler(&refused.parse::<PluginSpec>().unwrap())
+            .err()
+            .expect(refused)
+            .to_string();
+        println!("{refused}: {err}");
+        assert!(
+            err.contains("precision") || err.contains("GPU"),
+            "{refused}: {err}"
+        );
+    }
+}
+
 #[test]
 fn a_tileable_image_run_whole_with_wrapping_convolutions_matches_wrap_around_tiles() {
     let image = real_render();

@@ -12,12 +12,17 @@
 //! same repeated 2 × 2 → 8K² and 4 × 4 → 16K²; a library of 100 materials (128² crops of the
 //! repository's test materials) through `matup batch`. Settings, by environment variable:
 //! - `MATUP_BIN`: the `matup` binary to run (default: this build's);
+//! - `MATUP_REPO`: the repository whose sample and test materials the rows read (default:
+//!   this build's);
 //! - `MATUP_BENCH_MATERIAL`: the 1K² material (default `../shared/materials/ambientcg_Metal053C`);
 //! - `MATUP_BENCH_ROWS`: which rows, of `main,1k,2k,4k,library` (default all);
 //! - `MATUP_BENCH_CPU_ROWS`: the rows also run on the CPU (default `main,1k,2k,library`:
 //!   4K² → 16K² takes about 11 minutes on 2 cores);
 //! - `MATUP_BENCH_HOST_ROWS`: the rows also run with `--upsampler bicubic` on the CPU (default
-//!   `1k`): the CPU's part of the path alone, what a GPU's host does besides the network.
+//!   `1k`): the CPU's part of the path alone, what a GPU's host does besides the network;
+//! - `MATUP_BENCH_GPU_VARIANTS`: options of the network (`;` between variants, e.g.
+//!   `precision=tf32;precision=f16`) each also run on the GPU, on the rows of
+//!   `MATUP_BENCH_VARIANT_ROWS` (default `1k`), their maps compared with the CPU's.
 
 mod common;
 
@@ -33,9 +38,15 @@ use matup_core::io::encode_map;
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material, NormalConvention};
 use matup_core::{load_material, save_material, LoadOptions, SaveOptions};
+use matup_method::config::MATERIAL_NETWORK;
 
+/// The repository's root: `MATUP_REPO`, for a bench binary carried to another machine, else
+/// this build's.
 fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+    std::env::var_os("MATUP_REPO").map_or(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../.."),
+        PathBuf::from,
+    )
 }
 
 fn matup() -> PathBuf {
@@ -237,6 +248,13 @@ fn main() {
     let rows = list("MATUP_BENCH_ROWS", "main,1k,2k,4k,library");
     let cpu_rows = list("MATUP_BENCH_CPU_ROWS", "main,1k,2k,library");
     let host_rows = list("MATUP_BENCH_HOST_ROWS", "1k");
+    let variant_rows = list("MATUP_BENCH_VARIANT_ROWS", "1k");
+    let variants: Vec<String> = std::env::var("MATUP_BENCH_GPU_VARIANTS")
+        .unwrap_or_default()
+        .split(';')
+        .map(|s| s.trim().to_string())
+        .filter(|s| !s.is_empty())
+        .collect();
     let material = std::env::var_os("MATUP_BENCH_MATERIAL").map_or(
         repo().join("../shared/materials/ambientcg_Metal053C"),
         PathBuf::from,
@@ -290,35 +308,47 @@ fn main() {
             other => panic!("unknown row '{other}': use main, 1k, 2k, 4k, library"),
         };
         // (what the table calls the run, its settings, whether its maps are compared)
-        let mut runs: Vec<(&str, &[&str], bool)> = vec![];
+        let mut runs: Vec<(String, Vec<String>, bool)> = vec![];
+        let settings = |s: &[&str]| s.iter().map(|s| s.to_string()).collect::<Vec<_>>();
         if cpu_rows.contains(row) {
-            runs.push(("cpu", &["--device", "cpu"], true));
+            runs.push(("cpu".into(), settings(&["--device", "cpu"]), true));
         }
         if gpu {
-            runs.push(("cuda", &["--device", "cuda"], true));
+            runs.push(("cuda".into(), settings(&["--device", "cuda"]), true));
+            if variant_rows.contains(row) {
+                for options in &variants {
+                    let upsampler = format!("{MATERIAL_NETWORK},{options}");
+                    let run = settings(&["--device", "cuda", "--upsampler", &upsampler]);
+                    runs.push((format!("cuda, {options}"), run, true));
+                }
+            }
         }
         if host_rows.contains(row) {
-            let bicubic: &[&str] = &["--device", "cpu", "--upsampler", "bicubic"];
-            runs.push(("cpu, bicubic for the network", bicubic, false));
+            let bicubic = settings(&["--device", "cpu", "--upsampler", "bicubic"]);
+            runs.push(("cpu, bicubic for the network".into(), bicubic, false));
         }
         let mut outputs = vec![];
         for (i, (device, settings, compared)) in runs.into_iter().enumerate() {
             let out = scratch.path().join(format!("{row}-{i}"));
             let label = format!("{name}, {device}");
             eprintln!("running {label}");
+            let settings: Vec<&str> = settings.iter().map(|s| s.as_str()).collect();
             let m = if row == "library" {
-                batch(&label, &input, &out, settings)
+                batch(&label, &input, &out, &settings)
             } else {
-                upscale(&label, &input, &out, settings)
+                upscale(&label, &input, &out, &settings)
             };
-            table.push((name.clone(), device, m));
             if compared {
-                outputs.push(out);
+                outputs.push((device.clone(), out));
             }
+            table.push((name.clone(), device, m));
         }
-        if let ([cpu, gpu], true) = (&outputs[..], row != "library") {
-            let apart = levels_apart(cpu, gpu);
-            println!("{name}: CPU and GPU maps at most {apart:.2} of 255 apart");
+        // Every GPU run's maps against the CPU's (the first compared run, where it ran).
+        if let (Some((first, cpu)), true) = (outputs.first(), row != "library") {
+            for (device, out) in outputs.iter().skip(1).filter(|_| first == "cpu") {
+                let apart = levels_apart(cpu, out);
+                println!("{name}: {device} maps at most {apart:.2} of 255 from the CPU's");
+            }
         }
     }
     println!(

@@ -43,7 +43,9 @@ pub use source::{
     available_models, model_dirs, read_sidecar, read_sidecar_file, resolve, BuiltIn, ModelSource,
     BUILT_IN,
 };
-pub use tensors::{depth_to_space, in_channel_order, per_texel, run_steps, unit_rgb, TensorNet};
+pub use tensors::{
+    depth_to_space, in_channel_order, per_texel, run_steps, unit_rgb, Precision, TensorNet,
+};
 pub use tract_onnx::pb::ModelProto;
 
 /// What a sidecar `NAME.toml` says about `NAME.onnx`.
@@ -98,13 +100,13 @@ pub fn read_graph(path: &Path) -> Result<(ModelProto, Graph)> {
 
 /// Which engine runs a network: `auto` picks matup's executor where the graph allows;
 /// `Candle` runs the executor's graph as candle operations on a device (`cpu`, `cuda`,
-/// `cuda:N`).
+/// `cuda:N`) at a precision.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum EngineChoice {
     Auto,
     Matup,
     Tract,
-    Candle(String),
+    Candle(String, Precision),
 }
 
 /// What runs the network.
@@ -203,7 +205,9 @@ impl OnnxUpsampler {
             ));
         }
         let engine = match &choice {
-            EngineChoice::Candle(device) => candle_engine(&source, &proto, device)?,
+            EngineChoice::Candle(device, precision) => {
+                candle_engine(&source, &proto, device, *precision)?
+            }
             EngineChoice::Tract => tract_engine(&source, "engine=tract was asked for".into())?,
             EngineChoice::Auto | EngineChoice::Matup => match ConvNet::from_model(&proto) {
                 Ok(net) => Engine::Matup { net, pool: None },
@@ -435,15 +439,35 @@ fn free_memory(device: &candle_core::Device) -> candle_core::Result<usize> {
 
 /// The candle engine for `proto` on `device`: the executor's graph, its weights uploaded once,
 /// and the device's free memory, which sets how many tiles a call runs.
-fn candle_engine(source: &ModelSource, proto: &ModelProto, device: &str) -> Result<Engine> {
+fn candle_engine(
+    source: &ModelSource,
+    proto: &ModelProto,
+    device: &str,
+    precision: Precision,
+) -> Result<Engine> {
     let graph =
         Graph::from_model(proto).map_err(|e| source.error("matup's executor cannot run it", e))?;
+    if matup_core::tensor::cuda_ordinal(device)?.is_some() {
+        keep_f32_convolutions(precision);
+    }
     let device = matup_core::tensor::parse_device(device)?;
     let on = format!("on {}", device_name(&device));
     let failed = |e: candle_core::Error| source.error(&on, e);
-    let net = TensorNet::new(graph, &device).map_err(failed)?;
+    let net = TensorNet::new(graph, &device, precision).map_err(failed)?;
     let free = free_memory(&device).map_err(failed)?;
     Ok(Engine::Candle { net, free })
+}
+
+/// cuDNN (the `cudnn` feature) runs f32 convolutions with TF32 inputs on Ampere and later
+/// GPUs unless told not to: on an H200 that put a few texels of Metal053C's maps 5 levels off
+/// the CPU's, against 1 with `NVIDIA_TF32_OVERRIDE=0` (docs/experiments/
+/// 2026-11-26-gpu-time-and-precision.md). NVIDIA's libraries read that variable when they
+/// start, so it is set before the device is opened, unless `precision=tf32` asks for TF32 or
+/// the user set it.
+fn keep_f32_convolutions(precision: Precision) {
+    if precision != Precision::Tf32 && std::env::var_os("NVIDIA_TF32_OVERRIDE").is_none() {
+        std::env::set_var("NVIDIA_TF32_OVERRIDE", "0");
+    }
 }
 
 /// tract's engine for the network `source`, which matup's executor does not run `because`.
@@ -981,13 +1005,18 @@ const OPTIONS: &[PluginOption] = &[
         help: "where the network runs: cpu, or cuda[:N] (candle, a build with --features cuda)",
     },
     PluginOption {
+        key: "precision",
+        default: "f32",
+        help: "what the candle engine computes in: f32, tf32 (a GPU's tensor cores, f32 values), f16 or bf16 (half-size values, products summed in f32)",
+    },
+    PluginOption {
         key: "sidecar",
         default: "",
         help: "the model's sidecar TOML (default: NAME.toml beside NAME.onnx)",
     },
 ];
 
-/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E,device=D,sidecar=PATH]`, MODEL a path to a `.onnx` file or a name in the
+/// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E,device=D,precision=P,sidecar=PATH]`, MODEL a path to a `.onnx` file or a name in the
 /// model folders.
 fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let argument = argument.unwrap_or("");
@@ -1001,9 +1030,28 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let values = parse_options("onnx", Some(options), OPTIONS)?;
     let device = values["device"].clone();
     let on_gpu = matup_core::tensor::cuda_ordinal(&device)?.is_some();
+    let precision = Precision::parse(&values["precision"]).ok_or_else(|| Error::Plugin {
+        plugin: "onnx".into(),
+        message: format!(
+            "precision '{}': known precisions are {}",
+            values["precision"],
+            Precision::NAMES
+        ),
+    })?;
+    let candle = values["engine"] == "candle" || (values["engine"] == "auto" && on_gpu);
+    if precision != Precision::F32 && !candle {
+        return Err(Error::Plugin {
+            plugin: "onnx".into(),
+            message: format!(
+                "precision={} is the candle engine's (engine=candle, or a GPU device); \
+                 matup's executor and tract compute in f32",
+                values["precision"]
+            ),
+        });
+    }
     let choice = match values["engine"].as_str() {
-        "auto" if on_gpu => EngineChoice::Candle(device),
-        "candle" => EngineChoice::Candle(device),
+        "auto" if on_gpu => EngineChoice::Candle(device, precision),
+        "candle" => EngineChoice::Candle(device, precision),
         "auto" => EngineChoice::Auto,
         "matup" if !on_gpu => EngineChoice::Matup,
         "tract" if !on_gpu => EngineChoice::Tract,

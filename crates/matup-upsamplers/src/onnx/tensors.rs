@@ -70,7 +70,7 @@ pub fn per_texel(x: &Tensor, chain: &[PerTexel]) -> candle_core::Result<Tensor> 
         let per_channel = |values: &[f32]| -> candle_core::Result<Tensor> {
             let n = values.len();
             debug_assert!(n == 1 || n == channels);
-            Tensor::from_slice(values, (1, n, 1, 1), x.device())
+            Tensor::from_slice(values, (1, n, 1, 1), x.device())?.to_dtype(x.dtype())
         };
         x = match op {
             // As (tanh(x/2) + 1)/2: 1/(1 + e^−x) overflows for very negative x, and its
@@ -163,17 +163,81 @@ struct Kernel {
     bias: Option<Tensor>,
 }
 
+/// What a [`TensorNet`] computes in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Precision {
+    /// f32 throughout.
+    #[default]
+    F32,
+    /// f32 values, the convolutions' matrix products on a GPU's tensor cores with TF32 inputs
+    /// (10-bit mantissas), accumulating in f32: cuBLAS's setting, a GPU's alone.
+    Tf32,
+    /// Half-size values and weights; the matrix products accumulate in f32 (candle's cuBLAS
+    /// default for them).
+    F16,
+    /// As f16, with 8-bit mantissas and f32's range; a GPU's alone.
+    Bf16,
+}
+
+impl Precision {
+    pub const NAMES: &'static str = "f32, tf32, f16, bf16";
+
+    pub fn parse(name: &str) -> Option<Precision> {
+        Some(match name {
+            "f32" => Precision::F32,
+            "tf32" => Precision::Tf32,
+            "f16" => Precision::F16,
+            "bf16" => Precision::Bf16,
+            _ => return None,
+        })
+    }
+
+    /// The name `precision=` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::Tf32 => "tf32",
+            Precision::F16 => "f16",
+            Precision::Bf16 => "bf16",
+        }
+    }
+
+    /// The dtype values and weights are held in.
+    pub fn dtype(self) -> DType {
+        match self {
+            Precision::F32 | Precision::Tf32 => DType::F32,
+            Precision::F16 => DType::F16,
+            Precision::Bf16 => DType::BF16,
+        }
+    }
+}
+
 /// A network of matup's executor as candle operations on one device, its weights uploaded
-/// once.
+/// once, computing at `precision`.
 pub struct TensorNet {
     graph: Graph,
     kernels: Vec<Option<Kernel>>,
     device: Device,
+    precision: Precision,
 }
 
 impl TensorNet {
-    /// `graph` with its convolution weights uploaded to `device`.
-    pub fn new(graph: Graph, device: &Device) -> candle_core::Result<TensorNet> {
+    /// `graph` with its convolution weights uploaded to `device`, to run at `precision`
+    /// (TF32 only on a GPU).
+    pub fn new(
+        graph: Graph,
+        device: &Device,
+        precision: Precision,
+    ) -> candle_core::Result<TensorNet> {
+        match precision {
+            Precision::Tf32 | Precision::Bf16 if !device.is_cuda() => candle_core::bail!(
+                "precision {} runs on a GPU alone (candle's CPU has no such matrix product): \
+                 on the CPU use f32 or f16",
+                precision.name()
+            ),
+            _ => {}
+        }
+        let dtype = precision.dtype();
         let kernels = (graph.steps.iter())
             .map(|step| {
                 let Op::Conv(conv, _) = &step.op else {
@@ -181,9 +245,10 @@ impl TensorNet {
                 };
                 let [cout, cin, kh, kw] = conv.shape;
                 Ok(Some(Kernel {
-                    weights: Tensor::from_slice(&conv.weights, (cout, cin, kh, kw), device)?,
+                    weights: Tensor::from_slice(&conv.weights, (cout, cin, kh, kw), device)?
+                        .to_dtype(dtype)?,
                     bias: (conv.bias.as_ref())
-                        .map(|b| Tensor::from_slice(b, (1, cout, 1, 1), device))
+                        .map(|b| Tensor::from_slice(b, (1, cout, 1, 1), device)?.to_dtype(dtype))
                         .transpose()?,
                 }))
             })
@@ -192,6 +257,7 @@ impl TensorNet {
             graph,
             kernels,
             device: device.clone(),
+            precision,
         })
     }
 
@@ -199,16 +265,19 @@ impl TensorNet {
         &self.device
     }
 
-    /// [`tile_cost`] of this network.
+    /// [`tile_cost`] of this network, in its own dtype.
     pub fn tile_cost(&self, h: usize, w: usize) -> TileCost {
-        tile_cost(&self.graph, h, w)
+        tile_cost(&self.graph, h, w, self.precision.dtype())
     }
 
-    /// The network on `input` (`[B, 3, H, W]` f32, the network's own value range and channel
-    /// order), its convolutions padding as `padding` says.
+    /// The network on `input` (`[B, 3, H, W]`, the network's own value range and channel
+    /// order), its convolutions padding as `padding` says; the output is f32 whatever the
+    /// network computes in.
     pub fn run(&self, input: Tensor, padding: Padding) -> candle_core::Result<Tensor> {
         let g = &self.graph;
-        run_steps(&g.steps, g.values, g.output, input, |index, x| {
+        let input = input.to_dtype(self.precision.dtype())?;
+        let _tf32 = Tf32::allowed_while(self.precision == Precision::Tf32);
+        let out = run_steps(&g.steps, g.values, g.output, input, |index, x| {
             let k = self.kernels[index]
                 .as_ref()
                 .expect("a convolution step has weights");
@@ -228,7 +297,38 @@ impl TensorNet {
                 Some(b) => y.broadcast_add(b),
                 None => Ok(y),
             }
-        })
+        })?;
+        out.to_dtype(DType::F32)
+    }
+}
+
+/// cuBLAS's TF32 setting, a process-wide flag in candle, allowed while this lives and put
+/// back after (the training in the same process keeps its f32 products).
+struct Tf32 {
+    #[cfg(feature = "cuda")]
+    before: bool,
+}
+
+impl Tf32 {
+    fn allowed_while(allowed: bool) -> Tf32 {
+        #[cfg(feature = "cuda")]
+        {
+            let before = candle_core::cuda::gemm_reduced_precision_f32();
+            candle_core::cuda::set_gemm_reduced_precision_f32(allowed || before);
+            Tf32 { before }
+        }
+        #[cfg(not(feature = "cuda"))]
+        {
+            let _ = allowed;
+            Tf32 {}
+        }
+    }
+}
+
+#[cfg(feature = "cuda")]
+impl Drop for Tf32 {
+    fn drop(&mut self) {
+        candle_core::cuda::set_gemm_reduced_precision_f32(self.before);
     }
 }
 
@@ -243,8 +343,8 @@ pub struct TileCost {
     pub largest: usize,
 }
 
-/// [`TileCost`] of `graph` on an `h × w` tile.
-pub fn tile_cost(graph: &Graph, h: usize, w: usize) -> TileCost {
+/// [`TileCost`] of `graph` on an `h × w` tile, its values held as `dtype`.
+pub fn tile_cost(graph: &Graph, h: usize, w: usize, dtype: DType) -> TileCost {
     let last_use = last_uses(&graph.steps, graph.values, graph.output);
     // Per value: channels × the square of its scale, its floats per input texel.
     let mut floats = vec![0usize; graph.values];
@@ -289,7 +389,7 @@ pub fn tile_cost(graph: &Graph, h: usize, w: usize) -> TileCost {
         }
     }
     TileCost {
-        bytes: peak * h * w * DType::F32.size_in_bytes(),
+        bytes: peak * h * w * dtype.size_in_bytes(),
         largest: largest * h * w,
     }
 }
