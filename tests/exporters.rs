@@ -194,9 +194,7 @@ fn decoded(dir: &Path, files: &[File]) -> Material {
     if let Some((image, i, src)) = find(&|s| s == Src::Rough || s == Src::Smooth) {
         let values = plane(&image, i);
         let inverted = src == Src::Smooth;
-        m.roughness = to_map(values)
-            .map_values(move |v| if inverted { 1.0 - v } else { v })
-            .map_values(|v| v.clamp(matup::material::MIN_ROUGHNESS, 1.0));
+        m.roughness = to_map(values).map_values(move |v| if inverted { 1.0 - v } else { v });
     }
     if let Some((image, i, _)) = find(&|s| s == Src::Metal) {
         m.metallic = to_map(plane(&image, i));
@@ -304,18 +302,6 @@ fn layouts() -> Vec<(&'static str, Vec<File>)> {
     ]
 }
 
-/// Whether channel `c` of the file `name` was carried as data (not read as a map).
-fn carried(material: &Material, name: &str, c: usize) -> bool {
-    let origin = material.origin.as_ref().unwrap();
-    let file = (origin.layout.iter())
-        .find(|f| f.path.file_name().unwrap() == name)
-        .unwrap();
-    matches!(
-        file.channels[c].holds,
-        matup::layout::Holds::Carried(..) | matup::layout::Holds::CarriedAlpha(_)
-    )
-}
-
 /// The mean of each 4×4 block of a plane.
 fn box4(values: &[f32], width: usize) -> Vec<f32> {
     let small = width / 4;
@@ -341,6 +327,7 @@ fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
         tileable: Some(false),
         ..Default::default()
     };
+    let mut off = Vec::new();
     for (layout, files) in layouts() {
         let dir = tempfile::tempdir().unwrap();
         let input = dir.path().join("in");
@@ -422,25 +409,17 @@ fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
                     .collect();
                 offs.sort_by(f32::total_cmp);
                 let (p90, worst) = (offs[offs.len() * 9 / 10], offs[offs.len() - 1]);
-                // Data matup carries and the normals' x and y are back-projected to within the
-                // file's precision. Colour and the maps matup renders with keep their range
-                // clamps (roughness ≥ 0.045, colour and metallic in [0, 1]), which
-                // back-projection's few rounds do not fully undo at the extremes.
-                let exact = !colour
-                    && (carried(&material, f.name, c)
-                        || matches!(src, Src::NormalDx(_) | Src::NormalGl(_)));
-                let rendered = !exact;
-                let (p90_limit, limit) = if rendered {
-                    (levels, 11.0)
-                } else {
-                    (levels, levels)
-                };
-                assert!(
-                    p90 <= p90_limit && worst <= limit,
-                    "{layout}: {} channel {c} ({src:?}) box-filters back {p90:.2} (90%), \
-                     {worst:.2} (all) levels from its input",
+                println!(
+                    "{layout}: {} channel {c} ({src:?}): {p90:.2} (90%), {worst:.2} (all) levels",
                     f.name
                 );
+                if worst > levels {
+                    off.push(format!(
+                        "{layout}: {} channel {c} ({src:?}) box-filters back {p90:.2} (90%), \
+                         {worst:.2} (all) levels from its input",
+                        f.name
+                    ));
+                }
                 if let Src::Const(v) = src {
                     let exact = (plane(&after, c).iter()).all(|&x| (x * 255.0).round() as u8 == v);
                     assert!(exact, "{layout}: {} channel {c} stays constant", f.name);
@@ -448,4 +427,5 @@ fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
             }
         }
     }
+    assert!(off.is_empty(), "{off:#?}");
 }

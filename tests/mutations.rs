@@ -1,6 +1,6 @@
-//! Bad input, as users meet it: 1,000 damaged map files (truncated, bytes flipped, header fields
-//! changed, junk appended) in every format matup reads go through the material loader and
-//! `matup upscale`'s folder-to-folder run. Each either loads and upscales, or is refused with
+//! Bad input, as users meet it: 1,600 damaged map files (truncated, bytes flipped, header fields
+//! changed, junk appended) in every format matup reads, and in the packed layouts of glTF,
+//! Unreal and Unity, go through the material loader and `matup upscale`'s folder-to-folder run. Each either loads and upscales, or is refused with
 //! an error that names the file; nothing panics, and the input folder is never touched.
 //! `.ci/run` runs this test with its output shown, so CI prints the counts.
 
@@ -11,7 +11,8 @@ use std::path::{Path, PathBuf};
 
 use matup::config::Config;
 use matup::folder::upscale_to_folder;
-use matup::material::{FileFormat, MapKind};
+use matup::io::Names;
+use matup::material::FileFormat;
 use matup::progress::Silent;
 use matup::{load_material, save_material, LoadOptions, SaveOptions};
 use rand::{Rng, SeedableRng};
@@ -81,6 +82,78 @@ fn snapshot(folder: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         .collect()
 }
 
+/// The exporters' packed layouts, made of the maps of `matup` (a folder in matup's own PNG
+/// layout) into `dir`: glTF's metallicRoughness (G roughness, B metallic), Unreal's
+/// OcclusionRoughnessMetallic, Unity HDRP's RGBA base map and mask map (R metallic, G
+/// occlusion, B detail mask, A smoothness).
+fn packed_layouts(matup: &Path, dir: &Path) -> Vec<(&'static str, PathBuf)> {
+    let grey = |name: &str| image::open(matup.join(name)).unwrap().to_luma8();
+    let (rough, metal) = (grey("roughness.png"), grey("metallic.png"));
+    let base = image::open(matup.join("baseColor.png")).unwrap().to_rgb8();
+    let (w, h) = rough.dimensions();
+    let packed = |texel: &dyn Fn(u8, u8) -> [u8; 4], channels: usize| -> image::DynamicImage {
+        let data: Vec<u8> = (rough.pixels().zip(metal.pixels()))
+            .flat_map(|(r, m)| texel(r.0[0], m.0[0])[..channels].to_vec())
+            .collect();
+        match channels {
+            3 => image::RgbImage::from_raw(w, h, data).unwrap().into(),
+            _ => image::RgbaImage::from_raw(w, h, data).unwrap().into(),
+        }
+    };
+    let rgba_base: image::DynamicImage = image::DynamicImage::ImageRgb8(base).to_rgba8().into();
+    let layouts: [(&str, Vec<(&str, image::DynamicImage)>); 3] = [
+        (
+            "glTF",
+            vec![
+                (
+                    "Mat_metallicRoughness.png",
+                    packed(&|r, m| [255, r, m, 0], 3),
+                ),
+                (
+                    "Mat_baseColor.png",
+                    image::open(matup.join("baseColor.png")).unwrap(),
+                ),
+            ],
+        ),
+        (
+            "Unreal",
+            vec![
+                (
+                    "T_Mat_OcclusionRoughnessMetallic.png",
+                    packed(&|r, m| [255, r, m, 0], 3),
+                ),
+                (
+                    "T_Mat_BaseColor.png",
+                    image::open(matup.join("baseColor.png")).unwrap(),
+                ),
+            ],
+        ),
+        (
+            "Unity",
+            vec![
+                ("Mat_MaskMap.png", packed(&|r, m| [m, 255, 255, 255 - r], 4)),
+                ("Mat_BaseMap.png", rgba_base),
+            ],
+        ),
+    ];
+    layouts
+        .into_iter()
+        .map(|(name, files)| {
+            let folder = dir.join(format!("template-{name}"));
+            std::fs::create_dir_all(&folder).unwrap();
+            for (file, image) in files {
+                image.save(folder.join(file)).unwrap();
+            }
+            let normal = match name {
+                "Unreal" => "T_Mat_Normal.png",
+                _ => "Mat_Normal.png",
+            };
+            std::fs::copy(matup.join("normal.png"), folder.join(normal)).unwrap();
+            (name, folder)
+        })
+        .collect()
+}
+
 /// What happened to one damaged file.
 enum Outcome {
     Upscaled,
@@ -107,19 +180,39 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
     let mut counts: BTreeMap<(String, Damage), [usize; 2]> = BTreeMap::new();
     let mut panics = Vec::new();
-    for format in FORMATS {
-        let template = scratch.path().join(format!("template-{format}"));
-        let options = SaveOptions {
-            format: Some(format),
-            ..SaveOptions::default()
-        };
-        save_material(&sample, &template, &options).unwrap();
-        let files: Vec<PathBuf> = snapshot(&template).into_keys().collect();
-        assert_eq!(files.len(), 5, "{format}: five maps");
+    // Every format in matup's own layout (five maps), then the packed layouts (three files).
+    let mut templates: Vec<(String, PathBuf)> = FORMATS
+        .iter()
+        .map(|&format| {
+            let template = scratch.path().join(format!("template-{format}"));
+            let options = SaveOptions {
+                format: Some(format),
+                ..SaveOptions::default()
+            };
+            save_material(&sample, &template, &options).unwrap();
+            assert_eq!(snapshot(&template).len(), 5, "{format}: five maps");
+            (format.to_string(), template)
+        })
+        .collect();
+    let png = templates[0].1.clone();
+    for (name, folder) in packed_layouts(&png, scratch.path()) {
+        assert_eq!(snapshot(&folder).len(), 3, "{name}: three files");
+        templates.push((format!("{name} packed"), folder));
+    }
+    let save_options = SaveOptions {
+        names: Names::Keep,
+        ..SaveOptions::default()
+    };
+    for (format, template) in &templates {
+        let files: Vec<PathBuf> = snapshot(template).into_keys().collect();
         for damage in DAMAGES {
             for case in 0..50 {
-                let folder = scratch.path().join(format!("input-{format}"));
-                let out = scratch.path().join(format!("output-{format}"));
+                let folder = scratch
+                    .path()
+                    .join(format!("input-{format}").replace(' ', "-"));
+                let out = scratch
+                    .path()
+                    .join(format!("output-{format}").replace(' ', "-"));
                 let _ = std::fs::remove_dir_all(&folder);
                 let _ = std::fs::remove_dir_all(&out);
                 std::fs::create_dir(&folder).unwrap();
@@ -141,7 +234,7 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
                         &material,
                         &config,
                         &out,
-                        &SaveOptions::default(),
+                        &save_options,
                         false,
                         None,
                         None,
@@ -155,12 +248,11 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
                         continue;
                     }
                     Ok(Ok(_)) => {
-                        let maps = out.join(format!(
-                            "{}.{}",
-                            MapKind::BaseColor.file_stem(),
-                            format.extension()
-                        ));
-                        assert!(maps.is_file(), "{what}: upscaled, so written");
+                        // Every file back under its name.
+                        for file in &files {
+                            let back = out.join(file.file_name().unwrap());
+                            assert!(back.is_file(), "{what}: upscaled, so {back:?} written");
+                        }
                         Outcome::Upscaled
                     }
                     Ok(Err(e)) => {
@@ -181,7 +273,7 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
     println!("damaged files: upscaled / refused by name");
     for ((format, damage), [upscaled, refused]) in &counts {
         let damage = format!("{damage:?}");
-        println!("  {format:<9} {damage:<14} {upscaled:>3} / {refused:>3}");
+        println!("  {format:<13} {damage:<14} {upscaled:>3} / {refused:>3}");
     }
     let (upscaled, refused) = counts
         .values()
@@ -192,7 +284,7 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
         panics.len()
     );
     assert!(panics.is_empty(), "panics: {panics:?}");
-    assert_eq!(upscaled + refused, 1000);
+    assert_eq!(upscaled + refused, 1600);
     // Both happen: damage a decoder cannot see (a flipped JPEG byte) upscales, a truncated
     // file is refused.
     assert!(upscaled > 0 && refused > 0);

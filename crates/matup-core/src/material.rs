@@ -8,8 +8,6 @@ use crate::map::{Dihedral, Map};
 use crate::resample::{area_resize, box_downsample, upsample, Border, Kernel};
 use crate::shading::{Svbrdf, Texel};
 
-/// Perceptual roughness is clamped to at least this on load (METHOD.md).
-pub const MIN_ROUGHNESS: f32 = 0.045;
 /// `alpha = r²` is clamped to `[MIN_ALPHA, 1]`.
 pub const MIN_ALPHA: f32 = 2e-3;
 /// Height displaces the shading point by `DISPLACEMENT · (h − ½)`.
@@ -354,13 +352,13 @@ pub fn turn_with_surface(kind: MapKind, map: &mut Map, t: Dihedral) {
     }
 }
 
-/// What [`Material::restore_invariants`] does to a map of `kind`: base colour and metallic
-/// clamped to [0, 1], roughness to [`MIN_ROUGHNESS`, 1], normals renormalised; other maps
-/// are left as they are.
+/// What [`Material::restore_invariants`] does to a map of `kind`: base colour, metallic and
+/// roughness clamped to [0, 1], normals renormalised; other maps are left as they are.
+/// Roughness keeps the file's values down to 0 (a mirror's): the shading models clamp alpha
+/// where they render ([`alpha_from_roughness`]), so nothing is lost in the maps.
 pub fn restore_map_invariants(kind: MapKind, map: &mut Map) {
     let range = match kind {
-        MapKind::BaseColor | MapKind::Metallic => 0.0..=1.0,
-        MapKind::Roughness => MIN_ROUGHNESS..=1.0,
+        MapKind::BaseColor | MapKind::Metallic | MapKind::Roughness => 0.0..=1.0,
         MapKind::Normal => return normalize_normals(map),
         _ => return,
     };

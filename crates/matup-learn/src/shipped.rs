@@ -9,12 +9,12 @@
 //! invented, and a network trained without it is judged with it.
 
 use candle_core::{Device, Tensor, D};
-use matup_core::material::{MIN_ALPHA, MIN_ROUGHNESS};
 use matup_core::resample::{upsample, Border, Kernel};
 use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
 use matup_core::Map;
 use matup_method::filter::decode::decode_tensors;
 use matup_method::filter::FEATURES;
+use matup_method::residual::SETTLE_ABOVE;
 
 /// Rounds of back-projection, as `matup_method::residual` runs them.
 pub const BACK_PROJECTIONS: usize = 3;
@@ -42,9 +42,9 @@ pub fn decode_outputs(outputs: &Tensor) -> candle_core::Result<Tensor> {
     let base = srgb_to_linear(&image(0)?.clamp(0f32, 1f32)?)?.clamp(0f32, 1f32)?;
     let normal = decode_normal_image(&image(1)?)?;
     let grey = |k: usize| image(k)?.mean_keepdim(1);
-    let roughness = grey(2)?.clamp(MIN_ROUGHNESS, 1f32)?;
+    let roughness = grey(2)?.clamp(0f32, 1f32)?;
     let metallic = grey(3)?.clamp(0f32, 1f32)?;
-    let alpha = roughness.sqr()?.clamp(MIN_ALPHA, 1f32)?;
+    let alpha = roughness.sqr()?;
     Tensor::cat(&[&base, &metallic, &normal.narrow(1, 0, 2)?, &alpha], 1)
 }
 
@@ -142,7 +142,21 @@ impl BackProjection {
             self.lo.narrow(1, first, count)?,
             self.hi.narrow(1, first, count)?,
         );
-        let mut hr = hr.clone();
+        // Alpha (feature 6) corrected as the roughness r it is stored as, as
+        // `matup_method::residual::back_project` does; floored so that √'s gradient stays
+        // finite at 0.
+        let alpha = (first..first + count).position(|k| k == ALPHA);
+        let as_roughness = |x: &Tensor| -> candle_core::Result<Tensor> {
+            match alpha {
+                Some(a) => {
+                    let r = x.narrow(1, a, 1)?.maximum(1e-12f32)?.sqrt()?;
+                    x.slice_assign(&[0..x.dim(0)?, a..a + 1, 0..x.dim(2)?, 0..x.dim(3)?], &r)
+                }
+                None => Ok(x.clone()),
+            }
+        };
+        let lr = &as_roughness(lr)?;
+        let mut hr = as_roughness(hr)?;
         for _ in 0..BACK_PROJECTIONS {
             let mismatch = (lr - hr.avg_pool2d(self.scale)?)?;
             let correction = self
@@ -152,15 +166,52 @@ impl BackProjection {
                 .broadcast_maximum(&lo)?
                 .broadcast_minimum(&hi)?;
         }
-        Ok(hr)
+        let hr = self.settle(&hr, lr, &lo, &hi)?;
+        match alpha {
+            Some(a) => {
+                let (b, _, h, w) = hr.dims4()?;
+                let squared = hr.narrow(1, a, 1)?.sqr()?;
+                hr.slice_assign(&[0..b, a..a + 1, 0..h, 0..w], &squared)
+            }
+            None => Ok(hr),
+        }
     }
 }
 
-/// The range a feature's values may take, as `matup_method::residual` keeps them.
+impl BackProjection {
+    /// `matup_method::residual::settle_blocks` on `hr` `[B, C, H, W]`: each block whose mean
+    /// misses its `lr` texel by more than `SETTLE_ABOVE` gets the miss shared in proportion to
+    /// each texel's room toward the end of `[lo, hi]` it moves to.
+    fn settle(
+        &self,
+        hr: &Tensor,
+        lr: &Tensor,
+        lo: &Tensor,
+        hi: &Tensor,
+    ) -> candle_core::Result<Tensor> {
+        let (_, _, h, w) = hr.dims4()?;
+        let blocks = |t: &Tensor| t.upsample_nearest2d(h, w);
+        let n = (self.scale * self.scale) as f64;
+        let miss = blocks(&(lr - hr.avg_pool2d(self.scale)?)?)?;
+        let up = miss.ge(0f32)?;
+        let end = up.where_cond(&hi.broadcast_as(hr.shape())?, &lo.broadcast_as(hr.shape())?)?;
+        let room = (end - hr)?.abs()?;
+        let total = blocks(&(room.avg_pool2d(self.scale)? * n)?)?;
+        let settled = (hr + (&miss * n)?.mul(&room)?.div(&total.maximum(1e-30f32)?)?)?
+            .broadcast_maximum(lo)?
+            .broadcast_minimum(hi)?;
+        let off = miss.abs()?.gt(SETTLE_ABOVE)?.mul(&total.gt(0f32)?)?;
+        off.where_cond(&settled, hr)
+    }
+}
+
+/// The feature that holds alpha (r²).
+const ALPHA: usize = 6;
+
+/// The range a feature's values may take as stored, as `matup_method::residual` keeps them.
 fn feature_range(feature: usize) -> (f32, f32) {
     match feature {
         4 | 5 => (-1.0, 1.0),
-        6 => (MIN_ALPHA, 1.0),
         _ => (0.0, 1.0),
     }
 }

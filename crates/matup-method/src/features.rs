@@ -3,7 +3,7 @@
 //! materials into them here.
 
 use matup_core::map::Map;
-use matup_core::material::{alpha_from_roughness, MapKind, Material};
+use matup_core::material::{MapKind, Material};
 
 /// The features the filter reads and answers, per texel: linear base colour (3), metallic,
 /// normal x and y, alpha.
@@ -35,8 +35,8 @@ pub const FEATURE_MAPS: [MapKind; 4] = [
 ];
 
 /// Writes the features that come from `map`, a map of `kind`, into `features`: base colour
-/// into 0–2, metallic into 3, normal x and y into 4 and 5, roughness as alpha into 6; maps of
-/// other kinds hold no feature.
+/// into 0–2, metallic into 3, normal x and y into 4 and 5, roughness as alpha (r², down to 0:
+/// the shading models clamp it where they render) into 6; maps of other kinds hold no feature.
 pub fn pack_features(features: &mut Map, kind: MapKind, map: &Map) {
     let planes: &[(usize, usize)] = match kind {
         MapKind::BaseColor => &[(0, 0), (1, 1), (2, 2)],
@@ -45,7 +45,7 @@ pub fn pack_features(features: &mut Map, kind: MapKind, map: &Map) {
         MapKind::Roughness => {
             let alpha = features.plane_mut(6);
             for (a, &r) in alpha.iter_mut().zip(map.data()) {
-                *a = alpha_from_roughness(r);
+                *a = r * r;
             }
             return;
         }

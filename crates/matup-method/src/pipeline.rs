@@ -400,9 +400,13 @@ fn run_level(
             inner.stage(&tag("height"), 1);
             hr.height = Some(timed(timings, tag("height"), || {
                 let band = (!whole).then_some(report.output_size);
-                Ok(rebuild_height(
-                    lr_height, &hr.normal, k, scale, tileable, band,
-                ))
+                let mut height = rebuild_height(lr_height, &hr.normal, k, scale, tileable, band);
+                if config.filter.back_project {
+                    // Unbounded: EXR heights may leave [0, 1].
+                    let any = |_| (f32::NEG_INFINITY, f32::INFINITY);
+                    residual::back_project_within(&mut height, lr_height, scale, ctx.border, any);
+                }
+                Ok(height)
             })?);
             inner.advance(1, None);
         }

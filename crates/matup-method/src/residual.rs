@@ -11,7 +11,7 @@ use crate::features::FEATURES;
 use crate::features::{features, pack_features};
 use crate::per_map::upscale_each_map;
 use matup_core::map::Map;
-use matup_core::material::{MapKind, Material, MIN_ALPHA};
+use matup_core::material::{MapKind, Material};
 use matup_core::resample::{
     box_downsample, for_each_upsampled_row, rows_per_task, upsample, Border, Kernel,
 };
@@ -55,6 +55,17 @@ pub fn project_onto_input(
     if config.clamp_chroma {
         // The base colour is the features' first three channels.
         clamp_chroma_to_input(base, &lr_features, scale, border);
+        if config.back_project {
+            // The clamp moves colours off their input, and settling them moves a few hues out
+            // of their range: each twice more, the later moves far smaller, ending settled.
+            // Neither a hue nor a mean was left off on the sample and the exporters' test
+            // materials (tests/colour.rs, tests/exporters.rs); one round of each left both.
+            for _ in 0..2 {
+                settle_blocks(base, &lr_features, scale, 0..3, stored_range);
+                clamp_chroma_to_input(base, &lr_features, scale, border);
+            }
+            settle_blocks(base, &lr_features, scale, 0..3, stored_range);
+        }
     }
 }
 
@@ -78,8 +89,18 @@ pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
 /// their box-downsample, what a capture at the LR size would see, comes back to `lr`: the
 /// mismatch is spread back over the output texels bilinearly, a few times. Values are kept in
 /// their ranges.
+///
+/// Each feature is corrected as its file stores it, so that the output's files box-filter back
+/// to the input's: alpha (r²) as the roughness r (a mean of r² is not the square of a mean of
+/// r, and the two drift apart by up to 10 levels where roughness varies near 0).
 pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
-    back_project_within(hr, lr, scale, border, feature_range);
+    let as_stored = |map: &mut Map| map.plane_mut(ALPHA).iter_mut().for_each(|a| *a = a.sqrt());
+    let mut lr = lr.clone();
+    as_stored(&mut lr);
+    as_stored(hr);
+    back_project_within(hr, &lr, scale, border, stored_range);
+    // sqrt(r)² gives r² back exactly (IEEE rounding), so only the corrections change alpha.
+    hr.plane_mut(ALPHA).iter_mut().for_each(|r| *r *= *r);
 }
 
 /// [`back_project`] for any map, channel `c`'s values kept in `range(c)`.
@@ -141,14 +162,77 @@ pub fn back_project_within(
                 });
         }
     }
+    settle_blocks(hr, lr, scale, 0..hr.channels(), range);
 }
 
-/// The range a feature's values may take (normal x and y: the unit disc's bounding box).
-fn feature_range(feature: usize) -> (f32, f32) {
+/// A block whose mean misses its LR texel by more than this after back-projection's rounds is
+/// settled exactly: a third of an 8-bit level even where an sRGB file is steepest (near
+/// black, 12.92× linear), a fortieth elsewhere.
+pub const SETTLE_ABOVE: f32 = 1e-4;
+
+/// Settles each `scale × scale` block of `hr`'s `channels` whose mean misses `lr`'s texel by
+/// more than [`SETTLE_ABOVE`]: the miss is shared among the block's texels in proportion to
+/// the room each has toward the end of `range(c)` it moves to, so the block's mean comes out
+/// equal to its LR texel and no value leaves the range (an unbounded end gives every texel
+/// the same share). Bilinear rounds cannot bring back a block whose texels are pinned at the
+/// range's ends (a white speck, a metal edge); this does, and touches no other block, so a
+/// file box-filters back to its input within its precision and bands need no more context.
+pub fn settle_blocks(
+    hr: &mut Map,
+    lr: &Map,
+    scale: usize,
+    channels: std::ops::Range<usize>,
+    range: impl Fn(usize) -> (f32, f32) + Sync,
+) {
+    let (w, ow) = (lr.width(), lr.width() * scale);
+    let n = (scale * scale) as f32;
+    for c in channels {
+        let (lo, hi) = range(c);
+        let lr_plane = lr.plane(c);
+        (hr.plane_mut(c).par_chunks_mut(scale * ow))
+            .zip(lr_plane.par_chunks(w))
+            .for_each(|(rows, lr_row)| {
+                for (x, &want) in lr_row.iter().enumerate() {
+                    let block = |rows: &mut [f32], f: &mut dyn FnMut(&mut f32)| {
+                        for row in rows.chunks_exact_mut(ow) {
+                            row[x * scale..(x + 1) * scale].iter_mut().for_each(&mut *f);
+                        }
+                    };
+                    let mut sum = 0.0;
+                    block(rows, &mut |v| sum += *v);
+                    let miss = want - sum / n;
+                    if miss.abs() <= SETTLE_ABOVE {
+                        continue;
+                    }
+                    let end = if miss > 0.0 { hi } else { lo };
+                    let room = |v: f32| {
+                        if end.is_finite() {
+                            (end - v).abs()
+                        } else {
+                            1.0
+                        }
+                    };
+                    let mut total = 0.0;
+                    block(rows, &mut |v| total += room(*v));
+                    if total <= 0.0 {
+                        continue;
+                    }
+                    let share = miss * n / total;
+                    block(rows, &mut |v| *v = (*v + share * room(*v)).clamp(lo, hi));
+                }
+            });
+    }
+}
+
+/// The feature that holds alpha (r²).
+const ALPHA: usize = 6;
+
+/// The range a feature's values may take as stored (normal x and y: the unit disc's bounding
+/// box; colour, metallic and roughness: [0, 1]).
+fn stored_range(feature: usize) -> (f32, f32) {
     debug_assert!(feature < FEATURES);
     match feature {
         4 | 5 => (-1.0, 1.0),
-        6 => (MIN_ALPHA, 1.0),
         _ => (0.0, 1.0),
     }
 }
@@ -239,7 +323,7 @@ mod tests {
             let start = upsample(&lr, 4, Kernel::Bicubic { a: -0.5 }, border)
                 .map_values(|v| 0.9 * v + 0.03);
             let mut fused = start.clone();
-            back_project(&mut fused, &lr, 4, border);
+            back_project_within(&mut fused, &lr, 4, border, stored_range);
             let mut apart = start;
             for _ in 0..BACK_PROJECTIONS {
                 let seen = box_downsample(&apart, 4);
@@ -249,13 +333,46 @@ mod tests {
                         .collect();
                     let mismatch = Map::from_planar(lr.width(), lr.height(), 1, mismatch);
                     let correction = upsample(&mismatch, 4, Kernel::Bilinear, border);
-                    let (lo, hi) = feature_range(c);
+                    let (lo, hi) = stored_range(c);
                     for (v, f) in apart.plane_mut(c).iter_mut().zip(correction.data()) {
                         *v = (*v + f).clamp(lo, hi);
                     }
                 }
             }
+            settle_blocks(&mut apart, &lr, 4, 0..FEATURES, stored_range);
             assert_eq!(fused.data(), apart.data(), "{border}");
+        }
+    }
+
+    #[test]
+    fn settled_blocks_average_to_their_input_even_where_texels_are_pinned() {
+        // LR texels at the range's ends and beside them, and a block upsampled far off.
+        let lr = Map::from_fn(6, 4, 1, |_, y, x| {
+            [0.0, 1.0, 0.98, 0.02, 0.5, 0.3][(x + y) % 6]
+        });
+        let mut hr = upsample(&lr, 4, Kernel::Bicubic { a: -0.5 }, Border::Mirror)
+            .map_values(|v| (0.8 * v + 0.1).clamp(0.0, 1.0));
+        back_project_within(&mut hr, &lr, 4, Border::Mirror, |_| (0.0, 1.0));
+        let seen = box_downsample(&hr, 4);
+        let worst = (seen.data().iter().zip(lr.data()))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f32::max);
+        assert!(worst <= SETTLE_ABOVE + 1e-6, "{worst}");
+        assert!(hr.data().iter().all(|v| (0.0..=1.0).contains(v)));
+        // Where the rounds alone leave a block: they cannot lift 0.9 to 1 in four texels of
+        // a block of a pinned 1.0 beside a 0.0.
+        let mut rounds_only = upsample(&lr, 4, Kernel::Bicubic { a: -0.5 }, Border::Mirror)
+            .map_values(|v| (0.8 * v + 0.1).clamp(0.0, 1.0));
+        let before = box_downsample(&rounds_only, 4);
+        settle_blocks(&mut rounds_only, &lr, 4, 0..1, |_| (0.0, 1.0));
+        let after = box_downsample(&rounds_only, 4);
+        for (i, (b, a)) in before.data().iter().zip(after.data()).enumerate() {
+            let want = lr.data()[i];
+            if (b - want).abs() > SETTLE_ABOVE {
+                assert!((a - want).abs() < 1e-5, "block {i}: {b} → {a}, want {want}");
+            } else {
+                assert_eq!(a, b, "block {i} was within reach and is left as it was");
+            }
         }
     }
 
@@ -265,11 +382,17 @@ mod tests {
         for border in [Border::Wrap, Border::Mirror] {
             // A blurred base: bilinear interpolation does not average back to its input.
             let mut hr = upsample(&lr, 4, Kernel::Bilinear, border);
-            // Mean absolute mismatch of the box-downsample (the test map changes every texel,
-            // the hardest case for a bilinear back-projection).
+            // Mean absolute mismatch of the box-downsample, as the files store the values
+            // (roughness, not alpha; the test map changes every texel, the hardest case for a
+            // bilinear back-projection).
+            let stored = |map: &Map| {
+                let mut map = map.clone();
+                map.plane_mut(ALPHA).iter_mut().for_each(|a| *a = a.sqrt());
+                map
+            };
             let error = |hr: &Map| {
-                let seen = box_downsample(hr, 4);
-                (seen.data().iter().zip(lr.data()))
+                let seen = box_downsample(&stored(hr), 4);
+                (seen.data().iter().zip(stored(&lr).data()))
                     .map(|(a, b)| (a - b).abs())
                     .sum::<f32>()
                     / lr.data().len() as f32
@@ -281,7 +404,7 @@ mod tests {
             assert!(before > 0.02, "{border}: {before}");
             assert!(after < 0.3 * before, "{border}: {before} → {after}");
             for (c, plane) in hr.data().chunks(hr.texels()).enumerate() {
-                let (lo, hi) = feature_range(c);
+                let (lo, hi) = stored_range(c);
                 assert!(plane.iter().all(|v| (lo..=hi).contains(v)), "feature {c}");
             }
         }

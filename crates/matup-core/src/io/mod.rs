@@ -21,7 +21,6 @@ use crate::layout::{Packing, Stored};
 use crate::map::Map;
 use crate::material::{
     normalize_normals, Carried, FileFormat, MapKind, Material, MaterialOrigin, NormalConvention,
-    MIN_ROUGHNESS,
 };
 use crate::{Error, Result};
 use discover::file_name;
@@ -248,7 +247,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         roughness: reader
             .map(MapKind::Roughness)
             .unwrap_or_else(|| stand_in(MapKind::Roughness, 1))
-            .map_values(|r| r.clamp(MIN_ROUGHNESS, 1.0)),
+            .map_values(|r| r.clamp(0.0, 1.0)),
         metallic: reader
             .map(MapKind::Metallic)
             .unwrap_or_else(|| stand_in(MapKind::Metallic, 1))

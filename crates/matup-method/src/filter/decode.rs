@@ -5,7 +5,6 @@
 use candle_core::Tensor;
 
 use super::FEATURES;
-use matup_core::material::MIN_ALPHA;
 use matup_core::shading::Svbrdf;
 
 /// Longest (nx, ny) before the normal is rebuilt.
@@ -47,7 +46,8 @@ pub fn decode(raw: &[f32], base: &[f32], fixed: &[Option<f32>; FEATURES]) -> Dec
         clamp(2, 0.0, 1.0, &mut mask),
     ];
     let metallic = clamp(3, 0.0, 1.0, &mut mask);
-    let alpha = clamp(6, MIN_ALPHA, 1.0, &mut mask);
+    // Down to 0, as roughness maps are kept: the shading models clamp alpha where they render.
+    let alpha = clamp(6, 0.0, 1.0, &mut mask);
 
     // (x, y) scaled to length ≤ 0.999, then z = √max(1 − x² − y², 1e-3).
     let (x, y) = (v[4], v[5]);
@@ -109,7 +109,7 @@ pub fn decode_tensors(
     };
     let base_color = Tensor::cat(&[feature(0)?, feature(1)?, feature(2)?], 1)?.clamp(0f32, 1f32)?;
     let metallic = feature(3)?.clamp(0f32, 1f32)?;
-    let alpha = feature(6)?.clamp(MIN_ALPHA, 1f32)?;
+    let alpha = feature(6)?.clamp(0f32, 1f32)?;
     // (x, y) scaled to length ≤ 0.999, then z = √max(1 − x² − y², 1e-3). The length is
     // floored so that the unused branch of the minimum keeps a finite gradient at 0.
     let (x, y) = (feature(4)?, feature(5)?);
@@ -241,7 +241,7 @@ mod tests {
         );
         assert_eq!(d.params.base_color[0], 1.0);
         assert_eq!(d.params.metallic, 0.0, "fixed metallic stays constant");
-        assert_eq!(d.params.alpha, MIN_ALPHA);
+        assert_eq!(d.params.alpha, 0.0);
         assert_eq!(d.params.normal, [0.0, 0.0, 1.0]);
         let g = d.backward(&Svbrdf {
             base_color: [1.0; 3],
