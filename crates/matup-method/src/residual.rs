@@ -58,8 +58,9 @@ pub fn project_onto_input(
         if config.back_project {
             // The clamp moves colours off their input, and settling them moves a few hues out
             // of their range: each twice more, the later moves far smaller, ending settled.
-            // Neither a hue nor a mean was left off on the sample and the exporters' test
-            // materials (tests/colour.rs, tests/exporters.rs); one round of each left both.
+            // So no hue and no mean is left off on the sample and the exporters' test
+            // materials (tests/colour.rs, tests/exporters.rs), where one round of each left
+            // a few of one or the other (docs/experiments/2026-11-26-files-back-exactly.md).
             for _ in 0..2 {
                 settle_blocks(base, &lr_features, scale, 0..3, stored_range);
                 clamp_chroma_to_input(base, &lr_features, scale, border);
@@ -99,7 +100,8 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
     as_stored(&mut lr);
     as_stored(hr);
     back_project_within(hr, &lr, scale, border, stored_range);
-    // sqrt(r)² gives r² back exactly (IEEE rounding), so only the corrections change alpha.
+    // Alpha was made by squaring r (`pack_features`), and √(r²) rounds back to r exactly, so a
+    // texel no correction moved gets its alpha back bit for bit.
     hr.plane_mut(ALPHA).iter_mut().for_each(|r| *r *= *r);
 }
 
