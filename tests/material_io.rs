@@ -48,6 +48,15 @@ fn saved(
     dir
 }
 
+/// The material in `dir`, its normals read in `convention` (`--normal-convention`).
+fn load_as(dir: &Path, convention: NormalConvention) -> Material {
+    let options = LoadOptions {
+        normal_convention: Some(convention),
+        ..Default::default()
+    };
+    load_material(Some(dir), &options).unwrap()
+}
+
 fn copy(from: &Path, to_dir: &Path, name: &str) -> PathBuf {
     let to = to_dir.join(name);
     fs::copy(from, &to).unwrap();
@@ -193,14 +202,7 @@ fn ambientcg_names_with_both_normal_conventions() {
         FileFormat::Jpeg
     );
 
-    let opengl = load_material(
-        Some(dir.path()),
-        &LoadOptions {
-            normal_convention: Some(NormalConvention::OpenGl),
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let opengl = load_as(dir.path(), NormalConvention::OpenGl);
     assert_eq!(
         (opengl.origin.as_ref().unwrap().source(MapKind::Normal))
             .unwrap()
@@ -236,23 +238,9 @@ fn normal_convention_comes_from_the_file_name_or_the_option() {
         origin.normal_evidence
     );
     assert!(mean_angle_degrees(&measured.normal, &m.normal) < 0.3);
-    let as_gl = load_material(
-        Some(dir.path()),
-        &LoadOptions {
-            normal_convention: Some(NormalConvention::OpenGl),
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let as_gl = load_as(dir.path(), NormalConvention::OpenGl);
     assert!(mean_angle_degrees(&as_gl.normal, &m.normal) < 0.3);
-    let as_dx = load_material(
-        Some(dir.path()),
-        &LoadOptions {
-            normal_convention: Some(NormalConvention::DirectX),
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let as_dx = load_as(dir.path(), NormalConvention::DirectX);
     let flipped = Map::from_fn(128, 128, 3, |c, y, x| {
         if c == 1 {
             -as_dx.normal.get(c, y, x)
@@ -264,14 +252,7 @@ fn normal_convention_comes_from_the_file_name_or_the_option() {
     // Saved in the input's convention by default.
     let out = tempfile::tempdir().unwrap();
     save_material(&as_gl, out.path(), &SaveOptions::default()).unwrap();
-    let reread = load_material(
-        Some(out.path()),
-        &LoadOptions {
-            normal_convention: Some(NormalConvention::OpenGl),
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let reread = load_as(out.path(), NormalConvention::OpenGl);
     assert!(mean_angle_degrees(&reread.normal, &m.normal) < 0.3);
 }
 

@@ -82,74 +82,80 @@ fn snapshot(folder: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         .collect()
 }
 
-/// The exporters' packed layouts, made of the maps of `matup` (a folder in matup's own PNG
-/// layout) into `dir`: glTF's metallicRoughness (G roughness, B metallic), Unreal's
-/// OcclusionRoughnessMetallic, Unity HDRP's RGBA base map and mask map (R metallic, G
-/// occlusion, B detail mask, A smoothness).
+/// One exporter's packed layout: its packed file, how a texel of it is made of roughness and
+/// metallic, and its base colour and normal files' names.
+struct PackedLayout {
+    name: &'static str,
+    packed: &'static str,
+    texel: fn(u8, u8) -> [u8; 4],
+    /// 3 (RGB) or 4 (RGBA): the packed file's channels, and the base colour's.
+    channels: usize,
+    base_color: &'static str,
+    normal: &'static str,
+}
+
+/// glTF's metallicRoughness (G roughness, B metallic), Unreal's OcclusionRoughnessMetallic,
+/// Unity HDRP's RGBA base map and mask map (R metallic, G occlusion, B detail mask, A
+/// smoothness).
+const PACKED_LAYOUTS: [PackedLayout; 3] = [
+    PackedLayout {
+        name: "glTF",
+        packed: "Mat_metallicRoughness.png",
+        texel: |r, m| [255, r, m, 0],
+        channels: 3,
+        base_color: "Mat_baseColor.png",
+        normal: "Mat_Normal.png",
+    },
+    PackedLayout {
+        name: "Unreal",
+        packed: "T_Mat_OcclusionRoughnessMetallic.png",
+        texel: |r, m| [255, r, m, 0],
+        channels: 3,
+        base_color: "T_Mat_BaseColor.png",
+        normal: "T_Mat_Normal.png",
+    },
+    PackedLayout {
+        name: "Unity",
+        packed: "Mat_MaskMap.png",
+        texel: |r, m| [m, 255, 255, 255 - r],
+        channels: 4,
+        base_color: "Mat_BaseMap.png",
+        normal: "Mat_Normal.png",
+    },
+];
+
+/// Each of [`PACKED_LAYOUTS`], made of the maps of `matup` (a folder in matup's own PNG
+/// layout), in a folder of its own in `dir`.
 fn packed_layouts(matup: &Path, dir: &Path) -> Vec<(&'static str, PathBuf)> {
-    let grey = |name: &str| image::open(matup.join(name)).unwrap().to_luma8();
-    let (rough, metal) = (grey("roughness.png"), grey("metallic.png"));
-    let base = image::open(matup.join("baseColor.png")).unwrap().to_rgb8();
+    let open = |name: &str| image::open(matup.join(name)).unwrap();
+    let (rough, metal) = (
+        open("roughness.png").to_luma8(),
+        open("metallic.png").to_luma8(),
+    );
+    let base = open("baseColor.png");
     let (w, h) = rough.dimensions();
-    let packed = |texel: &dyn Fn(u8, u8) -> [u8; 4], channels: usize| -> image::DynamicImage {
-        let data: Vec<u8> = (rough.pixels().zip(metal.pixels()))
-            .flat_map(|(r, m)| texel(r.0[0], m.0[0])[..channels].to_vec())
-            .collect();
-        match channels {
-            3 => image::RgbImage::from_raw(w, h, data).unwrap().into(),
-            _ => image::RgbaImage::from_raw(w, h, data).unwrap().into(),
-        }
-    };
-    let rgba_base: image::DynamicImage = image::DynamicImage::ImageRgb8(base).to_rgba8().into();
-    let layouts: [(&str, Vec<(&str, image::DynamicImage)>); 3] = [
-        (
-            "glTF",
-            vec![
-                (
-                    "Mat_metallicRoughness.png",
-                    packed(&|r, m| [255, r, m, 0], 3),
-                ),
-                (
-                    "Mat_baseColor.png",
-                    image::open(matup.join("baseColor.png")).unwrap(),
-                ),
-            ],
-        ),
-        (
-            "Unreal",
-            vec![
-                (
-                    "T_Mat_OcclusionRoughnessMetallic.png",
-                    packed(&|r, m| [255, r, m, 0], 3),
-                ),
-                (
-                    "T_Mat_BaseColor.png",
-                    image::open(matup.join("baseColor.png")).unwrap(),
-                ),
-            ],
-        ),
-        (
-            "Unity",
-            vec![
-                ("Mat_MaskMap.png", packed(&|r, m| [m, 255, 255, 255 - r], 4)),
-                ("Mat_BaseMap.png", rgba_base),
-            ],
-        ),
-    ];
-    layouts
-        .into_iter()
-        .map(|(name, files)| {
-            let folder = dir.join(format!("template-{name}"));
+    PACKED_LAYOUTS
+        .iter()
+        .map(|layout| {
+            let folder = dir.join(format!("template-{}", layout.name));
             std::fs::create_dir_all(&folder).unwrap();
-            for (file, image) in files {
-                image.save(folder.join(file)).unwrap();
-            }
-            let normal = match name {
-                "Unreal" => "T_Mat_Normal.png",
-                _ => "Mat_Normal.png",
+            let data: Vec<u8> = (rough.pixels().zip(metal.pixels()))
+                .flat_map(|(r, m)| (layout.texel)(r.0[0], m.0[0])[..layout.channels].to_vec())
+                .collect();
+            let (packed, base): (image::DynamicImage, image::DynamicImage) = match layout.channels {
+                3 => (
+                    image::RgbImage::from_raw(w, h, data).unwrap().into(),
+                    base.clone(),
+                ),
+                _ => (
+                    image::RgbaImage::from_raw(w, h, data).unwrap().into(),
+                    base.to_rgba8().into(),
+                ),
             };
-            std::fs::copy(matup.join("normal.png"), folder.join(normal)).unwrap();
-            (name, folder)
+            packed.save(folder.join(layout.packed)).unwrap();
+            base.save(folder.join(layout.base_color)).unwrap();
+            std::fs::copy(matup.join("normal.png"), folder.join(layout.normal)).unwrap();
+            (layout.name, folder)
         })
         .collect()
 }

@@ -12,6 +12,7 @@ use candle_core::{Device, Tensor, D};
 use matup_core::resample::{upsample, Border, Kernel};
 use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
 use matup_core::Map;
+use matup_method::features::ALPHA;
 use matup_method::filter::decode::decode_tensors;
 use matup_method::filter::FEATURES;
 use matup_method::residual::SETTLE_ABOVE;
@@ -204,9 +205,6 @@ impl BackProjection {
         off.where_cond(&settled, hr)
     }
 }
-
-/// The feature that holds alpha (r²).
-const ALPHA: usize = 6;
 
 /// The range a feature's values may take as stored, as `matup_method::residual` keeps them.
 fn feature_range(feature: usize) -> (f32, f32) {

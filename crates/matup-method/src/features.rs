@@ -11,6 +11,8 @@ pub const FEATURES: usize = 7;
 pub const FEATURE_NAMES: [&str; FEATURES] = [
     "base_r", "base_g", "base_b", "metallic", "normal_x", "normal_y", "alpha",
 ];
+/// The feature that holds alpha (r²).
+pub const ALPHA: usize = 6;
 
 /// The 7 filter features of a material: linear base colour, metallic, normal x and y, alpha.
 pub fn features(material: &Material) -> Map {
@@ -43,7 +45,7 @@ pub fn pack_features(features: &mut Map, kind: MapKind, map: &Map) {
         MapKind::Metallic => &[(0, 3)],
         MapKind::Normal => &[(0, 4), (1, 5)],
         MapKind::Roughness => {
-            let alpha = features.plane_mut(6);
+            let alpha = features.plane_mut(ALPHA);
             for (a, &r) in alpha.iter_mut().zip(map.data()) {
                 *a = r * r;
             }

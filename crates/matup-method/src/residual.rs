@@ -7,8 +7,8 @@ use rayon::prelude::*;
 
 use crate::chroma::{clamp_chroma_to_input, with_chroma_of};
 use crate::config::{Chroma, FilterConfig, ResidualBase};
-use crate::features::FEATURES;
 use crate::features::{features, pack_features};
+use crate::features::{ALPHA, FEATURES};
 use crate::per_map::upscale_each_map;
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
@@ -225,9 +225,6 @@ pub fn settle_blocks(
             });
     }
 }
-
-/// The feature that holds alpha (r²).
-const ALPHA: usize = 6;
 
 /// The range a feature's values may take as stored (normal x and y: the unit disc's bounding
 /// box; colour, metallic and roughness: [0, 1]).

@@ -8,7 +8,11 @@
 //! `cuda` by default, or `cpu` for a small check of the bench itself; `MATUP_BENCH_SIZE`: the
 //! LR side, default 1024 on a GPU, 128 on the CPU).
 
-use std::time::Instant;
+mod common;
+
+use std::time::Duration;
+
+use common::median_seconds;
 
 use candle_core::{DType, Tensor};
 use matup_core::upsample::RgbUpsampler;
@@ -17,18 +21,9 @@ use matup_upsamplers::onnx::{
     resolve, EngineChoice, Graph, OnnxUpsampler, Padding, Precision, TensorNet,
 };
 
-/// Median seconds of three runs of `f`, after one untimed.
-fn median(mut f: impl FnMut()) -> f64 {
-    f();
-    let mut t: Vec<f64> = (0..3)
-        .map(|_| {
-            let start = Instant::now();
-            f();
-            start.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[1]
+/// Median seconds of three calls of `f`, after one untimed.
+fn median(f: impl FnMut()) -> f64 {
+    median_seconds(f, Duration::MAX).0
 }
 
 fn main() {

@@ -8,8 +8,12 @@
 //! `cargo bench -p matup-upsamplers --bench onnx` (`MATUP_BENCH_SLOW=1` adds Real-ESRGAN at
 //! 512², several minutes).
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use common::median_seconds;
 
 use matup_core::{load_material, upsampler, Border, LoadOptions, Map, PluginSpec};
 use matup_upsamplers as _;
@@ -46,21 +50,6 @@ fn shared_model(dir: &Path, name: &'static str, scale: usize, overlap: usize) ->
         tile: 128,
         overlap,
     })
-}
-
-/// Median seconds per call of `f`, over at least 3 calls (after one untimed call that builds
-/// the plan) or as many as fit in `budget`, whichever is fewer.
-fn median_seconds(mut f: impl FnMut(), budget: Duration) -> (f64, usize) {
-    f();
-    let start = Instant::now();
-    let mut times = Vec::new();
-    while times.len() < 3 && (times.is_empty() || start.elapsed() < budget) {
-        let t = Instant::now();
-        f();
-        times.push(t.elapsed().as_secs_f64());
-    }
-    times.sort_by(f64::total_cmp);
-    (times[times.len() / 2], times.len())
 }
 
 fn main() {

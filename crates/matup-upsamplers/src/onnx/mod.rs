@@ -1035,20 +1035,9 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
         message: format!(
             "precision '{}': known precisions are {}",
             values["precision"],
-            Precision::NAMES
+            Precision::ALL.map(Precision::name).join(", ")
         ),
     })?;
-    let candle = values["engine"] == "candle" || (values["engine"] == "auto" && on_gpu);
-    if precision != Precision::F32 && !candle {
-        return Err(Error::Plugin {
-            plugin: "onnx".into(),
-            message: format!(
-                "precision={} is the candle engine's (engine=candle, or a GPU device); \
-                 matup's executor and tract compute in f32",
-                values["precision"]
-            ),
-        });
-    }
     let choice = match values["engine"].as_str() {
         "auto" if on_gpu => EngineChoice::Candle(device, precision),
         "candle" => EngineChoice::Candle(device, precision),
@@ -1071,6 +1060,16 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
             })
         }
     };
+    if precision != Precision::F32 && !matches!(choice, EngineChoice::Candle(..)) {
+        return Err(Error::Plugin {
+            plugin: "onnx".into(),
+            message: format!(
+                "precision={} is the candle engine's (engine=candle, or a GPU device); \
+                 matup's executor and tract compute in f32",
+                precision.name()
+            ),
+        });
+    }
     let sidecar = match values["sidecar"].as_str() {
         "" => None,
         given => Some(PathBuf::from(given)),

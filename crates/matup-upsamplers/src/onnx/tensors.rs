@@ -180,16 +180,16 @@ pub enum Precision {
 }
 
 impl Precision {
-    pub const NAMES: &'static str = "f32, tf32, f16, bf16";
+    pub const ALL: [Precision; 4] = [
+        Precision::F32,
+        Precision::Tf32,
+        Precision::F16,
+        Precision::Bf16,
+    ];
 
+    /// The precision `precision=` names.
     pub fn parse(name: &str) -> Option<Precision> {
-        Some(match name {
-            "f32" => Precision::F32,
-            "tf32" => Precision::Tf32,
-            "f16" => Precision::F16,
-            "bf16" => Precision::Bf16,
-            _ => return None,
-        })
+        Precision::ALL.into_iter().find(|p| p.name() == name)
     }
 
     /// The name `precision=` takes.
