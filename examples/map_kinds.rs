@@ -64,7 +64,7 @@ fn main() -> matup::Result<()> {
         let cells = candidates
             .iter()
             .map(|c| {
-                let e = evaluate(&truth, c, model.as_ref(), &lights)?;
+                let e = evaluate(&truth, c, SCALE, model.as_ref(), &lights)?;
                 Ok(format!("{:.2} / {:.4}", e.render_psnr, e.render_flip))
             })
             .collect::<matup::Result<Vec<_>>>()?;

@@ -1,6 +1,7 @@
 //! How well matup tells a tileable input from a crop: a labelled set built from the material
 //! sets beside the repository (every whole material is tileable; crops at random offsets are
-//! not), at the sizes users feed, scored by `detect_tileable` per size and per category.
+//! not), at the sizes users feed, scored by the defaults' decision (`decide_tileable`) per size
+//! and per category.
 //! `--features FILE` also writes each sample's edge statistics as CSV, for studying signals.
 //!
 //! `cargo run --release --example tileability -- [--features FILE] SET_FOLDER...`
@@ -12,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use matup::map::{Dihedral, Map};
 use matup::material::MapKind;
-use matup::tileable::detect_tileable;
+use matup::tileable::decide_tileable;
 use matup::{load_material, Material};
 use rand::{Rng, SeedableRng};
 
@@ -297,7 +298,7 @@ fn main() {
         let whole = load_material(Some(&folder), &Default::default())
             .unwrap_or_else(|e| panic!("{}: {e}", folder.display()));
         for s in samples(&name, &whole, &mut rng) {
-            let verdict = detect_tileable(&s.material);
+            let verdict = decide_tileable(&s.material);
             labelled.push((s, verdict));
         }
     }

@@ -6,7 +6,7 @@ mod common;
 
 use matup::config::{Config, ResidualBase, Selection, TargetKind};
 use matup::material::Material;
-use matup::pipeline::{detect_tileable, features};
+use matup::pipeline::{decide_tileable, detect_tileable, features};
 use matup::progress::Silent;
 use matup::resample::{box_downsample, upsample};
 use matup::select::SelectionReport;
@@ -370,6 +370,26 @@ fn a_crop_of_a_tileable_material_is_not_called_tileable() {
     }
 }
 
+#[test]
+fn every_whole_material_is_upscaled_as_tileable() {
+    // Mirroring a tileable input seams its output, so the defaults wrap every whole material,
+    // grids whose joints lie on the border included, at every size users feed.
+    for name in common::test_material_names() {
+        let m =
+            matup::load_material(Some(&common::test_material(&name)), &Default::default()).unwrap();
+        for factor in [1, 2, 4] {
+            let (tileable, evidence) = decide_tileable(&m.box_downsample(factor));
+            let side = m.width() / factor;
+            assert!(tileable, "{name} at {side}²: {evidence}");
+            assert!(evidence < 1.1, "{name} at {side}²: {evidence}");
+        }
+    }
+    // A gradient cut out of a larger image is mirrored.
+    let mut crop = matup::Material::uniform(64, [0.5; 3], 0.5, 0.0);
+    crop.base_color = matup::Map::from_fn(64, 64, 3, |_, y, x| (x + y) as f32 / 128.0);
+    assert!(!decide_tileable(&crop).0);
+}
+
 /// Rock035, a corpus validation set (never trained on), whole at 256².
 fn rock035() -> Material {
     matup::load_material(
@@ -397,7 +417,8 @@ fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
         };
         let (result, report) =
             matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
-        let score = matup::eval::metrics::evaluate(&truth, &result, ggx.as_ref(), &lights).unwrap();
+        let score =
+            matup::eval::metrics::evaluate(&truth, &result, 4, ggx.as_ref(), &lights).unwrap();
         (score, report.upsampler_used)
     };
     let (tuned, used) = run("auto");
@@ -449,7 +470,7 @@ fn every_scale_runs_the_tuned_network_through_its_own_scale() {
             matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap()
         };
         let score = |m: &Material| {
-            matup::eval::metrics::evaluate(&truth, m, ggx.as_ref(), &lights).unwrap()
+            matup::eval::metrics::evaluate(&truth, m, scale, ggx.as_ref(), &lights).unwrap()
         };
         let (ours, report) = run("auto");
         assert_eq!((ours.width(), ours.height_px()), (side, side));

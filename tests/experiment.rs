@@ -24,6 +24,7 @@ fn eval(reference: &Material, candidate: &Material) -> matup::metrics::Evaluatio
     evaluate(
         reference,
         candidate,
+        1,
         ggx.as_ref(),
         &LightSetSpec::held_out(8),
     )
@@ -69,6 +70,7 @@ fn materials_of_different_sizes_are_refused_with_both_sizes() {
     let e = evaluate(
         &denim(64),
         &denim(32),
+        1,
         ggx.as_ref(),
         &LightSetSpec::held_out(4),
     )
@@ -209,6 +211,7 @@ fn experiments_record_failures_and_resume_without_rerunning() {
         materials: vec![denim.clone(), broken.clone()],
         factor: 4,
         crop: Some(64),
+        crop_at: 0,
         eval_lights: 4,
         eval_shading: "ggx".into(),
         baselines: vec!["bilinear".into(), "lanczos3".into()],

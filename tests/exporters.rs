@@ -343,6 +343,7 @@ fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
         let same = matup::eval::metrics::evaluate(
             &expected,
             &material,
+            1,
             model.as_ref(),
             &LightSetSpec::default(),
         )

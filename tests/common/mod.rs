@@ -21,6 +21,19 @@ pub fn test_material(name: &str) -> PathBuf {
     path
 }
 
+/// The names of every material in `tests/data/materials`, sorted.
+pub fn test_material_names() -> Vec<String> {
+    let folder = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/materials");
+    let mut names: Vec<String> = std::fs::read_dir(&folder)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().is_dir())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
 /// The sample material shipped with the repository.
 pub fn sample_material() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("samples/victorian_wood")

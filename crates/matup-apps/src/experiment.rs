@@ -36,9 +36,14 @@ pub struct Experiment {
     /// HR → LR box-filter factor, and the upscale factor of every method.
     #[serde(default = "default_factor")]
     pub factor: usize,
-    /// Evaluate on the top-left `crop × crop` texels of each material only (faster sweeps).
+    /// Evaluate on a `crop × crop` window of each material only (faster sweeps), its
+    /// top-left texel at (`crop_at`, `crop_at`).
     #[serde(default)]
     pub crop: Option<usize>,
+    /// Where the crop starts on both axes: 0 (the default) keeps the material's corner; an
+    /// odd offset makes crops that do not tile, even of a grid whose period divides `crop`.
+    #[serde(default)]
+    pub crop_at: usize,
     /// Held-out (Hammersley) lights the results are evaluated under.
     #[serde(default = "default_eval_lights")]
     pub eval_lights: usize,
@@ -135,6 +140,8 @@ struct RunFacts {
     seconds: f64,
     timings: Vec<(String, f64)>,
     epochs_trained: f64,
+    /// The borders the output was made with, which its false colour is judged with.
+    border: Border,
 }
 
 /// How a run ended: its facts and evaluation, or its error.
@@ -351,18 +358,19 @@ struct Pair {
 fn make_pair(path: &Path, experiment: &Experiment) -> Result<Pair> {
     let mut truth = load_material(Some(path), &LoadOptions::default())?;
     if let Some(c) = experiment.crop {
-        if c > truth.width() || c > truth.height_px() {
+        let at = experiment.crop_at;
+        if at + c > truth.width() || at + c > truth.height_px() {
             return Err(Error::material(
                 path,
                 format!(
-                    "crop {c} is larger than the material ({}×{})",
+                    "crop {c} at {at} reaches past the material ({}×{})",
                     truth.width(),
                     truth.height_px()
                 ),
             ));
         }
         let origin = truth.origin.clone();
-        truth = truth.crop(0, 0, c, c);
+        truth = truth.crop(at, at, c, c);
         truth.origin = origin;
     }
     let f = experiment.factor;
@@ -448,17 +456,23 @@ pub fn run_experiment(
                             keep_output(out, run, "", &material)?;
                             keep_output(out, run, "truth", &p.truth)?;
                         }
-                        evaluate(&p.truth, &material, eval_model.as_ref(), &eval_lights)
-                            .and_then(|mut ev| {
-                                ev.false_colour = Some(false_colour(
-                                    &p.lr.base_color,
-                                    &material.base_color,
-                                    Some(&p.truth.base_color),
-                                    Border::for_tiling(detect_tileable(&p.lr).0),
-                                )?);
-                                Ok((facts, ev))
-                            })
-                            .map_err(|e| e.to_string())
+                        evaluate(
+                            &p.truth,
+                            &material,
+                            experiment.factor,
+                            eval_model.as_ref(),
+                            &eval_lights,
+                        )
+                        .and_then(|mut ev| {
+                            ev.false_colour = Some(false_colour(
+                                &p.lr.base_color,
+                                &material.base_color,
+                                Some(&p.truth.base_color),
+                                facts.border,
+                            )?);
+                            Ok((facts, ev))
+                        })
+                        .map_err(|e| e.to_string())
                     }
                 }
             }
@@ -609,6 +623,7 @@ fn run_one(
             let m = upscale_per_map(&pair.lr, up.as_ref(), factor, border)?;
             let facts = RunFacts {
                 seconds: start.elapsed().as_secs_f64(),
+                border,
                 ..RunFacts::default()
             };
             Ok((m, facts))
@@ -629,6 +644,7 @@ fn run_one(
                     .map(|l| l.training.epochs_trained)
                     .sum(),
                 timings: report.timings,
+                border: Border::for_tiling(report.tileable),
             };
             Ok((m, facts))
         }

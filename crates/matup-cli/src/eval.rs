@@ -6,9 +6,11 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use matup_core::resample::Border;
-use matup_core::tileable::detect_tileable;
+use matup_core::tileable::decide_tileable;
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, Material, PluginSpec};
-use matup_eval::metrics::{evaluate, false_colour, map_seams, Evaluation, FalseColour};
+use matup_eval::metrics::{
+    evaluate, false_colour, map_block_edges, map_seams, Evaluation, FalseColour,
+};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
@@ -24,6 +26,10 @@ pub struct EvalArgs {
     /// names, if there is one.
     #[arg(long)]
     pub input: Option<std::path::PathBuf>,
+    /// The scale the candidate was upscaled by: seams and block edges are measured on its
+    /// input's texel grid. Default: the candidate's width over the input's, else 1.
+    #[arg(long)]
+    pub scale: Option<usize>,
     /// Held-out lights (a Hammersley hemisphere set, unlike the training set).
     #[arg(long, default_value_t = 16)]
     pub lights: usize,
@@ -38,22 +44,41 @@ pub struct EvalArgs {
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.lights > 0, "--lights must be at least 1");
     let candidate = load_material(Some(&args.candidate), &LoadOptions::default())?;
-    let input = match args.input.clone().or_else(|| run_input(&args.candidate)) {
+    let run = run_json(&args.candidate);
+    let run_input = run
+        .as_ref()
+        .and_then(|r| r["input_folder"].as_str().map(PathBuf::from));
+    let input = match args.input.clone().or(run_input.filter(|f| f.is_dir())) {
         Some(folder) => Some(load_material(Some(&folder), &LoadOptions::default())?),
         None => None,
     };
-    // Neighbours wrap around where the input tiles, as its output was made.
-    let border = |lr: &Material| Border::for_tiling(detect_tileable(lr).0);
+    let scale = match (args.scale, &input) {
+        (Some(s), _) => s.max(1),
+        (None, Some(lr)) if candidate.width() % lr.width() == 0 => candidate.width() / lr.width(),
+        _ => 1,
+    };
+    // Neighbours wrap around where the output was made wrapped: as its run.json says, else
+    // as the defaults decide.
+    let made_tileable = run.as_ref().and_then(|r| r["tileable"].as_bool());
+    let border =
+        |lr: &Material| Border::for_tiling(made_tileable.unwrap_or_else(|| decide_tileable(lr).0));
     let Some(reference_folder) = &args.reference else {
-        let seams = map_seams(&candidate);
+        let seams = map_seams(&candidate, scale);
+        let block_edges = map_block_edges(&candidate, scale);
         let false_colour = input
             .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None, border(&lr)))
             .transpose()?;
         if args.json {
-            let report = serde_json::json!({ "map_seams": seams, "false_colour": false_colour });
+            let report = serde_json::json!({
+                "scale": scale,
+                "map_seams": seams,
+                "map_block_edges": block_edges,
+                "false_colour": false_colour,
+            });
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
-            print_seams(&seams, None);
+            print_seams(&seams, None, scale);
+            print_block_edges(&block_edges, None, scale);
             print_false_colour(false_colour.as_ref(), "against the input alone");
         }
         return Ok(());
@@ -76,6 +101,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let mut e = evaluate(
         &reference,
         &candidate,
+        scale,
         model.as_ref(),
         &LightSetSpec::held_out(args.lights),
     )?;
@@ -93,12 +119,10 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The input folder a matup output's `run.json` names, if it has one.
-fn run_input(candidate: &Path) -> Option<PathBuf> {
+/// The `run.json` in a matup output's folder, if it has one.
+fn run_json(candidate: &Path) -> Option<serde_json::Value> {
     let text = std::fs::read_to_string(candidate.join("run.json")).ok()?;
-    let run: serde_json::Value = serde_json::from_str(&text).ok()?;
-    let folder = PathBuf::from(run["input_folder"].as_str()?);
-    folder.is_dir().then_some(folder)
+    serde_json::from_str(&text).ok()
 }
 
 fn print_false_colour(f: Option<&FalseColour>, how: &str) {
@@ -147,7 +171,12 @@ fn print_table(e: &Evaluation) {
     for (name, value) in rows {
         println!("{name:<28} {value:>12}");
     }
-    print_seams(&e.map_seams, Some(&e.reference_map_seams));
+    print_seams(&e.map_seams, Some(&e.reference_map_seams), e.scale);
+    print_block_edges(
+        &e.map_block_edges,
+        Some(&e.reference_map_block_edges),
+        e.scale,
+    );
     print_false_colour(
         e.false_colour.as_ref(),
         "hues neither input nor reference has",
@@ -156,9 +185,37 @@ fn print_table(e: &Evaluation) {
 
 /// Each map's wrap-around seam ratio (and the reference's): about 1 where copies join
 /// without a seam.
-fn print_seams(seams: &BTreeMap<String, f64>, reference: Option<&BTreeMap<String, f64>>) {
-    println!("wrap-around seam ratio per map (about 1: tiles without a seam)");
-    for (map, ratio) in seams {
+fn print_seams(
+    seams: &BTreeMap<String, f64>,
+    reference: Option<&BTreeMap<String, f64>>,
+    scale: usize,
+) {
+    let phase = if scale > 1 {
+        format!(", against interior steps every {scale} texels")
+    } else {
+        String::new()
+    };
+    println!("wrap-around seam ratio per map (about 1: tiles without a seam{phase})");
+    print_per_map(seams, reference);
+}
+
+/// Each map's block-edge ratio (and the reference's), at scales above 1.
+fn print_block_edges(
+    edges: &BTreeMap<String, f64>,
+    reference: Option<&BTreeMap<String, f64>>,
+    scale: usize,
+) {
+    if edges.is_empty() {
+        return;
+    }
+    println!(
+        "block-edge ratio per map (steps across the input's {scale}-texel grid over steps inside it)"
+    );
+    print_per_map(edges, reference);
+}
+
+fn print_per_map(values: &BTreeMap<String, f64>, reference: Option<&BTreeMap<String, f64>>) {
+    for (map, ratio) in values {
         let value = match reference.and_then(|r| r.get(map)) {
             Some(r) => format!("{ratio:.2} ({r:.2})"),
             None => format!("{ratio:.2}"),

@@ -116,6 +116,7 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
         materials: args.materials.clone(),
         factor: args.factor,
         crop: args.crop,
+        crop_at: 0,
         eval_lights: args.eval_lights,
         eval_shading: "ggx".into(),
         baselines: args.baselines.clone().unwrap_or_else(|| {

@@ -405,48 +405,56 @@ pub fn neighbourhood_ranges<const N: usize>(
         .collect()
 }
 
-/// How well an image wraps around: mean |difference| across the wrap-around edges divided by
-/// the mean |difference| between interior neighbours (≈ 1: seamless; ≫ 1: a seam). The larger
-/// of the row and column ratios, over all channels.
-pub fn seam_ratio(map: &Map) -> f32 {
-    let (w, h) = (map.width(), map.height());
-    let mut rows = (0.0f64, 0.0f64);
-    let mut cols = (0.0f64, 0.0f64);
-    for c in 0..map.channels() {
-        for y in 0..h {
-            for x in 0..w {
-                let v = map.get(c, y, x) as f64;
-                let right = map.get(c, y, (x + 1) % w) as f64;
-                let below = map.get(c, (y + 1) % h, x) as f64;
-                if x + 1 == w {
-                    cols.0 += (v - right).abs();
-                } else {
-                    cols.1 += (v - right).abs();
-                }
-                if y + 1 == h {
-                    rows.0 += (v - below).abs();
-                } else {
-                    rows.1 += (v - below).abs();
-                }
-            }
-        }
-    }
-    let ratio = |(edge, interior): (f64, f64), edges: usize, pairs: usize| {
-        let interior = interior / pairs.max(1) as f64;
-        let edge = edge / edges.max(1) as f64;
+/// How well an image wraps around: the mean |difference| across the wrap-around edge over the
+/// mean |difference| across interior edges at the same phase of a `period`-texel grid (≈ 1:
+/// seamless; ≫ 1: a seam). The larger of the row and column ratios, over all channels.
+///
+/// An output upscaled ×s carries its input's texel grid: steps across the input's texel edges
+/// (every s-th) are larger than those inside a texel. The wrap-around edge lies on that grid,
+/// so it is compared with the interior steps every `period` = s texels; with `period` 1 (or one
+/// that does not divide the side) it is compared with every interior step.
+pub fn seam_ratio(map: &Map, period: usize) -> f32 {
+    let ratio = |wrap: f64, interior: f64| {
         if interior <= 1e-12 {
-            if edge <= 1e-12 {
+            if wrap <= 1e-12 {
                 1.0
             } else {
                 f64::INFINITY
             }
         } else {
-            edge / interior
+            wrap / interior
         }
     };
-    let ch = map.channels();
-    let r = ratio(rows, ch * w, ch * w * (h - 1));
-    let c = ratio(cols, ch * h, ch * h * (w - 1));
+    // Mean |difference| across the edge before each of `lines` (wrap: the last → the first),
+    // with `step(i)` the |difference| across edge i summed over the other axis and channels.
+    let axis = |n: usize, step: &dyn Fn(usize) -> f64| {
+        let period = if period > 1 && n % period == 0 && n / period >= 2 {
+            period
+        } else {
+            1
+        };
+        let edges: Vec<usize> = (1..n / period).map(|k| k * period).collect();
+        let interior = edges.iter().map(|&i| step(i)).sum::<f64>() / edges.len().max(1) as f64;
+        ratio(step(0), interior)
+    };
+    let (w, h) = (map.width(), map.height());
+    // The step into column (row) i from the one before it, wrapping at 0.
+    let columns = |i: usize| {
+        let before = (i + w - 1) % w;
+        (0..map.channels())
+            .flat_map(|c| (0..h).map(move |y| (c, y)))
+            .map(|(c, y)| (map.get(c, y, i) as f64 - map.get(c, y, before) as f64).abs())
+            .sum::<f64>()
+    };
+    let rows = |i: usize| {
+        let before = (i + h - 1) % h;
+        (0..map.channels())
+            .flat_map(|c| (0..w).map(move |x| (c, x)))
+            .map(|(c, x)| (map.get(c, i, x) as f64 - map.get(c, before, x) as f64).abs())
+            .sum::<f64>()
+    };
+    let c = if w > 1 { axis(w, &columns) } else { 1.0 };
+    let r = if h > 1 { axis(h, &rows) } else { 1.0 };
     r.max(c) as f32
 }
 
@@ -559,8 +567,24 @@ mod tests {
         // A periodic triangle wave: every neighbour difference, across the edge too, is 1/8.
         let triangle = |i: usize| (i as f32 - 8.0).abs() / 8.0;
         let tileable = Map::from_fn(16, 16, 1, |_, y, x| triangle(x) + triangle(y));
-        assert!((seam_ratio(&tileable) - 1.0).abs() < 1e-5);
+        assert!((seam_ratio(&tileable, 1) - 1.0).abs() < 1e-5);
         let ramp = Map::from_fn(16, 16, 1, |_, _, x| x as f32);
-        assert!(seam_ratio(&ramp) > 10.0);
+        assert!(seam_ratio(&ramp, 1) > 10.0);
+    }
+
+    #[test]
+    fn seam_ratio_compares_steps_at_the_grid_phase() {
+        // A seamless ×4 output of a tileable input: steps of 1 across the input's texel edges
+        // (every 4th, the wrap-around one too: a triangle wave of 8 texels) and 0 or 0.1 inside
+        // a texel. Against every interior step the wrap-around one reads as a seam (1 over a
+        // mean step of 0.28); at the grid's phase it is like the others.
+        let texel = |x: usize| (x / 4).min(8 - x / 4) as f32 + [0.0, 0.1, 0.1, 0.0][x % 4];
+        let grid = Map::from_fn(32, 32, 1, |_, y, x| texel(x) + texel(y));
+        assert!(seam_ratio(&grid, 1) > 1.5, "{}", seam_ratio(&grid, 1));
+        let phased = seam_ratio(&grid, 4);
+        assert!((phased - 1.0).abs() < 0.2, "{phased}");
+        // A real seam still stands out at the phase: the ramp's wrap step is 31 steps.
+        let ramp = Map::from_fn(32, 32, 1, |_, _, x| x as f32);
+        assert!(seam_ratio(&ramp, 4) > 10.0);
     }
 }

@@ -1,27 +1,162 @@
-//! Whether a material tiles: the wrap-around seam ratio of its edges, and the threshold
-//! measured on the shared materials. The pipeline picks its borders by it and evaluation
-//! reports it.
+//! Whether a material tiles. Upscaling wraps its borders unless the edges give strong
+//! evidence that the input does not tile ([`decide_tileable`]): mirroring a tileable material
+//! puts a seam into its output, while wrapping a crop costs almost nothing anyone sees
+//! (docs/experiments/2026-11-26-seamless-by-default.md). Evaluation keeps a plain guess
+//! ([`detect_tileable`]) for the borders of its renders.
 
-use crate::material::Material;
-use crate::resample::seam_ratio;
+use crate::map::{Dihedral, Map};
+use crate::material::{MapKind, Material};
+use crate::resample::{box_downsample, seam_ratio};
 
-/// A material whose wrap-around seam ratio (see [`wrap_seam_ratio`]) stays below this tiles.
-/// Measured on the shared materials box-filtered to 64²–256²: seamless ones read 1.0–1.7
-/// (the shipped sample, a tileable pattern whose grooves meet the border, 2.02); crops of
-/// them 1.65–5.5, every crop above 2.2 but the low-contrast leather's and one of wood, where
-/// wrapping costs least; regular tiles whose joints lie on the border 2.3–18 whole (called not
-/// tileable: `--tileable` forces it). Mirroring a tileable material breaks its tiling, so the
-/// threshold errs toward tileable.
+/// A material whose wrap-around seam ratio (see [`wrap_seam_ratio`]) stays below this is
+/// guessed tileable by [`detect_tileable`]. Right for 61–66% of whole materials and crops
+/// (docs/experiments/2026-11-25-tileability-detection.md): a guess for evaluation's renders,
+/// not a decision for outputs.
 pub const TILEABLE_SEAM_RATIO: f32 = 2.2;
 
 /// The wrap-around seam ratio of a material's base colour and normal (the larger): about 1
 /// for tileable materials, well above for others.
 pub fn wrap_seam_ratio(material: &Material) -> f32 {
-    seam_ratio(&material.base_color).max(seam_ratio(&material.normal))
+    seam_ratio(&material.base_color, 1).max(seam_ratio(&material.normal, 1))
 }
 
-/// Whether a material tiles, judged from its edges, and the seam ratio that says so.
+/// Whether a material tiles, guessed from its wrap-around seam ratio, and the ratio.
 pub fn detect_tileable(material: &Material) -> (bool, f32) {
     let ratio = wrap_seam_ratio(material);
     (ratio < TILEABLE_SEAM_RATIO, ratio)
+}
+
+/// [`decide_tileable`] mirrors only where the wrap-around step exceeds the largest interior
+/// step by this factor on both axes. Whole materials read at most 1.02 (MetalPlates007) on
+/// both axes and 1.11 on either, at 64²–1K²; a fifth of crops read above 1.25.
+pub const SEAM_OVER_LARGEST_STEP: f32 = 1.25;
+
+/// How the wrap-around edge compares with the interior, along each axis: the median over the
+/// material's varying maps of the wrap-around step over the largest step between interior
+/// neighbours (rows, then columns). At most about 1 where the material tiles: a tile grid's
+/// border joint is no larger than its other joints. A crop's edge joins unrelated content and
+/// often reads well above 1.
+pub fn wrap_evidence(material: &Material) -> [f32; 2] {
+    let mut per_axis: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
+    // The maps the threshold was measured on.
+    for kind in [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+        MapKind::Height,
+    ] {
+        let Some(map) = material.map(kind) else {
+            continue;
+        };
+        if map.width() < 4
+            || map.height() < 4
+            || (0..map.channels()).all(|c| map.is_constant(c, 0.0))
+        {
+            continue;
+        }
+        let map = judged_size(map);
+        let columns = map.transformed(Dihedral {
+            transpose: true,
+            ..Dihedral::default()
+        });
+        per_axis[0].push(edge_over_largest_step(&map));
+        per_axis[1].push(edge_over_largest_step(&columns));
+    }
+    per_axis.map(|mut v| {
+        if v.is_empty() {
+            return 1.0;
+        }
+        v.sort_by(f32::total_cmp);
+        let n = v.len();
+        if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        }
+    })
+}
+
+/// Whether to treat a material as tileable by default, weighing what each wrong guess costs,
+/// and the evidence ([`wrap_evidence`], the lesser axis). Tileable unless both axes read above
+/// [`SEAM_OVER_LARGEST_STEP`].
+pub fn decide_tileable(material: &Material) -> (bool, f32) {
+    let [rows, columns] = wrap_evidence(material);
+    let evidence = rows.min(columns);
+    (evidence <= SEAM_OVER_LARGEST_STEP, evidence)
+}
+
+/// The map box-filtered to 256² at most, as measured: a box filter keeps a tiling and a crop's
+/// edge alike, and texel noise matters less.
+fn judged_size(map: &Map) -> Map {
+    let mut factor = 1;
+    while map.width().min(map.height()) / factor > 256
+        && map.width() % (2 * factor) == 0
+        && map.height() % (2 * factor) == 0
+    {
+        factor *= 2;
+    }
+    box_downsample(map, factor)
+}
+
+/// The mean |difference| between the last row and the first over the largest mean |difference|
+/// between neighbouring interior rows.
+fn edge_over_largest_step(map: &Map) -> f32 {
+    let (w, h) = (map.width(), map.height());
+    let step = |a: usize, b: usize| {
+        let mut sum = 0.0f64;
+        for c in 0..map.channels() {
+            let plane = map.plane(c);
+            let (ra, rb) = (&plane[a * w..(a + 1) * w], &plane[b * w..(b + 1) * w]);
+            sum += ra
+                .iter()
+                .zip(rb)
+                .map(|(x, y)| (x - y).abs() as f64)
+                .sum::<f64>();
+        }
+        sum
+    };
+    let largest = (0..h - 1).map(|k| step(k, k + 1)).fold(0.0, f64::max);
+    let edge = step(h - 1, 0);
+    if largest <= 1e-12 {
+        return if edge <= 1e-12 { 1.0 } else { f32::INFINITY };
+    }
+    (edge / largest) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn material(base_color: Map) -> Material {
+        let mut m = Material::uniform(base_color.width(), [0.5; 3], 0.5, 0.0);
+        m.base_color = base_color;
+        m
+    }
+
+    #[test]
+    fn a_tile_grid_whose_joint_lies_on_the_border_is_tileable() {
+        // Tiles of 16 texels with a dark joint along their first row and column: the
+        // wrap-around step is a joint, like every interior joint.
+        let tile = |y: usize, x: usize| if x % 16 == 0 || y % 16 == 0 { 0.1 } else { 0.8 };
+        let noise = |y: usize, x: usize| ((x * 7919 + y * 104729) % 97) as f32 / 970.0;
+        let grid = Map::from_fn(64, 64, 3, |_, y, x| tile(y, x) + noise(y, x));
+        let (tileable, evidence) = decide_tileable(&material(grid.clone()));
+        assert!(tileable, "{evidence}");
+        // The old guess calls it a crop.
+        assert!(!detect_tileable(&material(grid)).0);
+    }
+
+    #[test]
+    fn a_smooth_crop_is_not_tileable() {
+        // A gradient cut from a larger image: its edges join values far apart, beyond any
+        // interior step.
+        let ramp = Map::from_fn(64, 64, 3, |_, y, x| (x + y) as f32 / 128.0);
+        let (tileable, evidence) = decide_tileable(&material(ramp));
+        assert!(!tileable);
+        assert!(evidence > 10.0, "{evidence}");
+        // Along one axis only (a plank strip that tiles across), it stays tileable.
+        let strip = Map::from_fn(64, 64, 3, |_, _, x| x as f32 / 64.0);
+        assert!(decide_tileable(&material(strip)).0);
+    }
 }

@@ -19,7 +19,7 @@ use matup_core::resample::Border;
 use matup_core::shading::tensor_form;
 use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::tensor::{loss_norm, params_tensor, LightTensors};
-use matup_core::tileable::detect_tileable;
+use matup_core::tileable::decide_tileable;
 use matup_core::upsample::upsampler as rgb_upsampler;
 use matup_core::{Error, LightSetSpec, LossNorm, Material, PluginSpec, Result};
 use matup_eval::metrics::{evaluate, flip, psnr, rmse, sharpness, Evaluation};
@@ -632,7 +632,7 @@ pub fn validate_normals(
         let (w, h) = (v.truth.width(), v.truth.height_px());
         let scale = w / v.lr.width();
         // Borders as `matup upscale` takes them: wrapped where the LR map tiles.
-        let border = Border::for_tiling(detect_tileable(&v.lr).0);
+        let border = Border::for_tiling(decide_tileable(&v.lr).0);
         let back_projection = BackProjection::new(v.lr.width(), scale, border, &device)?;
         let context = net.info.overlap;
         let normals = shipped_normals(net, &[&v.lr], &back_projection, context, border, &device)?;
@@ -684,7 +684,8 @@ fn score_each(
     let lights = LightSetSpec::held_out(lights);
     set.iter()
         .map(|v| {
-            let e = evaluate(&v.truth, &candidate(v)?, model.as_ref(), &lights)?;
+            let scale = v.truth.width() / v.lr.width();
+            let e = evaluate(&v.truth, &candidate(v)?, scale, model.as_ref(), &lights)?;
             Ok((v.name.clone(), e.into()))
         })
         .collect()

@@ -617,6 +617,7 @@ fn a_network_of_normals_is_validated_as_shipped_and_a_height_guide_starts_as_its
     let expected = matup_eval::metrics::evaluate(
         &truth,
         &candidate,
+        1,
         model.as_ref(),
         &LightSetSpec::held_out(config.val_lights),
     )

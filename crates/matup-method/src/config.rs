@@ -417,6 +417,25 @@ impl FilterConfig {
 
 /// A self-ensemble's size, written as a count or, as before counts, as a switch (`true`: all
 /// eight symmetries).
+/// `tileable`: a boolean, or `"auto"` (decided from the edges).
+fn tiling<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<bool>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Tiling {
+        Given(bool),
+        Word(String),
+    }
+    // `null` (run.json's "auto") too.
+    match Option::<Tiling>::deserialize(d)? {
+        None => Ok(None),
+        Some(Tiling::Given(t)) => Ok(Some(t)),
+        Some(Tiling::Word(w)) if w == "auto" => Ok(None),
+        Some(Tiling::Word(w)) => Err(serde::de::Error::custom(format!(
+            "tileable = \"{w}\": use true, false or \"auto\""
+        ))),
+    }
+}
+
 fn symmetry_count<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<usize, D::Error> {
     #[derive(Deserialize)]
     #[serde(untagged)]
@@ -643,7 +662,9 @@ pub struct Config {
     pub upsampler: String,
     /// The shading model (`NAME[:OPTIONS]`).
     pub shading: String,
-    /// Whether the material tiles; detected from its edges when absent.
+    /// Whether the material tiles: `true`, `false`, or absent (`"auto"`): wrapped unless its
+    /// edges show it is a crop (`matup_core::tileable::decide_tileable`).
+    #[serde(deserialize_with = "tiling")]
     pub tileable: Option<bool>,
     /// Skip work the material cannot use (constant channels, dark lights).
     pub skip: bool,
@@ -976,6 +997,21 @@ mod tests {
                 maps: EnsembleMaps::All
             }
         );
+    }
+
+    #[test]
+    fn tileable_is_true_false_or_auto() {
+        let read = |line: &str| Config::from_toml(&format!("{line}\n"), "test.toml");
+        assert_eq!(read("tileable = true").unwrap().tileable, Some(true));
+        assert_eq!(read("tileable = false").unwrap().tileable, Some(false));
+        assert_eq!(read("tileable = \"auto\"").unwrap().tileable, None);
+        assert_eq!(read("").unwrap().tileable, None);
+        let e = read("tileable = \"maybe\"").unwrap_err().to_string();
+        assert!(e.contains("true, false or \"auto\""), "{e}");
+        // run.json writes "auto" as null, and reads it back.
+        let json = serde_json::to_string(&Config::default()).unwrap();
+        let back: Config = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.tileable, None);
     }
 
     #[test]

@@ -28,7 +28,9 @@ use matup_core::upsample::{route, RgbUpsampler};
 use matup_core::{PluginSpec, Result};
 
 pub use crate::features::{constant_features, features};
-pub use matup_core::tileable::{detect_tileable, wrap_seam_ratio, TILEABLE_SEAM_RATIO};
+pub use matup_core::tileable::{
+    decide_tileable, detect_tileable, wrap_seam_ratio, SEAM_OVER_LARGEST_STEP, TILEABLE_SEAM_RATIO,
+};
 
 /// Upsamples `material` as `config` says. Returns the HR material (height included when the
 /// input has one) and what the run did. Holds the whole output; [`upscale_streamed`] hands it
@@ -114,20 +116,24 @@ pub fn upscale_streamed(
 
     let model: Arc<dyn ShadingModel> =
         Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
-    let (tileable, seam) = match config.tileable {
+    let (tileable, evidence) = match config.tileable {
         Some(t) => (t, None),
         None => {
-            let (tileable, ratio) = detect_tileable(material);
-            (tileable, Some(ratio))
+            let (tileable, evidence) = decide_tileable(material);
+            (tileable, Some(evidence))
         }
     };
-    progress.note(&match seam {
-        // The guess is often wrong (docs/experiments/2026-11-25-tileability-detection.md):
-        // say how it was made and how to overrule it.
-        Some(r) => format!(
-            "tileable: {} (a guess from the edges: wrap-around seam ratio {r:.2}, tileable \
-             below {TILEABLE_SEAM_RATIO}; --tileable or --no-tileable decides)",
-            if tileable { "yes" } else { "no" }
+    progress.note(&match evidence {
+        // Decided by what each wrong call costs: mirroring a tileable input seams its output,
+        // wrapping a crop costs little (docs/experiments/2026-11-26-seamless-by-default.md).
+        Some(e) if tileable => format!(
+            "tileable: yes, wrapped (its wrap-around step is {e:.2}× its largest interior step; \
+             only past {SEAM_OVER_LARGEST_STEP} on both axes is it taken for a crop; \
+             --no-tileable mirrors)"
+        ),
+        Some(e) => format!(
+            "tileable: no, mirrored (its wrap-around step is {e:.2}× its largest interior step \
+             on both axes: a crop; --tileable wraps)"
         ),
         None => format!(
             "tileable: {} (as given)",
@@ -244,7 +250,7 @@ pub fn upscale_streamed(
         upsampler_used,
         route: reach.describe(),
         tileable,
-        seam_ratio: seam,
+        tiling_evidence: evidence,
         selection,
         levels,
         timings,

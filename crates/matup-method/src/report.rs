@@ -26,8 +26,10 @@ pub struct RunReport {
     /// 1536×1536`); each level's route is in `levels`.
     pub route: String,
     pub tileable: bool,
-    /// The seam ratio the tileability was detected from (absent when it was given).
-    pub seam_ratio: Option<f32>,
+    /// The evidence the tileability was decided from (absent when it was given): the
+    /// wrap-around step over the largest interior step, the lesser axis
+    /// (`matup_core::tileable::decide_tileable`).
+    pub tiling_evidence: Option<f32>,
     /// How the settings were chosen, with `select = "auto"` (`config` is the chosen one).
     pub selection: Option<SelectionReport>,
     pub levels: Vec<LevelReport>,

@@ -156,7 +156,7 @@ pub fn select(
         let quiet = Cancellable(progress);
         let result = upscale(&lower, &config, &quiet)?;
         let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
-        let e = evaluate(material, &result, model.as_ref(), &lights)?;
+        let e = evaluate(material, &result, scale, model.as_ref(), &lights)?;
         scores.push(CandidateScore {
             name: candidate.name.clone(),
             render_psnr: e.render_psnr,

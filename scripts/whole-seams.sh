@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Seams of whole (tileable) materials as users see them: each material box-filtered ÷DOWN,
+# upscaled ×SCALE with the defaults, and each output map's wrap-around seam compared, at the
+# phase of the input's texel grid, with the true material's at the same size. Prints one row
+# per material: the worst map's seam over max(1, the truth's), and each map's pair.
+#   scripts/whole-seams.sh [--down D] [--scale S] MATERIAL_FOLDER...   (÷8, ×4; needs jq)
+set -euo pipefail
+down=8 scale=4
+while [ $# -gt 0 ]; do
+    case $1 in
+    --down) down=$2; shift 2 ;;
+    --scale) scale=$2; shift 2 ;;
+    *) break ;;
+    esac
+done
+matup=${MATUP:-target/release/matup}
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+echo "| material | worst map: seam / max(1, truth's) | each map: output (truth) |"
+echo "|---|---|---|"
+for m in "$@"; do
+    name=$(basename "$m")
+    "$matup" downsample "$m" -o "$work/$name.lr" --factor "$down" >/dev/null 2>&1
+    # The truth at the output's size.
+    truth=$m
+    if [ "$down" -gt "$scale" ]; then
+        truth=$work/$name.truth
+        "$matup" downsample "$m" -o "$truth" --factor $((down / scale)) >/dev/null 2>&1
+    fi
+    "$matup" upscale "$work/$name.lr" -o "$work/$name.out" --scale "$scale" --quiet >/dev/null
+    "$matup" eval --reference "$truth" --candidate "$work/$name.out" --scale "$scale" \
+        --lights 1 --json >"$work/$name.json"
+    jq -r --arg name "$name" '
+        [.map_seams | to_entries[] | {k: .key, o: .value}] as $o
+        | .reference_map_seams as $r
+        | ($o | map(.o / ([1, $r[.k]] | max)) | max) as $worst
+        | "| \($name) | \($worst * 100 | round / 100) | "
+          + ($o | map("\(.k) \(.o * 100 | round / 100) (\($r[.k] * 100 | round / 100))") | join(", "))
+          + " |"' "$work/$name.json"
+done

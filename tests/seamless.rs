@@ -1,0 +1,108 @@
+//! Tileable in, tileable out. A tileable input's output is seamless when the pipeline cannot
+//! tell where the input's border was: upscaling the input moved by half its size must give the
+//! output moved by half its size, every map, at every scale, whole and in bands. A seam would
+//! show up as a difference along the middle.
+
+mod common;
+
+use matup::config::Config;
+use matup::material::{Extra, MapKind, Material};
+use matup::progress::Silent;
+use matup::{FileFormat, Map, RunOptions};
+
+/// The material moved by `d` texels on both axes, wrapping around.
+fn rolled(m: &Material, d: usize) -> Material {
+    let mut out = m.clone();
+    for map in out.maps_mut() {
+        let (w, h) = (map.width(), map.height());
+        *map = Map::from_fn(w, h, map.channels(), |c, y, x| {
+            map.get(c, (y + h - d) % h, (x + w - d) % w)
+        });
+    }
+    out
+}
+
+/// A real grid material (its joints lie on the border) at `side`², with an occlusion map and
+/// a base-colour alpha carried along.
+fn tiles(side: usize) -> Material {
+    let whole = matup::load_material(
+        Some(&common::test_material("ambientcg_Tiles036")),
+        &Default::default(),
+    )
+    .unwrap();
+    let mut lr = whole.box_downsample(whole.width() / side);
+    let luminance = |c: usize, y: usize, x: usize| lr.base_color.get(c, y, x);
+    let occlusion = Map::from_fn(side, side, 1, |_, y, x| 0.5 + 0.5 * luminance(1, y, x));
+    let alpha = Map::from_fn(side, side, 1, |_, y, x| (luminance(0, y, x) * 2.0).min(1.0));
+    lr.carried.extras.push(Extra {
+        name: "occlusion".into(),
+        source: "occlusion.png".into(),
+        format: FileFormat::Png8,
+        map: occlusion,
+        alpha: None,
+    });
+    lr.carried.alpha.insert(MapKind::BaseColor, alpha);
+    lr
+}
+
+/// The largest difference, over every map, between `expected` and `got`.
+fn worst_difference(expected: &Material, got: &Material) -> f32 {
+    let maps: Vec<(&Map, &Map)> = expected.maps().zip(got.maps()).collect();
+    assert_eq!(maps.len(), expected.maps().count());
+    assert_eq!(
+        maps.len(),
+        7,
+        "five maps, occlusion and alpha: {}",
+        maps.len()
+    );
+    maps.iter()
+        .map(|(a, b)| common::max_abs_diff(a, b))
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn a_tileable_grid_comes_back_seamless_at_every_scale() {
+    // (scale, input side, memory limit): ×16 runs two levels; the limited ×4 runs in bands.
+    for (scale, side, limit_mib) in [
+        (2, 32, None),
+        (3, 32, None),
+        (4, 32, None),
+        (16, 16, None),
+        (4, 128, Some(16)),
+    ] {
+        let lr = tiles(side);
+        let options = RunOptions {
+            memory_limit: limit_mib.map(|m: u64| m << 20),
+            ..RunOptions::default()
+        };
+        let run = |m: &Material, tileable: Option<bool>| {
+            let config = Config {
+                scale,
+                tileable,
+                seed: 1,
+                ..Config::default()
+            };
+            matup::upscale(m, &config, &options, &Silent).unwrap()
+        };
+        // Decided tileable by default: the joints on the border are like the others.
+        let (out, report) = run(&lr, None);
+        assert!(report.tileable, "×{scale}");
+        if limit_mib.is_some() {
+            assert!(
+                report.levels[0].bands >= 2,
+                "{} bands",
+                report.levels[0].bands
+            );
+        }
+        let half = side / 2;
+        let (moved, _) = run(&rolled(&lr, half), None);
+        let seam = worst_difference(&rolled(&out, half * scale), &moved);
+        // Mirrored borders treat the border as an edge: there the output does depend on it.
+        let (mirrored, _) = run(&lr, Some(false));
+        let (mirrored_moved, _) = run(&rolled(&lr, half), Some(false));
+        let mirrored_seam = worst_difference(&rolled(&mirrored, half * scale), &mirrored_moved);
+        println!("×{scale} from {side}²: moved input {seam:.2e}, mirrored {mirrored_seam:.3}");
+        assert!(seam <= 1e-5, "×{scale}: {seam}");
+        assert!(mirrored_seam > 0.02, "×{scale}: {mirrored_seam}");
+    }
+}
