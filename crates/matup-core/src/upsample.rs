@@ -2,7 +2,7 @@
 
 use crate::map::Map;
 use crate::plugin::{find_registration, sorted_registry, PluginOption, PluginSpec, Registration};
-use crate::resample::{area_resize, Border};
+use crate::resample::{shrink, Border, Shrink};
 use crate::{Error, Result};
 
 /// Turns a batch of RGB images (3-channel [`Map`]s in display space, values in [0, 1]) into
@@ -32,6 +32,12 @@ pub trait RgbUpsampler: Send + Sync {
     /// their tiles). Callers with several images to upsample at once (the self-ensemble's
     /// passes) then hand them over in one call, holding all their outputs at once.
     fn batches_images(&self) -> bool {
+        false
+    }
+
+    /// Whether it makes the scales below its native one itself ([`through_native`]'s
+    /// wrapper): then the registry does not wrap it again.
+    fn serves_smaller_scales(&self) -> bool {
         false
     }
 
@@ -81,19 +87,33 @@ pub fn upsamplers() -> Result<Vec<&'static UpsamplerRegistration>> {
 /// Builds the upsampler a spec names (`lanczos3`, `bicubic:a=-0.75`, …). One with a native
 /// scale serves the smaller scales too, through its own ([`route`]).
 pub fn upsampler(spec: &PluginSpec) -> Result<Box<dyn RgbUpsampler>> {
+    upsampler_shrinking_by(spec, Shrink::Area)
+}
+
+/// [`upsampler`] with another filter down from its native scale to the smaller ones (studies
+/// compare them: docs/experiments/2026-11-26-every-scale.md).
+pub fn upsampler_shrinking_by(spec: &PluginSpec, down: Shrink) -> Result<Box<dyn RgbUpsampler>> {
     let registration = find_registration("upsampler", upsamplers()?, &spec.name)?;
-    Ok(serving_smaller_scales((registration.create)(
-        spec.argument.as_deref(),
-    )?))
+    Ok(through_native(
+        (registration.create)(spec.argument.as_deref())?,
+        down,
+    ))
 }
 
 /// `upsampler`, made to serve the scales below its native one through it ([`route`]); as it
 /// is where it has none.
 pub fn serving_smaller_scales(upsampler: Box<dyn RgbUpsampler>) -> Box<dyn RgbUpsampler> {
+    through_native(upsampler, Shrink::Area)
+}
+
+/// [`serving_smaller_scales`] with `down` as the filter down from the native scale.
+pub fn through_native(upsampler: Box<dyn RgbUpsampler>, down: Shrink) -> Box<dyn RgbUpsampler> {
     match upsampler.native_scale() {
+        Some(_) if upsampler.serves_smaller_scales() => upsampler,
         Some(native) => Box::new(ThroughNative {
             inner: upsampler,
             native,
+            down,
         }),
         None => upsampler,
     }
@@ -112,11 +132,12 @@ pub fn route(native: Option<usize>, scale: usize) -> Option<String> {
     })
 }
 
-/// An upsampler of one native scale serving smaller ones: each image ×native, then shrunk by
-/// area averaging to ×scale.
+/// An upsampler of one native scale serving smaller ones: each image ×native, then shrunk
+/// (by area averaging in the defaults) to ×scale.
 struct ThroughNative {
     inner: Box<dyn RgbUpsampler>,
     native: usize,
+    down: Shrink,
 }
 
 impl RgbUpsampler for ThroughNative {
@@ -136,6 +157,10 @@ impl RgbUpsampler for ThroughNative {
         self.inner.batches_images()
     }
 
+    fn serves_smaller_scales(&self) -> bool {
+        true
+    }
+
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         if scale >= self.native {
             // Its own scale, or one it refuses.
@@ -146,7 +171,8 @@ impl RgbUpsampler for ThroughNative {
             .map(|(up, image)| {
                 let native = [image.width(), image.height()].map(|n| n * self.native);
                 if [up.width(), up.height()] == native {
-                    area_resize(&up, image.width() * scale, image.height() * scale)
+                    let size = [image.width(), image.height()].map(|n| n * scale);
+                    shrink(&up, size[0], size[1], self.down, border)
                 } else {
                     up // the wrong size, as the caller's check will say
                 }
@@ -158,7 +184,7 @@ impl RgbUpsampler for ThroughNative {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::resample::box_downsample;
+    use crate::resample::{box_downsample, Kernel};
 
     /// A ×4-only upsampler: every texel repeated 4 × 4.
     struct Nearest4;
@@ -177,6 +203,21 @@ mod tests {
                 })
                 .collect())
         }
+    }
+
+    #[test]
+    fn a_route_with_its_own_filter_down_is_not_wrapped_again() {
+        let image = Map::from_fn(6, 6, 1, |_, y, x| ((x * 3 + y * 7) % 5) as f32 / 4.0);
+        let run = |up: Box<dyn RgbUpsampler>| {
+            (up.upsample(std::slice::from_ref(&image), 3, Border::Wrap)
+                .unwrap())
+            .remove(0)
+        };
+        let area = run(serving_smaller_scales(Box::new(Nearest4)));
+        let lanczos = through_native(Box::new(Nearest4), Shrink::Kernel(Kernel::Lanczos3));
+        let lanczos = run(serving_smaller_scales(lanczos));
+        let differ = (area.data().iter().zip(lanczos.data())).any(|(a, b)| (a - b).abs() > 1e-3);
+        assert!(differ, "the Lanczos route shrank by area");
     }
 
     #[test]
