@@ -1016,10 +1016,88 @@ const OPTIONS: &[PluginOption] = &[
     },
 ];
 
+/// Networks this process has loaded, by their argument and the files they came from: a
+/// `matup batch`, sweep or selection loads each once rather than once a material. A load
+/// parses the graph, plans the engine (on a GPU: uploads the weights) and probes the scale.
+static LOADED: Mutex<Vec<(LoadKey, Arc<OnnxUpsampler>)>> = Mutex::new(Vec::new());
+
+/// What makes two loads the same: the `onnx:` argument, and the length and modification time
+/// of the model and sidecar files it reads (so a file rewritten in between is read again).
+#[derive(PartialEq)]
+struct LoadKey {
+    argument: String,
+    files: Vec<Option<(u64, std::time::SystemTime)>>,
+}
+
+impl LoadKey {
+    fn of(argument: &str, source: &ModelSource, sidecar: Option<&Path>) -> LoadKey {
+        let stamp = |path: &Path| {
+            let meta = std::fs::metadata(path).ok()?;
+            Some((meta.len(), meta.modified().ok()?))
+        };
+        let files = match source {
+            ModelSource::File(model) => {
+                let sidecar =
+                    sidecar.map_or_else(|| model.with_extension("toml"), Path::to_path_buf);
+                vec![stamp(model), stamp(&sidecar)]
+            }
+            ModelSource::BuiltIn(_) => sidecar.map(stamp).into_iter().collect(),
+        };
+        LoadKey {
+            argument: argument.to_string(),
+            files,
+        }
+    }
+}
+
+/// A network shared from [`LOADED`].
+struct Shared(Arc<OnnxUpsampler>);
+
+impl RgbUpsampler for Shared {
+    fn native_scale(&self) -> Option<usize> {
+        self.0.native_scale()
+    }
+    fn batches_images(&self) -> bool {
+        self.0.batches_images()
+    }
+    fn context(&self) -> usize {
+        self.0.context()
+    }
+    fn tile(&self) -> Option<usize> {
+        self.0.tile()
+    }
+    fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        self.0.upsample(images, scale, border)
+    }
+}
+
 /// `onnx:MODEL[,tile=N,overlap=N,batch=N,threads=N,engine=E,device=D,precision=P,sidecar=PATH]`, MODEL a path to a `.onnx` file or a name in the
-/// model folders.
+/// model folders. Loaded once a process ([`LOADED`]).
 fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let argument = argument.unwrap_or("");
+    let model = argument.split_once(',').map_or(argument, |(m, _)| m);
+    let given_sidecar = parse_options("onnx", argument.split_once(',').map(|(_, o)| o), OPTIONS)
+        .ok()
+        .map(|v| v["sidecar"].clone())
+        .filter(|s| !s.is_empty())
+        .map(PathBuf::from);
+    let key = match resolve(model) {
+        Ok(source) => LoadKey::of(argument, &source, given_sidecar.as_deref()),
+        Err(_) => return load(argument).map(|u| Box::new(u) as Box<dyn RgbUpsampler>),
+    };
+    let mut loaded = LOADED
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    if let Some((_, upsampler)) = loaded.iter().find(|(k, _)| *k == key) {
+        return Ok(Box::new(Shared(upsampler.clone())));
+    }
+    let upsampler = Arc::new(load(argument)?);
+    loaded.push((key, upsampler.clone()));
+    Ok(Box::new(Shared(upsampler)))
+}
+
+/// Loads the network `onnx:ARGUMENT` names, with its options.
+fn load(argument: &str) -> Result<OnnxUpsampler> {
     let (model, options) = argument.split_once(',').unwrap_or((argument, ""));
     if model.is_empty() {
         return Err(Error::Plugin {
@@ -1094,7 +1172,7 @@ fn create(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
             message: "tile and batch must be positive".into(),
         });
     }
-    Ok(Box::new(upsampler))
+    Ok(upsampler)
 }
 
 inventory::submit! {
@@ -1109,6 +1187,42 @@ inventory::submit! {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// How many `Shared` handles (and the cache's own) hold the network loaded by `argument`.
+    fn holders(argument: &str) -> usize {
+        let loaded = LOADED.lock().unwrap();
+        let found = loaded.iter().find(|(k, _)| k.argument == argument);
+        found.map_or(0, |(_, u)| Arc::strong_count(u))
+    }
+
+    #[test]
+    fn a_network_is_loaded_once_a_process_and_again_when_its_file_changes() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = dir.path().join("net.onnx");
+        let stock = &BUILT_IN[1];
+        std::fs::write(&model, stock.onnx).unwrap();
+        std::fs::write(model.with_extension("toml"), stock.sidecar).unwrap();
+        let argument = model.display().to_string();
+        let first = create(Some(&argument)).unwrap();
+        let second = create(Some(&argument)).unwrap();
+        // One load, held by the cache and both upsamplers.
+        assert_eq!(holders(&argument), 3);
+        let image = Map::from_fn(12, 10, 3, |c, y, x| ((x * 5 + y * 3 + c) % 7) as f32 / 6.0);
+        let run = |u: &dyn RgbUpsampler| {
+            u.upsample(std::slice::from_ref(&image), 4, Border::Mirror)
+                .unwrap()
+        };
+        assert_eq!(run(first.as_ref()), run(second.as_ref()));
+        // A sidecar rewritten with another tile is another network: loaded anew.
+        let retiled = format!(
+            "{}\ntile = 48\n",
+            stock.sidecar.replace("tile =", "# tile =")
+        );
+        std::fs::write(model.with_extension("toml"), retiled).unwrap();
+        let third = create(Some(&argument)).unwrap();
+        assert_eq!(third.tile(), Some(48));
+        assert_ne!(first.tile(), Some(48));
+    }
 
     #[test]
     fn blend_weights_sum_to_one_at_every_output_texel() {
