@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use matup::map::{Dihedral, Map};
 use matup::material::MapKind;
-use matup::tileable::decide_tileable;
+use matup::tileable::{decide_tileable, judged_maps};
 use matup::{load_material, Material};
 use rand::{Rng, SeedableRng};
 
@@ -40,18 +40,7 @@ pub struct EdgeStats {
 
 /// Mean |difference| between rows `a` and `b` of `map`, over columns and channels.
 fn row_difference(map: &Map, a: usize, b: usize) -> f32 {
-    let w = map.width();
-    let mut sum = 0.0f64;
-    for c in 0..map.channels() {
-        let plane = map.plane(c);
-        let (ra, rb) = (&plane[a * w..(a + 1) * w], &plane[b * w..(b + 1) * w]);
-        sum += ra
-            .iter()
-            .zip(rb)
-            .map(|(x, y)| (x - y).abs() as f64)
-            .sum::<f64>();
-    }
-    (sum / (w * map.channels()) as f64) as f32
+    matup::resample::row_difference(map, a, b) as f32
 }
 
 /// The correlation of rows `a` and `b`'s differences along the row (where structures such as
@@ -115,38 +104,13 @@ fn row_statistics(map: &Map) -> EdgeStats {
 /// [`EdgeStats`] of each varying map, for its rows and its columns.
 pub fn edge_statistics(material: &Material) -> Vec<(MapKind, [EdgeStats; 2])> {
     let mut out = Vec::new();
-    for kind in [
-        MapKind::BaseColor,
-        MapKind::Normal,
-        MapKind::Roughness,
-        MapKind::Metallic,
-        MapKind::Height,
-    ] {
-        let Some(map) = material.map(kind) else {
-            continue;
-        };
-        if map.width() < 4
-            || map.height() < 4
-            || (0..map.channels()).all(|c| map.is_constant(c, 0.0))
-        {
-            continue;
-        }
-        // Judged at 256² at most: box filters keep a tiling and a crop's seam alike.
-        let mut factor = 1;
-        while map.width().min(map.height()) / factor > 256
-            && map.width() % (2 * factor) == 0
-            && map.height() % (2 * factor) == 0
-        {
-            factor *= 2;
-        }
-        let reduced = matup::resample::box_downsample(map, factor);
-        let map = &reduced;
+    for (kind, map) in judged_maps(material) {
         let transpose = Dihedral {
             transpose: true,
             ..Dihedral::default()
         };
         let transposed = map.transformed(transpose);
-        out.push((kind, [row_statistics(map), row_statistics(&transposed)]));
+        out.push((kind, [row_statistics(&map), row_statistics(&transposed)]));
     }
     out
 }

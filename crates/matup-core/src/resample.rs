@@ -6,7 +6,7 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use crate::map::{Map, PARALLEL_TEXELS};
+use crate::map::{Dihedral, Map, PARALLEL_TEXELS};
 use crate::{Error, Result};
 
 /// What lies beyond an image's edge.
@@ -126,16 +126,18 @@ impl Kernel {
         (0..scale)
             .map(|phase| {
                 let frac = (phase as f32 + 0.5) / scale as f32 - 0.5;
-                let mut taps: Vec<(isize, f32)> = (-reach..=reach)
-                    .map(|k| (k, self.weight(frac - k as f32)))
-                    .filter(|&(_, w)| w != 0.0)
-                    .collect();
-                let sum: f32 = taps.iter().map(|t| t.1).sum();
-                taps.iter_mut().for_each(|t| t.1 /= sum);
-                taps
+                normalised((-reach..=reach).map(|k| (k, self.weight(frac - k as f32))))
             })
             .collect()
     }
+}
+
+/// The non-zero taps of `taps`, their weights scaled to sum to 1 so constants stay constant.
+fn normalised<T>(taps: impl Iterator<Item = (T, f32)>) -> Vec<(T, f32)> {
+    let mut taps: Vec<(T, f32)> = taps.filter(|t| t.1 != 0.0).collect();
+    let sum: f32 = taps.iter().map(|t| t.1).sum();
+    taps.iter_mut().for_each(|t| t.1 /= sum);
+    taps
 }
 
 /// Upsamples every channel of `map` by an integer `scale` (≥ 1) with `kernel`, reading
@@ -315,17 +317,11 @@ fn kernel_shrink_taps(
     (0..to)
         .map(|i| {
             let centre = (i as f64 + 0.5) * ratio - 0.5;
-            let mut taps: Vec<(usize, f32)> = (centre.floor() as isize - reach
-                ..=centre.ceil() as isize + reach)
-                .map(|k| {
-                    let w = kernel.weight(((k as f64 - centre) / ratio) as f32);
-                    (border.index(k, from), w)
-                })
-                .filter(|&(_, w)| w != 0.0)
-                .collect();
-            let sum: f32 = taps.iter().map(|t| t.1).sum();
-            taps.iter_mut().for_each(|t| t.1 /= sum);
-            taps
+            let reached = centre.floor() as isize - reach..=centre.ceil() as isize + reach;
+            normalised(reached.map(|k| {
+                let w = kernel.weight(((k as f64 - centre) / ratio) as f32);
+                (border.index(k, from), w)
+            }))
         })
         .collect()
 }
@@ -482,37 +478,41 @@ pub fn seam_ratio(map: &Map, period: usize) -> f32 {
             wrap / interior
         }
     };
-    // Mean |difference| across the edge before each of `lines` (wrap: the last → the first),
-    // with `step(i)` the |difference| across edge i summed over the other axis and channels.
-    let axis = |n: usize, step: &dyn Fn(usize) -> f64| {
+    // Along the rows of `m`: the step into row i from the one before it, wrapping at 0.
+    let along_rows = |m: &Map| {
+        let n = m.height();
+        if n < 2 {
+            return 1.0;
+        }
         let period = if period > 1 && n % period == 0 && n / period >= 2 {
             period
         } else {
             1
         };
+        let step = |i: usize| row_difference(m, (i + n - 1) % n, i);
         let edges: Vec<usize> = (1..n / period).map(|k| k * period).collect();
         let interior = edges.iter().map(|&i| step(i)).sum::<f64>() / edges.len().max(1) as f64;
         ratio(step(0), interior)
     };
-    let (w, h) = (map.width(), map.height());
-    // The step into column (row) i from the one before it, wrapping at 0.
-    let columns = |i: usize| {
-        let before = (i + w - 1) % w;
-        (0..map.channels())
-            .flat_map(|c| (0..h).map(move |y| (c, y)))
-            .map(|(c, y)| (map.get(c, y, i) as f64 - map.get(c, y, before) as f64).abs())
-            .sum::<f64>()
-    };
-    let rows = |i: usize| {
-        let before = (i + h - 1) % h;
-        (0..map.channels())
-            .flat_map(|c| (0..w).map(move |x| (c, x)))
-            .map(|(c, x)| (map.get(c, i, x) as f64 - map.get(c, before, x) as f64).abs())
-            .sum::<f64>()
-    };
-    let c = if w > 1 { axis(w, &columns) } else { 1.0 };
-    let r = if h > 1 { axis(h, &rows) } else { 1.0 };
-    r.max(c) as f32
+    let columns = map.transformed(Dihedral {
+        transpose: true,
+        ..Dihedral::default()
+    });
+    along_rows(map).max(along_rows(&columns)) as f32
+}
+
+/// The mean |difference| between rows `a` and `b` of `map`, over its columns and channels.
+pub fn row_difference(map: &Map, a: usize, b: usize) -> f64 {
+    let w = map.width();
+    let mut sum = 0.0f64;
+    for c in 0..map.channels() {
+        let plane = map.plane(c);
+        let (ra, rb) = (&plane[a * w..][..w], &plane[b * w..][..w]);
+        sum += (ra.iter().zip(rb))
+            .map(|(x, y)| (x - y).abs() as f64)
+            .sum::<f64>();
+    }
+    sum / (w * map.channels()).max(1) as f64
 }
 
 #[cfg(test)]

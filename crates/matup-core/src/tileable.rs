@@ -6,7 +6,7 @@
 
 use crate::map::{Dihedral, Map};
 use crate::material::{MapKind, Material};
-use crate::resample::{box_downsample, seam_ratio};
+use crate::resample::{box_downsample, row_difference, seam_ratio};
 
 /// A material whose wrap-around seam ratio (see [`wrap_seam_ratio`]) stays below this is
 /// guessed tileable by [`detect_tileable`]. Right for 61–66% of whole materials and crops
@@ -38,24 +38,7 @@ pub const SEAM_OVER_LARGEST_STEP: f32 = 1.25;
 /// often reads well above 1.
 pub fn wrap_evidence(material: &Material) -> [f32; 2] {
     let mut per_axis: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
-    // The maps the threshold was measured on.
-    for kind in [
-        MapKind::BaseColor,
-        MapKind::Normal,
-        MapKind::Roughness,
-        MapKind::Metallic,
-        MapKind::Height,
-    ] {
-        let Some(map) = material.map(kind) else {
-            continue;
-        };
-        if map.width() < 4
-            || map.height() < 4
-            || (0..map.channels()).all(|c| map.is_constant(c, 0.0))
-        {
-            continue;
-        }
-        let map = judged_size(map);
+    for (_, map) in judged_maps(material) {
         let columns = map.transformed(Dihedral {
             transpose: true,
             ..Dihedral::default()
@@ -86,38 +69,43 @@ pub fn decide_tileable(material: &Material) -> (bool, f32) {
     (evidence <= SEAM_OVER_LARGEST_STEP, evidence)
 }
 
-/// The map box-filtered to 256² at most, as measured: a box filter keeps a tiling and a crop's
-/// edge alike, and texel noise matters less.
-fn judged_size(map: &Map) -> Map {
-    let mut factor = 1;
-    while map.width().min(map.height()) / factor > 256
-        && map.width() % (2 * factor) == 0
-        && map.height() % (2 * factor) == 0
-    {
-        factor *= 2;
-    }
-    box_downsample(map, factor)
+/// The maps tiling is judged on: base colour, normal, roughness, metallic and height where
+/// they vary and are at least 4² (those the thresholds were measured on), each box-filtered to
+/// 256² at most: a box filter keeps a tiling and a crop's edge alike, and texel noise matters
+/// less.
+pub fn judged_maps(material: &Material) -> Vec<(MapKind, Map)> {
+    let kinds = [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+        MapKind::Height,
+    ];
+    let varies = |map: &Map| (0..map.channels()).any(|c| !map.is_constant(c, 0.0));
+    (kinds.into_iter())
+        .filter_map(|kind| Some((kind, material.map(kind)?)))
+        .filter(|(_, map)| map.width() >= 4 && map.height() >= 4 && varies(map))
+        .map(|(kind, map)| {
+            let mut factor = 1;
+            while map.width().min(map.height()) / factor > 256
+                && map.width() % (2 * factor) == 0
+                && map.height() % (2 * factor) == 0
+            {
+                factor *= 2;
+            }
+            (kind, box_downsample(map, factor))
+        })
+        .collect()
 }
 
 /// The mean |difference| between the last row and the first over the largest mean |difference|
 /// between neighbouring interior rows.
 fn edge_over_largest_step(map: &Map) -> f32 {
-    let (w, h) = (map.width(), map.height());
-    let step = |a: usize, b: usize| {
-        let mut sum = 0.0f64;
-        for c in 0..map.channels() {
-            let plane = map.plane(c);
-            let (ra, rb) = (&plane[a * w..(a + 1) * w], &plane[b * w..(b + 1) * w]);
-            sum += ra
-                .iter()
-                .zip(rb)
-                .map(|(x, y)| (x - y).abs() as f64)
-                .sum::<f64>();
-        }
-        sum
-    };
-    let largest = (0..h - 1).map(|k| step(k, k + 1)).fold(0.0, f64::max);
-    let edge = step(h - 1, 0);
+    let h = map.height();
+    let largest = (0..h - 1)
+        .map(|k| row_difference(map, k, k + 1))
+        .fold(0.0, f64::max);
+    let edge = row_difference(map, h - 1, 0);
     if largest <= 1e-12 {
         return if edge <= 1e-12 { 1.0 } else { f32::INFINITY };
     }
