@@ -97,12 +97,16 @@ fn a_tileable_grid_comes_back_seamless_at_every_scale() {
         let half = side / 2;
         let (moved, _) = run(&rolled(&lr, half), None);
         let seam = worst_difference(&rolled(&out, half * scale), &moved);
-        // Mirrored borders treat the border as an edge: there the output does depend on it.
-        let (mirrored, _) = run(&lr, Some(false));
-        let (mirrored_moved, _) = run(&rolled(&lr, half), Some(false));
-        let mirrored_seam = worst_difference(&rolled(&mirrored, half * scale), &mirrored_moved);
-        println!("×{scale} from {side}²: moved input {seam:.2e}, mirrored {mirrored_seam:.3}");
+        println!("×{scale} from {side}²: moved input {seam:.2e}");
         assert!(seam <= 1e-5, "×{scale}: {seam}");
-        assert!(mirrored_seam > 0.02, "×{scale}: {mirrored_seam}");
+        if scale <= 4 && limit_mib.is_none() {
+            // Mirrored borders treat the border as an edge: there the output does depend on
+            // it, so the check above can fail (checked where runs are quick).
+            let (mirrored, _) = run(&lr, Some(false));
+            let (mirrored_moved, _) = run(&rolled(&lr, half), Some(false));
+            let mirrored_seam = worst_difference(&rolled(&mirrored, half * scale), &mirrored_moved);
+            println!("  mirrored {mirrored_seam:.3}");
+            assert!(mirrored_seam > 0.02, "×{scale}: {mirrored_seam}");
+        }
     }
 }
