@@ -105,12 +105,8 @@ fn row_statistics(map: &Map) -> EdgeStats {
 pub fn edge_statistics(material: &Material) -> Vec<(MapKind, [EdgeStats; 2])> {
     let mut out = Vec::new();
     for (kind, map) in judged_maps(material) {
-        let transpose = Dihedral {
-            transpose: true,
-            ..Dihedral::default()
-        };
-        let transposed = map.transformed(transpose);
-        out.push((kind, [row_statistics(&map), row_statistics(&transposed)]));
+        let columns = map.transformed(Dihedral::TRANSPOSE);
+        out.push((kind, [row_statistics(&map), row_statistics(&columns)]));
     }
     out
 }

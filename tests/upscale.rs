@@ -135,13 +135,13 @@ fn denim() -> &'static (Material, Material, RunReport) {
 fn tileable_input_gives_tileable_output() {
     let (lr, hr, report) = denim();
     assert!(report.tileable);
-    let input = wrap_seam_ratio(lr);
-    let output = wrap_seam_ratio(hr);
+    let input = wrap_seam_ratio(lr, 1);
+    let output = wrap_seam_ratio(hr, 1);
     // Mirrored windows treat the edge as an edge; the wrap-around then shows it.
     let mut mirrored = quick_config(1);
     mirrored.tileable = Some(false);
     let (not_tiled, _) = run(lr, &mirrored);
-    let mirrored_ratio = wrap_seam_ratio(&not_tiled);
+    let mirrored_ratio = wrap_seam_ratio(&not_tiled, 1);
     println!(
         "seam ratio: input {input:.3}, output {output:.3}, mirrored windows {mirrored_ratio:.3}"
     );

@@ -275,6 +275,13 @@ pub struct Dihedral {
 }
 
 impl Dihedral {
+    /// Rows become columns: an axis's statistics, computed along rows, for the columns.
+    pub const TRANSPOSE: Dihedral = Dihedral {
+        flip_x: false,
+        flip_y: false,
+        transpose: true,
+    };
+
     /// All eight, the identity first.
     pub const ALL: [Dihedral; 8] = {
         let mut all = [Dihedral {

@@ -494,11 +494,7 @@ pub fn seam_ratio(map: &Map, period: usize) -> f32 {
         let interior = edges.iter().map(|&i| step(i)).sum::<f64>() / edges.len().max(1) as f64;
         ratio(step(0), interior)
     };
-    let columns = map.transformed(Dihedral {
-        transpose: true,
-        ..Dihedral::default()
-    });
-    along_rows(map).max(along_rows(&columns)) as f32
+    along_rows(map).max(along_rows(&map.transformed(Dihedral::TRANSPOSE))) as f32
 }
 
 /// The mean |difference| between rows `a` and `b` of `map`, over its columns and channels.

@@ -14,15 +14,16 @@ use crate::resample::{box_downsample, row_difference, seam_ratio};
 /// not a decision for outputs.
 pub const TILEABLE_SEAM_RATIO: f32 = 2.2;
 
-/// The wrap-around seam ratio of a material's base colour and normal (the larger): about 1
-/// for tileable materials, well above for others.
-pub fn wrap_seam_ratio(material: &Material) -> f32 {
-    seam_ratio(&material.base_color, 1).max(seam_ratio(&material.normal, 1))
+/// The wrap-around seam ratio of a material's base colour and normal (the larger), at the
+/// phase of a `period`-texel grid ([`seam_ratio`]): about 1 for tileable materials, well
+/// above for others.
+pub fn wrap_seam_ratio(material: &Material, period: usize) -> f32 {
+    seam_ratio(&material.base_color, period).max(seam_ratio(&material.normal, period))
 }
 
 /// Whether a material tiles, guessed from its wrap-around seam ratio, and the ratio.
 pub fn detect_tileable(material: &Material) -> (bool, f32) {
-    let ratio = wrap_seam_ratio(material);
+    let ratio = wrap_seam_ratio(material, 1);
     (ratio < TILEABLE_SEAM_RATIO, ratio)
 }
 
@@ -39,12 +40,10 @@ pub const SEAM_OVER_LARGEST_STEP: f32 = 1.25;
 pub fn wrap_evidence(material: &Material) -> [f32; 2] {
     let mut per_axis: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
     for (_, map) in judged_maps(material) {
-        let columns = map.transformed(Dihedral {
-            transpose: true,
-            ..Dihedral::default()
-        });
         per_axis[0].push(edge_over_largest_step(&map));
-        per_axis[1].push(edge_over_largest_step(&columns));
+        per_axis[1].push(edge_over_largest_step(
+            &map.transformed(Dihedral::TRANSPOSE),
+        ));
     }
     per_axis.map(|mut v| {
         if v.is_empty() {

@@ -13,7 +13,7 @@ use matup_core::material::{MapKind, Material};
 use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{gaussian_blur, lr_texel, neighbourhood_ranges, seam_ratio, Border};
 use matup_core::shading::ShadingModel;
-use matup_core::tileable::detect_tileable;
+use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
 use matup_core::{Error, Result};
 
 /// PSNR of identical images: the mean squared error is floored at 1e-10, so PSNR tops out at
@@ -44,7 +44,7 @@ pub struct Evaluation {
     /// input's texel grid (1: every step).
     pub scale: usize,
     /// Wrap-around seam ratio of the candidate's base colour and normal, the larger (1 is
-    /// seamless), and of the reference's, at the grid's phase ([`seam_ratio`]).
+    /// seamless), and of the reference's, at the grid's phase ([`wrap_seam_ratio`]).
     pub seam_ratio: f64,
     pub reference_seam_ratio: f64,
     /// Each map's wrap-around seam ratio ([`map_seams`]), the candidate's and the reference's.
@@ -198,8 +198,8 @@ pub fn evaluate(
         roughness_rmse: rmse(&reference.roughness, &candidate.roughness),
         metallic_rmse: rmse(&reference.metallic, &candidate.metallic),
         scale,
-        seam_ratio: colour_and_normal_seam(candidate, scale),
-        reference_seam_ratio: colour_and_normal_seam(reference, scale),
+        seam_ratio: wrap_seam_ratio(candidate, scale) as f64,
+        reference_seam_ratio: wrap_seam_ratio(reference, scale) as f64,
         map_seams: map_seams(candidate, scale),
         reference_map_seams: map_seams(reference, scale),
         map_block_edges: map_block_edges(candidate, scale),
@@ -217,10 +217,6 @@ pub fn evaluate(
 /// maps show what its output's should be. Needs no reference.
 pub fn map_seams(material: &Material, scale: usize) -> BTreeMap<String, f64> {
     each_map(material, |map| seam_ratio(map, scale) as f64)
-}
-
-fn colour_and_normal_seam(material: &Material, scale: usize) -> f64 {
-    seam_ratio(&material.base_color, scale).max(seam_ratio(&material.normal, scale)) as f64
 }
 
 /// Each map's [`block_edge_ratio`], by file name; empty at scale 1.
@@ -241,8 +237,9 @@ fn each_map(material: &Material, f: impl Fn(&Map) -> f64) -> BTreeMap<String, f6
 /// How strongly an output ×`scale` shows its input's texel grid: the mean |difference| across
 /// the edges of the `scale`-texel blocks over the mean |difference| between neighbours inside
 /// a block, over both axes and every channel (the wrap-around edge left out). A smooth
-/// upscale of smooth content reads about 1; plain resamplers read 1.1–1.3 on real maps,
-/// because the input's own texel steps land on the block edges.
+/// upscale of smooth content reads about 1; on real base colours at ×4 bilinear reads
+/// 1.0–1.15, Lanczos-3 up to 1.3 and bicubic up to 1.45, because the input's own texel steps
+/// land on the block edges (docs/experiments/2026-11-26-seamless-by-default.md).
 pub fn block_edge_ratio(map: &Map, scale: usize) -> f64 {
     let (w, h) = (map.width(), map.height());
     // [across block edges, inside blocks]: (sum, count).

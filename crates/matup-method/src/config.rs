@@ -415,8 +415,6 @@ impl FilterConfig {
     }
 }
 
-/// A self-ensemble's size, written as a count or, as before counts, as a switch (`true`: all
-/// eight symmetries).
 /// `tileable`: a boolean, or `"auto"` (decided from the edges).
 fn tiling<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<bool>, D::Error> {
     #[derive(Deserialize)]
@@ -436,6 +434,8 @@ fn tiling<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<bool>, 
     }
 }
 
+/// A self-ensemble's size, written as a count or, as before counts, as a switch (`true`: all
+/// eight symmetries).
 fn symmetry_count<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<usize, D::Error> {
     #[derive(Deserialize)]
     #[serde(untagged)]

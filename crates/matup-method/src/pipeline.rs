@@ -29,7 +29,7 @@ use matup_core::{PluginSpec, Result};
 
 pub use crate::features::{constant_features, features};
 pub use matup_core::tileable::{
-    decide_tileable, detect_tileable, wrap_seam_ratio, SEAM_OVER_LARGEST_STEP, TILEABLE_SEAM_RATIO,
+    decide_tileable, detect_tileable, wrap_seam_ratio, SEAM_OVER_LARGEST_STEP,
 };
 
 /// Upsamples `material` as `config` says. Returns the HR material (height included when the

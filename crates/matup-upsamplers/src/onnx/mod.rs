@@ -1035,17 +1035,9 @@ impl LoadKey {
             let meta = std::fs::metadata(path).ok()?;
             Some((meta.len(), meta.modified().ok()?))
         };
-        let files = match source {
-            ModelSource::File(model) => {
-                let sidecar =
-                    sidecar.map_or_else(|| model.with_extension("toml"), Path::to_path_buf);
-                vec![stamp(model), stamp(&sidecar)]
-            }
-            ModelSource::BuiltIn(_) => sidecar.map(stamp).into_iter().collect(),
-        };
         LoadKey {
             argument: argument.to_string(),
-            files,
+            files: source.files(sidecar).iter().map(|f| stamp(f)).collect(),
         }
     }
 }

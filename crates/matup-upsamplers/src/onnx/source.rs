@@ -71,6 +71,19 @@ impl ModelSource {
         }
     }
 
+    /// The files a load of it reads: the model and its sidecar (`sidecar` where given, else
+    /// `NAME.toml` beside it); a built-in's given sidecar only.
+    pub fn files(&self, sidecar: Option<&Path>) -> Vec<PathBuf> {
+        let model = match self {
+            ModelSource::File(path) => Some(path.clone()),
+            ModelSource::BuiltIn(_) => None,
+        };
+        let sidecar = sidecar
+            .map(Path::to_path_buf)
+            .or_else(|| model.as_deref().map(sidecar_path));
+        model.into_iter().chain(sidecar).collect()
+    }
+
     /// The ONNX model as read from the protobuf.
     pub fn proto(&self) -> Result<ModelProto> {
         let read = match self {
