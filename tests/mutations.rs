@@ -12,17 +12,24 @@ use std::path::{Path, PathBuf};
 use matup::config::Config;
 use matup::folder::upscale_to_folder;
 use matup::io::Names;
-use matup::material::FileFormat;
+use matup::material::{DdsFormat, FileFormat};
 use matup::progress::Silent;
 use matup::{load_material, save_material, LoadOptions, SaveOptions};
 use rand::{Rng, SeedableRng};
 
-const FORMATS: [FileFormat; 5] = [
+const FORMATS: [FileFormat; 6] = [
     FileFormat::Png8,
     FileFormat::Jpeg,
     FileFormat::ExrHalf,
     FileFormat::Tiff16,
     FileFormat::Tga,
+    // `--format dds`: BC7 colour, BC5 normals, BC4 grey, with mip chains.
+    FileFormat::Dds(DdsFormat {
+        codec: None,
+        srgb: None,
+        dx10: true,
+        mipmaps: true,
+    }),
 ];
 
 /// How a file is damaged.
@@ -290,7 +297,7 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
         panics.len()
     );
     assert!(panics.is_empty(), "panics: {panics:?}");
-    assert_eq!(upscaled + refused, 1600);
+    assert_eq!(upscaled + refused, 1800);
     // Both happen: damage a decoder cannot see (a flipped JPEG byte) upscales, a truncated
     // file is refused.
     assert!(upscaled > 0 && refused > 0);

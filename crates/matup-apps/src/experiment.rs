@@ -531,6 +531,7 @@ fn keep_output(out: &Path, run: &Run, name: &str, material: &Material) -> Result
         format: Some(FileFormat::Png8),
         normal_convention: Some(NormalConvention::DirectX),
         names: Names::Matup,
+        ..SaveOptions::default()
     };
     let mut material = material.clone();
     material.origin = None; // its own files, not the input's formats

@@ -66,6 +66,7 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
             format: args.settings.format,
             normal_convention: None,
             names: args.settings.names,
+            block_quality: args.settings.block_quality,
         },
         load: args.load.options(Default::default()),
         shard,

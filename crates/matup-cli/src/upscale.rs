@@ -7,7 +7,7 @@ use clap::Args;
 use matup_apps::folder::{upscale_to_folder, FolderRun};
 use matup_apps::view::write_run_view;
 use matup_core::io::Names;
-use matup_core::{FileFormat, LossNorm, SaveOptions};
+use matup_core::{BlockQuality, FileFormat, LossNorm, SaveOptions};
 use matup_method::bands::default_memory_limit;
 use matup_method::config::{
     Activation, Backend, Chain, EnsembleMaps, Interpolation, ResidualBase, Schedule, Selection,
@@ -179,9 +179,15 @@ pub struct SettingsArgs {
     #[arg(long)]
     pub texels_per_epoch: Option<usize>,
     /// Output format of every map (png, png16, jpg, exr-half, exr-float, tiff, tiff16,
-    /// tiff-float, tga); default: the input's.
+    /// tiff-float, tga; dds: BC7, BC5 for normals, BC4 for one channel; dds-bc1, dds-bc3,
+    /// dds-bc4, dds-bc5, dds-bc7, dds-rgba8 and the other DDS formats, all with mip chains);
+    /// default: the input's.
     #[arg(long)]
     pub format: Option<FileFormat>,
+    /// How hard DDS block encoders (BC1–BC7) search: fast, normal, high or max (slower is
+    /// closer to the upscaled map).
+    #[arg(long, default_value_t = BlockQuality::Normal)]
+    pub block_quality: BlockQuality,
     /// The names maps are written under: keep (the input's own, a resolution tag such as _1K
     /// rewritten to the output's size; packed and gloss files come back as such) or matup
     /// (baseColor, normal, roughness, metallic, height). Maps matup does not render with
@@ -314,6 +320,7 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         format: args.settings.format,
         normal_convention: None,
         names: args.settings.names,
+        block_quality: args.settings.block_quality,
     };
     let FolderRun {
         report,

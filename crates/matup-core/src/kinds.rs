@@ -126,7 +126,112 @@ pub enum FileFormat {
     TiffFloat,
     /// 8-bit TGA (game engines' format).
     Tga,
+    /// DirectDraw Surface: block-compressed (BC1–BC7) or uncompressed, with or without mips.
+    Dds(DdsFormat),
 }
+
+/// How a DDS file stores its texture: the surface format, the header's sRGB flag, which header
+/// it has and whether it carries a mip chain. Read from a file, it is written back the same.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct DdsFormat {
+    /// The surface format; `None` chooses one a file when written: BC5 for normals, BC4 for
+    /// one channel, BC7 otherwise.
+    pub codec: Option<DdsCodec>,
+    /// Whether the header marks the texture sRGB; `None`: where its colour is sRGB-encoded.
+    pub srgb: Option<bool>,
+    /// A DX10 header (the only one BC7 and sRGB have); else the legacy DX9 one.
+    pub dx10: bool,
+    /// A full mip chain, made from the written map.
+    pub mipmaps: bool,
+}
+
+/// The DDS surface formats matup reads and writes back: the block formats BC1–BC5 and BC7 and
+/// the common uncompressed ones. Each row: its name for `--format dds-NAME`, the format, the
+/// channels its texture holds (two for the normal formats, whose z is rebuilt), whether it
+/// stores floats.
+pub const DDS_CODECS: [(&str, DdsCodec, usize, bool); 22] = {
+    use dds::Format as F;
+    [
+        ("bc1", DdsCodec(F::BC1_UNORM), 4, false),
+        ("bc2", DdsCodec(F::BC2_UNORM), 4, false),
+        ("bc3", DdsCodec(F::BC3_UNORM), 4, false),
+        ("bc4", DdsCodec(F::BC4_UNORM), 1, false),
+        ("bc5", DdsCodec(F::BC5_UNORM), 2, false),
+        ("bc7", DdsCodec(F::BC7_UNORM), 4, false),
+        ("rgba8", DdsCodec(F::R8G8B8A8_UNORM), 4, false),
+        ("bgra8", DdsCodec(F::B8G8R8A8_UNORM), 4, false),
+        ("bgrx8", DdsCodec(F::B8G8R8X8_UNORM), 3, false),
+        ("rgb8", DdsCodec(F::R8G8B8_UNORM), 3, false),
+        ("bgr8", DdsCodec(F::B8G8R8_UNORM), 3, false),
+        ("r8", DdsCodec(F::R8_UNORM), 1, false),
+        ("rg8", DdsCodec(F::R8G8_UNORM), 2, false),
+        ("r16", DdsCodec(F::R16_UNORM), 1, false),
+        ("rg16", DdsCodec(F::R16G16_UNORM), 2, false),
+        ("rgba16", DdsCodec(F::R16G16B16A16_UNORM), 4, false),
+        ("b5g6r5", DdsCodec(F::B5G6R5_UNORM), 3, false),
+        ("rgb10a2", DdsCodec(F::R10G10B10A2_UNORM), 4, false),
+        ("r16f", DdsCodec(F::R16_FLOAT), 1, true),
+        ("rgba16f", DdsCodec(F::R16G16B16A16_FLOAT), 4, true),
+        ("r32f", DdsCodec(F::R32_FLOAT), 1, true),
+        ("rgba32f", DdsCodec(F::R32G32B32A32_FLOAT), 4, true),
+    ]
+};
+
+/// A DDS surface format matup reads and writes (a row of [`DDS_CODECS`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct DdsCodec(pub dds::Format);
+
+impl DdsCodec {
+    fn row(self) -> &'static (&'static str, DdsCodec, usize, bool) {
+        (DDS_CODECS.iter())
+            .find(|row| row.1 == self)
+            .expect("a DdsCodec is a row of DDS_CODECS")
+    }
+
+    /// The codec of `format`, if matup reads and writes it.
+    pub fn of(format: dds::Format) -> Option<DdsCodec> {
+        (DDS_CODECS.iter())
+            .find(|row| row.1 .0 == format)
+            .map(|row| row.1)
+    }
+
+    pub fn name(self) -> &'static str {
+        self.row().0
+    }
+
+    /// The channels a texture of this format holds: 1, 2 (x and y of a normal), 3 or 4.
+    pub fn channels(self) -> usize {
+        self.row().2
+    }
+
+    pub fn is_float(self) -> bool {
+        self.row().3
+    }
+
+    /// Whether its values are 4×4 blocks (so each level's sides are padded to 4).
+    pub fn is_block(self) -> bool {
+        self.name().starts_with("bc")
+    }
+}
+
+/// How hard the block encoders (BC1–BC7) search: slower is closer to the uncompressed map.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum BlockQuality {
+    Fast,
+    #[default]
+    Normal,
+    High,
+    /// The most thorough search (BC7 at several times `high`'s time).
+    Max,
+}
+
+serde_plain::derive_display_from_serialize!(BlockQuality);
+serde_plain::derive_fromstr_from_deserialize!(BlockQuality, |e| -> Error {
+    Error::Invalid(format!("block quality: {e}; use fast, normal, high or max"))
+});
 
 impl FileFormat {
     pub fn extension(self) -> &'static str {
@@ -136,6 +241,7 @@ impl FileFormat {
             FileFormat::ExrHalf | FileFormat::ExrFloat => "exr",
             FileFormat::Tiff8 | FileFormat::Tiff16 | FileFormat::TiffFloat => "tif",
             FileFormat::Tga => "tga",
+            FileFormat::Dds(_) => "dds",
         }
     }
 
@@ -145,7 +251,7 @@ impl FileFormat {
         matches!(
             self,
             FileFormat::ExrHalf | FileFormat::ExrFloat | FileFormat::TiffFloat
-        )
+        ) || matches!(self, FileFormat::Dds(DdsFormat { codec: Some(c), .. }) if c.is_float())
     }
 }
 
@@ -162,10 +268,29 @@ impl FromStr for FileFormat {
             "tiff16" => Ok(FileFormat::Tiff16),
             "tiff-float" | "tiff32" => Ok(FileFormat::TiffFloat),
             "tga" => Ok(FileFormat::Tga),
-            _ => Err(Error::Invalid(format!(
-                "unknown format '{s}'; use png, png16, jpg, exr-half, exr-float, tiff, \
-                 tiff16, tiff-float or tga"
-            ))),
+            // A chosen DDS format has the DX10 header and a full mip chain, as engines load.
+            "dds" => Ok(FileFormat::Dds(DdsFormat {
+                codec: None,
+                srgb: None,
+                dx10: true,
+                mipmaps: true,
+            })),
+            name => match (name.strip_prefix("dds-"))
+                .and_then(|codec| DDS_CODECS.iter().find(|row| row.0 == codec))
+            {
+                Some(row) => Ok(FileFormat::Dds(DdsFormat {
+                    codec: Some(row.1),
+                    srgb: None,
+                    dx10: true,
+                    mipmaps: true,
+                })),
+                None => Err(Error::Invalid(format!(
+                    "unknown format '{s}'; use png, png16, jpg, exr-half, exr-float, tiff, \
+                     tiff16, tiff-float, tga, dds (BC7, BC5 for normals, BC4 for one channel) \
+                     or dds-FORMAT ({})",
+                    DDS_CODECS.map(|row| row.0).join(", ")
+                ))),
+            },
         }
     }
 }
@@ -182,6 +307,10 @@ impl fmt::Display for FileFormat {
             FileFormat::Tiff16 => "tiff16",
             FileFormat::TiffFloat => "tiff-float",
             FileFormat::Tga => "tga",
+            FileFormat::Dds(DdsFormat { codec: None, .. }) => "dds",
+            FileFormat::Dds(DdsFormat { codec: Some(c), .. }) => {
+                return write!(f, "dds-{}", c.name())
+            }
         })
     }
 }

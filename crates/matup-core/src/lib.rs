@@ -34,7 +34,7 @@ pub use io::{load_material, save_material, LoadOptions, MaterialPaths, SaveOptio
 pub use lights::{Light, LightSample, LightSetSpec};
 pub use loss::LossNorm;
 pub use map::{Dihedral, Map};
-pub use material::{FileFormat, MapKind, Material, NormalConvention};
+pub use material::{BlockQuality, DdsFormat, FileFormat, MapKind, Material, NormalConvention};
 pub use plugin::{PluginOption, PluginSpec};
 pub use render::{render, RenderOptions};
 pub use resample::{Border, Kernel};

@@ -13,7 +13,9 @@ pub const MIN_ALPHA: f32 = 2e-3;
 /// Height displaces the shading point by `DISPLACEMENT · (h − ½)`.
 pub const DISPLACEMENT: f32 = 0.01;
 
-pub use crate::kinds::{FileFormat, MapKind, NormalConvention};
+pub use crate::kinds::{
+    BlockQuality, DdsCodec, DdsFormat, FileFormat, MapKind, NormalConvention, DDS_CODECS,
+};
 
 /// Where a loaded material came from, so it can be saved the way it was given.
 #[derive(Clone, Debug, PartialEq)]

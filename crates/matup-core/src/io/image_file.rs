@@ -1,5 +1,5 @@
 //! Reading and writing single image files (PNG 8/16-bit, JPEG, EXR half/float, TIFF 8/16-bit
-//! and float, TGA): formats live at this edge; everything inside is a planar f32 [`Map`].
+//! and float, TGA, DDS): formats live at this edge; everything inside is a planar f32 [`Map`].
 
 use std::io::Cursor;
 use std::path::Path;
@@ -21,7 +21,7 @@ pub(crate) struct ImageFile {
 }
 
 /// The file extensions matup reads.
-pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "exr", "tif", "tiff", "tga"];
+pub const IMAGE_EXTENSIONS: [&str; 8] = ["png", "jpg", "jpeg", "exr", "tif", "tiff", "tga", "dds"];
 
 /// Whether `path` names a file of a format matup reads (by its extension, any case).
 pub fn is_image_file(path: &Path) -> bool {
@@ -47,12 +47,14 @@ pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
         read_exr(path, max_texels)
     } else if has_extension(path, &["tif", "tiff"]) {
         read_tiff(path, max_texels)
+    } else if has_extension(path, &["dds"]) {
+        super::dds_file::read_dds(path, max_texels)
     } else {
         read_with_image_crate(path, max_texels)
     }
 }
 
-fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Result<()> {
+pub(super) fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Result<()> {
     if width == 0 || height == 0 {
         return Err(Error::file(
             path,
@@ -107,7 +109,7 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
         other => {
             return Err(Error::file(
                 path,
-                format!("unsupported image format {other:?}; use PNG, JPEG, EXR, TIFF or TGA"),
+                format!("unsupported image format {other:?}; use PNG, JPEG, EXR, TIFF, TGA or DDS"),
             ))
         }
     };

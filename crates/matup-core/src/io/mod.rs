@@ -2,6 +2,7 @@
 //! at this edge: the rest of matup sees only [`Material`]. Both go through the material's
 //! layout ([`crate::layout`]): what each channel of each file holds and how it is stored.
 
+mod dds_file;
 mod discover;
 mod image_file;
 mod read;
@@ -13,14 +14,15 @@ use std::path::{Path, PathBuf};
 
 pub use discover::{discover, Discovered, FileRole, Role};
 pub use image_file::{is_image_file, write_atomic, IMAGE_EXTENSIONS};
-pub use stream::ImageWriter;
+pub use stream::{ImageWriter, WriteHints};
 pub use write::{check_output_folder, retag, MaterialWriter};
 
 use crate::convention;
 use crate::layout::{Packing, Stored};
 use crate::map::Map;
 use crate::material::{
-    normalize_normals, Carried, FileFormat, MapKind, Material, MaterialOrigin, NormalConvention,
+    normalize_normals, BlockQuality, Carried, FileFormat, MapKind, Material, MaterialOrigin,
+    NormalConvention,
 };
 use crate::{Error, Result};
 use discover::file_name;
@@ -325,6 +327,8 @@ pub struct SaveOptions {
     pub normal_convention: Option<NormalConvention>,
     /// The names the maps are written under.
     pub names: Names,
+    /// How hard DDS files' block encoders search.
+    pub block_quality: BlockQuality,
 }
 
 /// The names a material's maps are written under.

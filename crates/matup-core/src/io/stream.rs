@@ -1,9 +1,9 @@
 //! Image files written in bands of rows, top to bottom, so an output never has to be whole in
 //! memory: PNG through the `png` crate's stream writer, EXR block by block through `exr`'s
 //! block writer (on a thread of its own, because `exr` pulls the blocks from a closure while
-//! matup pushes bands). JPEG, TGA and TIFF have no row-wise encoder among the chosen crates
-//! (the `tiff` crate writes strips one by one, but compresses only whole images): their
-//! samples are gathered at the file's bit depth (3 bytes a texel for 8-bit RGB) and encoded at
+//! matup pushes bands). JPEG, TGA, TIFF and DDS have no row-wise encoder among the chosen crates
+//! (the `tiff` crate writes strips one by one, but compresses only whole images; a DDS mip
+//! chain needs the whole top level): their samples are gathered at the file's bit depth (3 bytes a texel for 8-bit RGB) and encoded at
 //! the end. Every file goes to a temporary file beside its path, renamed over it once complete.
 
 use std::fs::File;
@@ -20,8 +20,9 @@ use rayon::prelude::*;
 use tempfile::NamedTempFile;
 
 use crate::color::to_u8;
+use crate::layout::Stored;
 use crate::map::Map;
-use crate::material::FileFormat;
+use crate::material::{BlockQuality, FileFormat};
 use crate::{Error, Result};
 
 /// Writes one image file (grey or RGB, either with alpha as its last channel; values in the
@@ -33,9 +34,20 @@ pub struct ImageWriter {
     height: usize,
     channels: usize,
     format: FileFormat,
+    hints: WriteHints,
     rows_written: usize,
     temporary: NamedTempFile,
     encoder: Encoder,
+}
+
+/// What formats that filter or compress a file need to know beyond its values: how each
+/// channel is stored (a DDS mip chain averages sRGB colour in linear light and renormalises
+/// normals; `dds` picks BC5 for normals) and how hard block encoders search.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WriteHints {
+    /// One a channel; missing ones are taken as [`Stored::Linear`].
+    pub stored: Vec<Stored>,
+    pub block_quality: BlockQuality,
 }
 
 enum Encoder {
@@ -44,7 +56,7 @@ enum Encoder {
         sixteen_bits: bool,
         error: Arc<Mutex<Option<std::io::Error>>>,
     },
-    /// JPEG, TGA or TIFF: samples gathered for an encoder of whole images.
+    /// JPEG, TGA, TIFF or DDS: samples gathered for an encoder of whole images.
     Gathered(Samples),
     Exr {
         bands: Option<SyncSender<Map>>,
@@ -93,6 +105,18 @@ impl ImageWriter {
         height: usize,
         channels: usize,
         format: FileFormat,
+    ) -> Result<ImageWriter> {
+        Self::create_with(path, width, height, channels, format, WriteHints::default())
+    }
+
+    /// [`ImageWriter::create`] with what the format needs to know of the channels.
+    pub fn create_with(
+        path: &Path,
+        width: usize,
+        height: usize,
+        channels: usize,
+        format: FileFormat,
+        hints: WriteHints,
     ) -> Result<ImageWriter> {
         if !(1..=4).contains(&channels) {
             return Err(Error::file(
@@ -152,7 +176,7 @@ impl ImageWriter {
             FileFormat::Tiff16 => {
                 Encoder::Gathered(Samples::U16(Vec::with_capacity(width * height * channels)))
             }
-            FileFormat::TiffFloat => {
+            FileFormat::TiffFloat | FileFormat::Dds(_) => {
                 Encoder::Gathered(Samples::F32(Vec::with_capacity(width * height * channels)))
             }
             FileFormat::ExrHalf | FileFormat::ExrFloat => {
@@ -174,6 +198,7 @@ impl ImageWriter {
             height,
             channels,
             format,
+            hints,
             rows_written: 0,
             temporary,
             encoder,
@@ -301,6 +326,7 @@ impl ImageWriter {
                     self.channels,
                     self.format,
                     samples,
+                    &self.hints,
                 )
                 .map_err(|e| Error::file(&self.path, e))?;
                 out.flush().map_err(|e| Error::io(&self.path, e))?;
@@ -416,8 +442,8 @@ fn write_exr(
 }
 
 /// Encodes a whole image of gathered samples: JPEG (quality 95) or TGA from 8-bit samples,
-/// TIFF (LZW, as image editors write it) at its depth. The `tiff` crate writes no grey +
-/// alpha, so such a TIFF is written RGBA with the grey in all three colour channels.
+/// TIFF (LZW, as image editors write it) at its depth, DDS from floats. The `tiff` crate writes
+/// no grey + alpha, so such a TIFF is written RGBA with the grey in all three colour channels.
 fn encode_whole(
     out: &mut BufWriter<File>,
     width: usize,
@@ -425,6 +451,7 @@ fn encode_whole(
     channels: usize,
     format: FileFormat,
     samples: Samples,
+    hints: &WriteHints,
 ) -> std::result::Result<(), String> {
     use tiff::encoder::colortype::*;
     let (w, h) = (width as u32, height as u32);
@@ -444,6 +471,18 @@ fn encode_whole(
             3 => write_tiff::<RGB32Float>(out, w, h, &raw),
             _ => write_tiff::<RGBA32Float>(out, w, h, &as_rgba(channels, raw)),
         },
+        (FileFormat::Dds(dds), Samples::F32(raw)) => {
+            return super::dds_file::write_dds(
+                out,
+                width,
+                height,
+                channels,
+                raw,
+                dds,
+                &hints.stored,
+                hints.block_quality,
+            );
+        }
         (FileFormat::Jpeg | FileFormat::Tga, Samples::U8(raw)) => {
             let image = match channels {
                 1 => DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap()),
@@ -629,6 +668,7 @@ mod tests {
                     FileFormat::Jpeg => 0.1,
                     FileFormat::ExrHalf => 1e-3,
                     FileFormat::ExrFloat | FileFormat::TiffFloat => 0.0,
+                    FileFormat::Dds(_) => unreachable!("DDS files are tested in dds_file"),
                 };
                 let read_as = read_image(&name("whole"), u64::MAX).unwrap().format;
                 assert_eq!(read_as, format, "read back as the format written");

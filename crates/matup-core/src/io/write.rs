@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 
 use super::read::file_stem;
-use super::stream::ImageWriter;
+use super::stream::{ImageWriter, WriteHints};
 use super::{Names, SaveOptions};
 use crate::layout::{Channel, Holds, Stored};
 use crate::material::{FileFormat, MapKind, Material, MaterialOrigin};
@@ -263,7 +263,17 @@ impl MaterialWriter {
                 ));
             }
             self.files.push(FileWriter {
-                file: ImageWriter::create(&path, w, h, channels, planned.format)?,
+                file: ImageWriter::create_with(
+                    &path,
+                    w,
+                    h,
+                    channels,
+                    planned.format,
+                    WriteHints {
+                        stored: planned.channels.iter().map(|c| c.stored).collect(),
+                        block_quality: self.options.block_quality,
+                    },
+                )?,
                 channels: planned.channels,
                 stand_in: planned.stand_in,
                 all_stand_in: true,
