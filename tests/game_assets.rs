@@ -269,3 +269,357 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
         assert_eq!((written.width, written.mipmaps), (4 * SIZE, 9), "{name}");
     }
 }
+
+/// The textures of a glTF material built from a real material: (file, PNG bytes).
+fn gltf_textures() -> Vec<(&'static str, Vec<u8>)> {
+    let base = corner_rgba("baseColor.png");
+    let normal = corner_rgba("normal.png");
+    let rough = corner_rgba("roughness.png");
+    let metal = corner_rgba("metallic.png");
+    let height = corner_rgba("height.png");
+    let texel = |bytes: &Vec<u8>, i: usize, c: usize| bytes[i * 4 + c];
+    let n = SIZE * SIZE;
+    let rgb = |f: &dyn Fn(usize, usize) -> u8| -> Vec<u8> {
+        (0..n)
+            .flat_map(|i| (0..3).map(move |c| (i, c)))
+            .map(|(i, c)| f(i, c))
+            .collect()
+    };
+    let png = |samples: Vec<u8>, channels: usize| {
+        let colour = if channels == 1 {
+            image::ExtendedColorType::L8
+        } else {
+            image::ExtendedColorType::Rgb8
+        };
+        let mut bytes = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut bytes)
+            .write_image(&samples, SIZE as u32, SIZE as u32, colour)
+            .unwrap();
+        bytes
+    };
+    vec![
+        ("baseColor.png", png(rgb(&|i, c| texel(&base, i, c)), 3)),
+        // glTF's normals point green up (OpenGL); the source's are DirectX.
+        (
+            "normal.png",
+            png(
+                rgb(&|i, c| {
+                    if c == 1 {
+                        255 - texel(&normal, i, 1)
+                    } else {
+                        texel(&normal, i, c)
+                    }
+                }),
+                3,
+            ),
+        ),
+        // R unused (255 here, as some exporters fill it), G roughness, B metallic.
+        (
+            "metallicRoughness.png",
+            png(
+                rgb(&|i, c| [255, texel(&rough, i, 0), texel(&metal, i, 0)][c]),
+                3,
+            ),
+        ),
+        (
+            "occlusion.png",
+            png(
+                (0..n)
+                    .map(|i| (96 + texel(&height, i, 0) as u32 * 5 / 8) as u8)
+                    .collect(),
+                1,
+            ),
+        ),
+        ("emissive.png", png(rgb(&|i, c| texel(&base, i, c) / 2), 3)),
+    ]
+}
+
+/// A quad's positions, texture coordinates and indices: the geometry every model carries.
+fn quad_geometry() -> Vec<u8> {
+    let positions: [f32; 12] = [0., 0., 0., 1., 0., 0., 1., 1., 0., 0., 1., 0.];
+    let uvs: [f32; 8] = [0., 1., 1., 1., 1., 0., 0., 0.];
+    let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];
+    let mut bytes: Vec<u8> = positions.iter().flat_map(|v| v.to_le_bytes()).collect();
+    bytes.extend(uvs.iter().flat_map(|v| v.to_le_bytes()));
+    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
+    bytes
+}
+
+/// The model's JSON: one mesh, one material with all five roles and an extension the
+/// reader must keep; images as `images` says.
+fn model_json(
+    images: serde_json::Value,
+    buffer: serde_json::Value,
+    views: &[serde_json::Value],
+) -> serde_json::Value {
+    let mut buffer_views = vec![
+        serde_json::json!({"buffer": 0, "byteOffset": 0, "byteLength": 48, "target": 34962}),
+        serde_json::json!({"buffer": 0, "byteOffset": 48, "byteLength": 32, "target": 34962}),
+        serde_json::json!({"buffer": 0, "byteOffset": 80, "byteLength": 12, "target": 34963}),
+    ];
+    buffer_views.extend_from_slice(views);
+    let texture = |i: usize| serde_json::json!({"index": i});
+    serde_json::json!({
+        "asset": {"version": "2.0", "generator": "matup tests"},
+        "extensionsUsed": ["KHR_materials_emissive_strength"],
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "quad"}],
+        "meshes": [{"primitives": [{
+            "attributes": {"POSITION": 0, "TEXCOORD_0": 1},
+            "indices": 2,
+            "material": 0
+        }]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+             "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}
+        ],
+        "bufferViews": buffer_views,
+        "buffers": [buffer],
+        "materials": [{
+            "name": "Bricks",
+            "pbrMetallicRoughness": {
+                "baseColorTexture": texture(0),
+                "metallicRoughnessTexture": texture(2),
+                "roughnessFactor": 1.0
+            },
+            "normalTexture": {"index": 1, "scale": 0.8},
+            "occlusionTexture": {"index": 3, "strength": 1.0},
+            "emissiveTexture": texture(4),
+            "emissiveFactor": [1, 1, 1],
+            "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 2.0}},
+            "extras": {"kept": true}
+        }],
+        "textures": (0..5).map(|i| serde_json::json!({"source": i, "sampler": 0})).collect::<Vec<_>>(),
+        "samplers": [{"magFilter": 9729, "minFilter": 9987}],
+        "images": images
+    })
+}
+
+/// Checks each upscaled texture: 4× the size, in its channels, each channel box-filtering
+/// back to its input (colour in linear light), metallicRoughness's unused R kept exactly.
+fn check_textures(
+    textures: &[(&str, Vec<u8>)],
+    upscaled: &dyn Fn(usize) -> Vec<u8>,
+) -> Vec<String> {
+    let mut off = Vec::new();
+    for (i, (name, before)) in textures.iter().enumerate() {
+        let before = image::load_from_memory(before).unwrap();
+        let after = image::load_from_memory(&upscaled(i)).unwrap();
+        assert_eq!(after.color(), before.color(), "{name}");
+        assert_eq!(after.width() as usize, 4 * SIZE, "{name}");
+        let channels = before.color().channel_count() as usize;
+        let colour = matches!(*name, "baseColor.png" | "emissive.png");
+        for c in 0..channels {
+            if *name == "normal.png" && c == 2 {
+                continue; // z is renormalised: x and y carry the normal
+            }
+            let plane = |image: &image::DynamicImage| -> Vec<f32> {
+                let values = image.to_rgba32f().into_raw();
+                values.chunks_exact(4).map(|t| t[c]).collect()
+            };
+            let linear = |v: f32| {
+                if colour {
+                    matup::color::srgb_to_linear(v)
+                } else {
+                    v
+                }
+            };
+            let encode = |v: f32| {
+                if colour {
+                    matup::color::linear_to_srgb(v)
+                } else {
+                    v
+                }
+            };
+            let output: Vec<f32> = plane(&after).into_iter().map(linear).collect();
+            let back = box4(&output, 4 * SIZE);
+            let worst = (back.iter().zip(plane(&before)))
+                .map(|(&a, b)| (encode(a) - b).abs() * 255.0)
+                .fold(0.0, f32::max);
+            println!("{name} channel {c}: box-filters back within {worst:.2} levels");
+            let levels = if *name == "metallicRoughness.png" {
+                3.0
+            } else {
+                2.0
+            };
+            if worst > levels {
+                off.push(format!("{name} channel {c}: {worst:.2} levels"));
+            }
+            if *name == "metallicRoughness.png" && c == 0 {
+                assert!(plane(&after).iter().all(|&v| v == 1.0), "its R kept");
+            }
+        }
+    }
+    off
+}
+
+#[test]
+fn a_gltf_model_comes_back_as_the_same_model_with_every_texture_upscaled_in_its_role() {
+    let dir = tempfile::tempdir().unwrap();
+    let textures = gltf_textures();
+    let geometry = quad_geometry();
+    let input = dir.path().join("in");
+    std::fs::create_dir_all(input.join("textures")).unwrap();
+    std::fs::write(input.join("quad.bin"), &geometry).unwrap();
+    for (name, bytes) in &textures {
+        std::fs::write(input.join("textures").join(name), bytes).unwrap();
+    }
+    let images: Vec<serde_json::Value> = (textures.iter())
+        .map(|(name, _)| serde_json::json!({"uri": format!("textures/{name}")}))
+        .collect();
+    let buffer = serde_json::json!({"uri": "quad.bin", "byteLength": geometry.len()});
+    let json = model_json(serde_json::Value::from(images), buffer, &[]);
+    std::fs::write(
+        input.join("quad.gltf"),
+        serde_json::to_vec_pretty(&json).unwrap(),
+    )
+    .unwrap();
+
+    let out = dir.path().join("out");
+    let run = matup::apps::model::upscale_model(
+        &input.join("quad.gltf"),
+        &Config::default(),
+        &out,
+        &SaveOptions::default(),
+        &LoadOptions::default(),
+        None,
+        &Silent,
+    )
+    .unwrap();
+    assert_eq!(run.runs.len(), 1, "one material, one run");
+    let written: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("quad.gltf")).unwrap()).unwrap();
+    assert_eq!(
+        written, json,
+        "the JSON is the same, every field and extension kept"
+    );
+    assert_eq!(std::fs::read(out.join("quad.bin")).unwrap(), geometry);
+    let off = check_textures(&textures, &|i| {
+        std::fs::read(out.join("textures").join(textures[i].0)).unwrap()
+    });
+    assert!(off.is_empty(), "{off:#?}");
+    assert!(out.join("matup-runs/0-Bricks/preview.png").is_file());
+    // The input is untouched and nothing is left over in the output.
+    assert_eq!(std::fs::read(input.join("quad.bin")).unwrap(), geometry);
+    assert!(!out.join(".matup-model").exists());
+}
+
+/// A GLB of the quad with `textures` embedded after its geometry: its JSON, its binary chunk
+/// and the file's bytes.
+fn glb_model(textures: &[(&str, Vec<u8>)]) -> (serde_json::Value, Vec<u8>, Vec<u8>) {
+    let mut bin = quad_geometry();
+    let mut views = Vec::new();
+    for (_, bytes) in textures {
+        bin.resize(bin.len().div_ceil(4) * 4, 0);
+        views.push(
+            serde_json::json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()}),
+        );
+        bin.extend_from_slice(bytes);
+    }
+    let images: Vec<serde_json::Value> = (0..textures.len())
+        .map(|i| serde_json::json!({"bufferView": 3 + i, "mimeType": "image/png"}))
+        .collect();
+    let json = model_json(
+        serde_json::Value::from(images),
+        serde_json::json!({"byteLength": bin.len()}),
+        &views,
+    );
+    let glb = gltf::binary::Glb {
+        header: gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length: 0,
+        },
+        json: serde_json::to_vec(&json).unwrap().into(),
+        bin: Some(bin.clone().into()),
+    };
+    let bytes = glb.to_vec().unwrap();
+    (json, bin, bytes)
+}
+
+#[test]
+fn a_glb_model_comes_back_with_its_geometry_bytes_and_new_embedded_textures() {
+    let dir = tempfile::tempdir().unwrap();
+    let textures = gltf_textures();
+    let (json, bin, glb) = glb_model(&textures);
+    let model = dir.path().join("quad.glb");
+    std::fs::write(&model, glb).unwrap();
+
+    let out = dir.path().join("out");
+    matup::apps::model::upscale_model(
+        &model,
+        &Config::default(),
+        &out,
+        &SaveOptions::default(),
+        &LoadOptions::default(),
+        None,
+        &Silent,
+    )
+    .unwrap();
+    let bytes = std::fs::read(out.join("quad.glb")).unwrap();
+    let written = gltf::binary::Glb::from_slice(&bytes).unwrap();
+    let written_json: serde_json::Value = serde_json::from_slice(&written.json).unwrap();
+    let written_bin = written.bin.unwrap().into_owned();
+    // Equal apart from where the images are.
+    let without_images = |mut j: serde_json::Value| {
+        for v in 3..8 {
+            j["bufferViews"][v]["byteOffset"] = serde_json::Value::Null;
+            j["bufferViews"][v]["byteLength"] = serde_json::Value::Null;
+        }
+        j["buffers"][0]["byteLength"] = serde_json::Value::Null;
+        j
+    };
+    assert_eq!(without_images(written_json.clone()), without_images(json));
+    assert_eq!(written_json["buffers"][0]["byteLength"], written_bin.len());
+    assert_eq!(
+        &written_bin[..92],
+        &bin[..92],
+        "the geometry's bytes where they were"
+    );
+    let view = |i: usize| {
+        let v = &written_json["bufferViews"][3 + i];
+        let (start, length) = (
+            v["byteOffset"].as_u64().unwrap() as usize,
+            v["byteLength"].as_u64().unwrap() as usize,
+        );
+        written_bin[start..start + length].to_vec()
+    };
+    let off = check_textures(&textures, &view);
+    assert!(off.is_empty(), "{off:#?}");
+}
+
+#[test]
+fn batch_finds_models_beside_material_folders_and_resumes_them() {
+    use matup::apps::batch::{run_batch, BatchOptions, Outcome};
+    let dir = tempfile::tempdir().unwrap();
+    let library = dir.path().join("library");
+    std::fs::create_dir_all(library.join("props/textures")).unwrap();
+    let textures = gltf_textures();
+    std::fs::write(library.join("props/quad.glb"), glb_model(&textures).2).unwrap();
+    // An image beside the model is the model's, not a material of its own.
+    std::fs::write(library.join("props/textures/baseColor.png"), &textures[0].1).unwrap();
+    let options = BatchOptions {
+        config: Config {
+            upsampler: "bilinear".into(),
+            ..Config::default()
+        },
+        save: SaveOptions::default(),
+        load: LoadOptions::default(),
+        shard: None,
+        claims: Default::default(),
+        view: false,
+        memory_limit: None,
+    };
+    let out = dir.path().join("out");
+    let first = run_batch(&library, &out, &options, &Silent).unwrap();
+    let outcomes: Vec<(&str, &Outcome)> = (first.handled.iter())
+        .map(|h| (h.material.as_str(), &h.outcome))
+        .collect();
+    assert_eq!(outcomes, [("props/quad.glb", &Outcome::Upscaled)]);
+    assert!(out.join("props/quad.glb/quad.glb").is_file());
+    let again = run_batch(&library, &out, &options, &Silent).unwrap();
+    assert_eq!(again.handled[0].outcome, Outcome::AlreadyDone);
+}

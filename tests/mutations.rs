@@ -78,6 +78,57 @@ fn damaged(bytes: &[u8], damage: Damage, rng: &mut impl Rng) -> Vec<u8> {
 }
 
 /// Every file of a folder and its bytes.
+/// A GLB model (no geometry) whose embedded images are `folder`'s base colour, normal and
+/// roughness (as occlusion) PNG files.
+fn glb_of(folder: &Path, scratch: &Path) -> Vec<u8> {
+    let mut bin = Vec::new();
+    let mut views = Vec::new();
+    for name in ["baseColor.png", "normal.png", "roughness.png"] {
+        let bytes = std::fs::read(folder.join(name)).unwrap();
+        views.push(
+            serde_json::json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()}),
+        );
+        bin.extend_from_slice(&bytes);
+        bin.resize(bin.len().div_ceil(4) * 4, 0);
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "bufferViews": views,
+        "buffers": [{"byteLength": bin.len()}],
+        "images": (0..3).map(|i| serde_json::json!({"bufferView": i, "mimeType": "image/png"})).collect::<Vec<_>>(),
+        "textures": (0..3).map(|i| serde_json::json!({"source": i})).collect::<Vec<_>>(),
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
+                       "normalTexture": {"index": 1}, "occlusionTexture": {"index": 2}}]
+    });
+    let glb = gltf::binary::Glb {
+        header: gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length: 0,
+        },
+        json: serde_json::to_vec(&json).unwrap().into(),
+        bin: Some(bin.into()),
+    };
+    let bytes = glb.to_vec().unwrap();
+    // It upscales undamaged.
+    let model = scratch.join("template.glb");
+    std::fs::write(&model, &bytes).unwrap();
+    matup::apps::model::upscale_model(
+        &model,
+        &Config {
+            upsampler: "bilinear".into(),
+            ..Config::default()
+        },
+        &scratch.join("template-glb-out"),
+        &SaveOptions::default(),
+        &LoadOptions::default(),
+        None,
+        &Silent,
+    )
+    .unwrap();
+    bytes
+}
+
 fn snapshot(folder: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     std::fs::read_dir(folder)
         .unwrap()
@@ -283,6 +334,59 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
             }
         }
     }
+    // A GLB model of the PNG template's maps: base colour, normals, roughness as occlusion.
+    let glb = glb_of(&png, scratch.path());
+    for damage in DAMAGES {
+        for case in 0..50 {
+            let folder = scratch.path().join("input-glb");
+            let out = scratch.path().join("output-glb");
+            let _ = std::fs::remove_dir_all(&folder);
+            let _ = std::fs::remove_dir_all(&out);
+            std::fs::create_dir(&folder).unwrap();
+            let model = folder.join("model.glb");
+            std::fs::write(&model, damaged(&glb, damage, &mut rng)).unwrap();
+            let before = snapshot(&folder);
+            let run = std::panic::catch_unwind(|| {
+                matup::apps::model::upscale_model(
+                    &model,
+                    &config,
+                    &out,
+                    &SaveOptions::default(),
+                    &load_options,
+                    None,
+                    &Silent,
+                )
+            });
+            let what = format!("glb {damage:?} #{case}");
+            let outcome = match run {
+                Err(_) => {
+                    panics.push(what.clone());
+                    continue;
+                }
+                Ok(Ok(_)) => {
+                    assert!(
+                        out.join("model.glb").is_file(),
+                        "{what}: upscaled, so written"
+                    );
+                    Outcome::Upscaled
+                }
+                Ok(Err(e)) => {
+                    let message = e.to_string();
+                    assert!(
+                        message.contains("model.glb"),
+                        "{what}: '{message}' names no file"
+                    );
+                    Outcome::Refused
+                }
+            };
+            assert!(
+                snapshot(&folder) == before,
+                "{what}: the input folder changed"
+            );
+            let tally = counts.entry(("glb model".into(), damage)).or_default();
+            tally[matches!(outcome, Outcome::Refused) as usize] += 1;
+        }
+    }
     println!("damaged files: upscaled / refused by name");
     for ((format, damage), [upscaled, refused]) in &counts {
         let damage = format!("{damage:?}");
@@ -297,7 +401,7 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
         panics.len()
     );
     assert!(panics.is_empty(), "panics: {panics:?}");
-    assert_eq!(upscaled + refused, 1800);
+    assert_eq!(upscaled + refused, 2000);
     // Both happen: damage a decoder cannot see (a flipped JPEG byte) upscales, a truncated
     // file is refused.
     assert!(upscaled > 0 && refused > 0);

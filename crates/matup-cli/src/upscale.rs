@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use matup_apps::folder::{upscale_to_folder, FolderRun};
+use matup_apps::model::{is_model_file, upscale_model, ModelRun, RUNS_FOLDER};
 use matup_apps::view::write_run_view;
 use matup_core::io::Names;
 use matup_core::{BlockQuality, FileFormat, LossNorm, SaveOptions};
@@ -314,14 +315,17 @@ impl SettingsArgs {
 
 pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
     let config = args.settings.config()?;
-    let material = args.material.load()?;
-    let bars = Bars::new(args.quiet || args.json);
     let save = SaveOptions {
         format: args.settings.format,
         normal_convention: None,
         names: args.settings.names,
         block_quality: args.settings.block_quality,
     };
+    if is_model_file(&args.material.material) {
+        return run_model(args, &config, &save);
+    }
+    let material = args.material.load()?;
+    let bars = Bars::new(args.quiet || args.json);
     let FolderRun {
         report,
         mut written,
@@ -393,6 +397,58 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         }
         for s in &report.skipped {
             println!("  skipped: {s}");
+        }
+        for path in &written {
+            println!("wrote {}", path.display());
+        }
+    }
+    Ok(())
+}
+
+/// `matup upscale model.gltf|model.glb -o OUT`: every texture of the model in its role.
+fn run_model(args: &UpscaleArgs, config: &Config, save: &SaveOptions) -> anyhow::Result<()> {
+    let model = &args.material.material;
+    anyhow::ensure!(
+        !args.view && !args.resume,
+        "--view and --resume are for material folders; a model's previews are in \
+         OUT/{RUNS_FOLDER}"
+    );
+    let bars = Bars::new(args.quiet || args.json);
+    let load = args.material.load.options(Default::default());
+    let ModelRun {
+        written,
+        runs,
+        notes,
+    } = upscale_model(
+        model,
+        config,
+        &args.output,
+        save,
+        &load,
+        Some(args.settings.memory_limit()),
+        &bars,
+    )
+    .with_context(|| format!("cannot upscale the model {}", model.display()))?;
+    bars.finish();
+    if args.json {
+        let reports: serde_json::Map<String, serde_json::Value> = (runs.iter())
+            .map(|(label, report)| Ok((label.clone(), serde_json::to_value(report)?)))
+            .collect::<anyhow::Result<_>>()?;
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    } else if !args.quiet {
+        for (label, report) in &runs {
+            println!(
+                "{label}: {}×{} → {}×{} ({}) in {:.1} s",
+                report.input_size[0],
+                report.input_size[1],
+                report.output_size[0],
+                report.output_size[1],
+                report.route,
+                report.total_seconds,
+            );
+        }
+        for note in &notes {
+            println!("  note: {note}");
         }
         for path in &written {
             println!("wrote {}", path.display());

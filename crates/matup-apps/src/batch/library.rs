@@ -1,5 +1,6 @@
 //! Finding the materials of a library: every folder under it whose image files matup
-//! recognises as maps.
+//! recognises as maps, and every glTF model (whose folder's images, and folders below, are
+//! the model's own).
 
 use std::path::{Path, PathBuf};
 
@@ -9,11 +10,14 @@ use matup_core::io::{discover, is_image_file, FileRole};
 use matup_core::material::NormalConvention;
 use matup_core::{Error, Result};
 
+use crate::model::is_model_file;
+
 /// The materials under a library folder, and the folders passed over.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Library {
     pub root: PathBuf,
-    /// Folders holding a material, relative to the root ("" for the root itself), sorted.
+    /// Folders holding a material, relative to the root ("" for the root itself), and glTF
+    /// model files, in walking order (sorted by name).
     pub materials: Vec<PathBuf>,
     /// Folders holding files but no material, with why.
     pub skipped: Vec<(PathBuf, String)>,
@@ -46,7 +50,7 @@ pub fn find_materials(root: &Path, exclude: Option<&Path>) -> Result<Library> {
         root: root.to_path_buf(),
         ..Default::default()
     };
-    let walk = WalkDir::new(root)
+    let mut walk = WalkDir::new(root)
         .sort_by_file_name()
         .into_iter()
         .filter_entry(|e| {
@@ -56,7 +60,7 @@ pub fn find_materials(root: &Path, exclude: Option<&Path>) -> Result<Library> {
                 .is_some_and(|x| e.path().canonicalize().is_ok_and(|p| &p == x));
             e.file_type().is_dir() && !hidden && !excluded
         });
-    for entry in walk {
+    while let Some(entry) = walk.next() {
         let entry = entry.map_err(|e| {
             let path = e.path().unwrap_or(root).to_path_buf();
             Error::file(&path, format!("cannot read the library: {e}"))
@@ -78,6 +82,14 @@ pub fn find_materials(root: &Path, exclude: Option<&Path>) -> Result<Library> {
             .collect();
         if files.is_empty() {
             continue; // a folder of folders (a category), or empty
+        }
+        let mut models: Vec<PathBuf> = files.iter().filter(|p| is_model_file(p)).cloned().collect();
+        if !models.is_empty() {
+            models.sort();
+            (library.materials)
+                .extend(models.iter().map(|m| relative.join(m.file_name().unwrap())));
+            walk.skip_current_dir(); // its folders hold the models' textures
+            continue;
         }
         let images = files.iter().filter(|p| is_image_file(p)).count();
         if images == 0 {
@@ -118,6 +130,9 @@ mod tests {
             std::fs::write(p, b"").unwrap();
         };
         touch("wood/oak/oak_basecolor.png");
+        touch("props/chair.gltf");
+        touch("props/chair.glb");
+        touch("props/textures/chair_baseColor.png");
         touch("wood/oak/oak_normal.png");
         touch("metal/plate/Color.jpg");
         touch("docs/readme.txt");
@@ -128,7 +143,12 @@ mod tests {
         let library = find_materials(root, Some(&root.join("out"))).unwrap();
         assert_eq!(
             library.materials,
-            vec![PathBuf::from("metal/plate"), PathBuf::from("wood/oak")]
+            vec![
+                PathBuf::from("metal/plate"),
+                PathBuf::from("props/chair.glb"),
+                PathBuf::from("props/chair.gltf"),
+                PathBuf::from("wood/oak")
+            ]
         );
         let skipped: Vec<&str> = library
             .skipped
@@ -136,7 +156,7 @@ mod tests {
             .map(|s| s.0.to_str().unwrap())
             .collect();
         assert_eq!(skipped, vec!["docs", "photos"]);
-        assert_eq!(material_name(&library.materials[1]), "wood/oak");
+        assert_eq!(material_name(&library.materials[3]), "wood/oak");
         assert_eq!(material_name(Path::new("")), ".");
     }
 }

@@ -24,6 +24,7 @@ pub use shard::Shard;
 pub use summary::{Row, Status};
 
 use crate::folder::upscale_to_folder;
+use crate::model::{is_model_file, model_files, upscale_model};
 use crate::view::write_run_view;
 use matup_core::io::{is_image_file, load_material, write_atomic, LoadOptions, SaveOptions};
 use matup_core::progress::{Progress, Silent};
@@ -253,22 +254,11 @@ fn handle_material(
         inner: progress,
         lost: &claim.lost_flag(),
     };
-    let outcome = load_material(Some(input), &options.load).and_then(|material| {
-        let run = upscale_to_folder(
-            &material,
-            &options.config,
-            output,
-            &options.save,
-            true,
-            options.memory_limit,
-            Some(fingerprint.to_string()),
-            &watch,
-        )?;
-        if options.view {
-            write_run_view(&material, output)?;
-        }
-        Ok(run)
-    });
+    let outcome = if is_model_file(input) {
+        upscale_model_in_batch(input, output, fingerprint, options, &watch)
+    } else {
+        upscale_material_in_batch(input, output, fingerprint, options, &watch)
+    };
     let outcome = match outcome {
         Ok(_) => {
             let _ = std::fs::remove_file(output.join(FAILURE_FILE));
@@ -294,10 +284,68 @@ fn handle_material(
     outcome
 }
 
+/// A material folder into `output`: its maps, preview and `run.json` (and page, with `view`).
+fn upscale_material_in_batch(
+    input: &Path,
+    output: &Path,
+    fingerprint: &str,
+    options: &BatchOptions,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let material = load_material(Some(input), &options.load)?;
+    upscale_to_folder(
+        &material,
+        &options.config,
+        output,
+        &options.save,
+        true,
+        options.memory_limit,
+        Some(fingerprint.to_string()),
+        progress,
+    )?;
+    if options.view {
+        write_run_view(&material, output)?;
+    }
+    Ok(())
+}
+
+/// A glTF model into `output`: the model with its files, each run's preview and report, and
+/// a `run.json` that marks it done for these settings.
+fn upscale_model_in_batch(
+    input: &Path,
+    output: &Path,
+    fingerprint: &str,
+    options: &BatchOptions,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let start = Instant::now();
+    let run = upscale_model(
+        input,
+        &options.config,
+        output,
+        &options.save,
+        &options.load,
+        options.memory_limit,
+        progress,
+    )?;
+    let first = run.runs.first().map(|(_, report)| report);
+    let done = serde_json::json!({
+        "settings_fingerprint": fingerprint,
+        "total_seconds": start.elapsed().as_secs_f64(),
+        "skipped": run.notes,
+        "input_size": first.map(|r| r.input_size),
+        "output_size": first.map(|r| r.output_size),
+        "model_runs": run.runs.iter().map(|(label, _)| label).collect::<Vec<_>>(),
+    });
+    let json = serde_json::to_vec_pretty(&done).expect("a report serialises");
+    write_atomic(&output.join("run.json"), &json)
+}
+
 /// With `view`, writes the page of a material done earlier without one (it needs no claim:
 /// any worker writes the same page, atomically).
 fn add_missing_view(input: &Path, output: &Path, options: &BatchOptions) -> Result<()> {
-    if options.view && !output.join("view.html").is_file() {
+    // A model's previews are its runs' (`matup-runs/`); it has no page.
+    if options.view && !is_model_file(input) && !output.join("view.html").is_file() {
         let material = load_material(Some(input), &options.load)?;
         write_run_view(&material, output)?;
     }
@@ -382,25 +430,32 @@ fn read_result(folder: &Path, fingerprint: &str) -> Option<Finished> {
     (finished.settings_fingerprint.as_deref() == Some(fingerprint)).then_some(finished)
 }
 
-/// A digest of what a material's result depends on: matup's version, the settings, how it
-/// is loaded and saved, and its image files (names, sizes, modification times, so an edited
-/// map is upscaled again).
+/// A digest of what a material's (or model's) result depends on: matup's version, the
+/// settings, how it is loaded and saved, and its files (names, sizes, modification times, so an
+/// edited map is upscaled again).
 pub fn settings_fingerprint(folder: &Path, options: &BatchOptions) -> Result<String> {
     let mut h = Sha256::new();
     h.update(env!("CARGO_PKG_VERSION"));
     h.update(options.config.to_toml());
     h.update(format!(
-        "{:?} {:?} {:?} {}",
+        "{:?} {:?} {:?} {} {}",
         options.save.format,
         options.save.normal_convention,
         options.load.normal_convention,
-        options.load.max_texels
+        options.load.max_texels,
+        options.save.block_quality
     ));
-    let mut files: Vec<PathBuf> = std::fs::read_dir(folder)
-        .map_err(|e| Error::io(folder, e))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| is_image_file(p))
-        .collect();
+    // A model depends on the files its URIs name, a material on its folder's images.
+    let files: Vec<PathBuf> = if is_model_file(folder) {
+        model_files(folder)?
+    } else {
+        std::fs::read_dir(folder)
+            .map_err(|e| Error::io(folder, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| is_image_file(p))
+            .collect()
+    };
+    let mut files = files;
     files.sort();
     for file in files {
         let meta = std::fs::metadata(&file).map_err(|e| Error::io(&file, e))?;

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use super::image_file::{is_image_file, IMAGE_EXTENSIONS};
+use super::image_file::{has_extension, is_image_file, IMAGE_EXTENSIONS};
 use crate::layout::{packing_of_name, Packing, Stored};
 use crate::material::{MapKind, NormalConvention};
 use crate::{Error, Result};
@@ -129,6 +129,8 @@ pub const ROLE_WORDS: &[(Role, &[&str])] = &[
             "norm",
             // Unity's material property for the normal map.
             "bumpmap",
+            // Games' suffix (`rock01_n.dds`).
+            "n",
         ],
     ),
     (
@@ -158,6 +160,8 @@ pub const ROLE_WORDS: &[(Role, &[&str])] = &[
             "color",
             "colour",
             "col",
+            // Games' suffix (`rock01_d.dds`).
+            "d",
         ],
     ),
 ];
@@ -348,7 +352,16 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         {
             exporter.get_or_insert((name.to_string(), *convention));
         }
-        match classify(parts) {
+        // Games name a texture's colour after it alone (`rock01.dds` beside `rock01_n.dds`);
+        // a picture of a material is never a DDS file.
+        let colour_by_name = parts.is_empty() && has_extension(path, &["dds"]);
+        let role = classify(parts).or_else(|| {
+            colour_by_name.then_some(FileRole::Map {
+                role: Role::BaseColor,
+                convention: None,
+            })
+        });
+        match role {
             Some(FileRole::Map { role, convention }) => maps
                 .entry(role)
                 .or_default()
@@ -551,5 +564,27 @@ mod tests {
         for name in ["x_preview", "Thumbnail", "x_swatch_1k", ""] {
             assert_eq!(classify(&words(name)), None, "{name}");
         }
+    }
+
+    #[test]
+    fn game_textures_are_named_by_suffix_and_colour_by_the_texture_alone() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["rock01.dds", "rock01_n.dds", "rock01_s.dds"] {
+            std::fs::write(dir.path().join(name), b"").unwrap();
+        }
+        let found = discover(dir.path(), NormalConvention::DirectX).unwrap();
+        let roles: Vec<(String, FileRole)> = (found.files.into_iter())
+            .map(|(p, r)| (file_name(&p), r))
+            .collect();
+        let map = |role| FileRole::Map {
+            role,
+            convention: None,
+        };
+        assert!(roles.contains(&("rock01.dds".into(), map(Role::BaseColor))), "{roles:?}");
+        assert!(roles.contains(&("rock01_n.dds".into(), map(Role::Normal))), "{roles:?}");
+        // A PNG named after the material alone is still its picture.
+        std::fs::rename(dir.path().join("rock01.dds"), dir.path().join("rock01.png")).unwrap();
+        let found = discover(dir.path(), NormalConvention::DirectX).unwrap();
+        assert!(found.files.iter().all(|(p, _)| file_name(p) != "rock01.png"));
     }
 }

@@ -31,7 +31,7 @@ pub fn is_image_file(path: &Path) -> bool {
 }
 
 /// Whether `path`'s extension is one of `extensions` (any case).
-fn has_extension(path: &Path, extensions: &[&str]) -> bool {
+pub(super) fn has_extension(path: &Path, extensions: &[&str]) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))

@@ -46,6 +46,9 @@ pub struct MaterialPaths {
     pub packing: Option<Packing>,
     pub anisotropy: Option<PathBuf>,
     pub anisotropy_angle: Option<PathBuf>,
+    /// Files carried along (upscaled, not rendered with), each with whether it holds data
+    /// (occlusion, masks: linear) rather than colour (emission: sRGB in integer files).
+    pub carried: Vec<(PathBuf, bool)>,
 }
 
 impl MaterialPaths {
@@ -89,6 +92,10 @@ impl MaterialPaths {
                 .unwrap_or_else(|| "orm".parse().expect("a packing"));
             let flag = format!("--packed, {}", packing.name);
             files.push((path.clone(), FileRole::Packed(packing), flag));
+        }
+        for (path, data) in &self.carried {
+            let role = FileRole::Carried { data: *data };
+            files.push((path.clone(), role, "carried".into()));
         }
         files
     }
@@ -182,7 +189,13 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
     for (path, role, how) in &files {
         reader.read(path, role, how)?;
     }
-    let Some((w, h)) = reader.size else {
+    // Files carried alone (a model's emission texture) are a material of their own size.
+    let carried_size = (reader.extras.first())
+        .map(|e| (e.map.width(), e.map.height()))
+        .filter(|&(w, h)| {
+            (reader.extras.iter()).all(|e| (e.map.width(), e.map.height()) == (w, h))
+        });
+    let Some((w, h)) = reader.size.or(carried_size) else {
         return Err(Error::material(
             &origin_folder,
             format!(

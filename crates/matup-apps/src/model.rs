@@ -1,0 +1,782 @@
+//! glTF 2.0 models (`.gltf` with its files, or `.glb`) upscaled whole. The model's materials
+//! say what each texture holds, so nothing is guessed: base colour, `metallicRoughness`
+//! (roughness in G, metallic in B, R kept, or occlusion where `occlusionTexture` shares the
+//! image), OpenGL normals, occlusion (R) and emission (colour); the textures of `KHR_materials_*`
+//! extensions are carried, colour or data as their specifications say. Each image is upscaled
+//! once, with the first material that uses it, and the model comes back as it was: every JSON
+//! field and extension kept, geometry bytes where they were, only the images new.
+
+use std::collections::BTreeMap;
+use std::path::{Component, Path, PathBuf};
+
+use base64::Engine;
+use serde_json::Value;
+
+use matup_core::io::{write_atomic, MaterialPaths, Names};
+use matup_core::progress::Progress;
+use matup_core::{layout::Packing, SaveOptions};
+use matup_core::{load_material, Error, LoadOptions, NormalConvention, Result};
+use matup_method::report::RunReport;
+use matup_method::Config;
+
+use crate::folder::upscale_to_folder;
+
+/// Where a model's per-material runs leave their preview and `run.json`, inside the output.
+pub const RUNS_FOLDER: &str = "matup-runs";
+
+/// The working folder inside the output where images are unpacked and upscaled (removed once
+/// the model is written).
+const WORK_FOLDER: &str = ".matup-model";
+
+/// Extension textures that hold colour (sRGB); the others hold data.
+const COLOUR_EXTENSION_TEXTURES: &[&str] = &[
+    "sheenColorTexture",
+    "specularColorTexture",
+    "diffuseTexture",
+    "specularGlossinessTexture",
+];
+
+/// Whether `path` names a glTF model (`.gltf` or `.glb`, any case).
+pub fn is_model_file(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
+}
+
+/// The files a model's result depends on: the model and the images and buffers its URIs name.
+pub fn model_files(path: &Path) -> Result<Vec<PathBuf>> {
+    let model = Model::read(path)?;
+    let mut files = vec![path.to_path_buf()];
+    for key in ["images", "buffers"] {
+        for entry in model.array(key) {
+            if let Some(uri) = entry["uri"].as_str().filter(|u| !u.starts_with("data:")) {
+                files.push(
+                    model
+                        .folder
+                        .join(relative_path(uri).map_err(|e| model.bad(e))?),
+                );
+            }
+        }
+    }
+    Ok(files)
+}
+
+/// What [`upscale_model`] did.
+pub struct ModelRun {
+    /// The model, then the image and buffer files beside it, then each run's preview and
+    /// `run.json`.
+    pub written: Vec<PathBuf>,
+    /// One run per group of images upscaled together, with its label.
+    pub runs: Vec<(String, RunReport)>,
+    /// What the reader should know: images shared across roles, unused images.
+    pub notes: Vec<String>,
+}
+
+/// What a texture holds in its material.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Role {
+    BaseColor,
+    Normal,
+    /// `metallicRoughness`; `occlusion` where `occlusionTexture` is the same image.
+    MetallicRoughness {
+        occlusion: bool,
+    },
+    Carried {
+        data: bool,
+    },
+}
+
+/// A model as read: its JSON, its binary chunk (GLB) and the folder its URIs are relative to.
+struct Model {
+    path: PathBuf,
+    json: Value,
+    bin: Option<Vec<u8>>,
+    folder: PathBuf,
+}
+
+/// Upscales every texture of the model at `path` into `out` (created; never the model's own
+/// folder): `out/<model file>` with its images and buffers, each run's preview and `run.json`
+/// under `out/matup-runs/`. Each image keeps its format: `save.format` is refused.
+pub fn upscale_model(
+    path: &Path,
+    config: &Config,
+    out: &Path,
+    save: &SaveOptions,
+    load: &LoadOptions,
+    memory_limit: Option<u64>,
+    progress: &dyn Progress,
+) -> Result<ModelRun> {
+    if let Some(format) = save.format {
+        return Err(Error::Invalid(format!(
+            "--format {format}: a model's images keep their own formats (its JSON names them); \
+             leave --format out"
+        )));
+    }
+    let model = Model::read(path)?;
+    if same_folder(out, &model.folder) {
+        return Err(Error::file(
+            out,
+            "is the model's own folder; write the upscaled model elsewhere",
+        ));
+    }
+    let images = model.images()?;
+    let groups = model.groups(&images)?;
+
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let work = out.join(WORK_FOLDER);
+    let _ = std::fs::remove_dir_all(&work);
+    let mut upscaled: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
+    let mut runs = Vec::new();
+    let mut written = Vec::new();
+    let save = SaveOptions {
+        names: Names::Keep,
+        normal_convention: None,
+        ..save.clone()
+    };
+    for (g, group) in groups.groups.iter().enumerate() {
+        progress.note(&format!(
+            "{}: {}",
+            group.label,
+            (group.uses.iter())
+                .map(|(image, role)| format!("image {image} as {}", role.words()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        let input = work.join(format!("in-{g}"));
+        let output = work.join(format!("out-{g}"));
+        std::fs::create_dir_all(&input).map_err(|e| Error::io(&input, e))?;
+        let mut paths = MaterialPaths::default();
+        for &(image, role) in &group.uses {
+            let file = input.join(images[image].file_name(image));
+            std::fs::write(&file, &images[image].bytes).map_err(|e| Error::io(&file, e))?;
+            match role {
+                Role::BaseColor => paths.base_color = Some(file),
+                Role::Normal => paths.normal = Some(file),
+                Role::MetallicRoughness { occlusion } => {
+                    let key = if occlusion { "orm" } else { "gltf" };
+                    paths.packed = Some(file);
+                    paths.packing = Some(key.parse::<Packing>()?);
+                }
+                Role::Carried { data } => paths.carried.push((file, data)),
+            }
+        }
+        let options = LoadOptions {
+            paths,
+            normal_convention: Some(NormalConvention::OpenGl),
+            max_texels: load.max_texels,
+        };
+        let material = load_material(None, &options)
+            .map_err(|e| Error::file(path, format!("{}: {e}", group.label)))?;
+        let run = upscale_to_folder(
+            &material,
+            config,
+            &output,
+            &save,
+            false,
+            memory_limit,
+            None,
+            progress,
+        )?;
+        for &(image, _) in &group.uses {
+            let file = output.join(images[image].file_name(image));
+            let bytes = std::fs::read(&file).map_err(|e| Error::io(&file, e))?;
+            upscaled.insert(image, bytes);
+        }
+        let kept = out.join(RUNS_FOLDER).join(&group.label);
+        std::fs::create_dir_all(&kept).map_err(|e| Error::io(&kept, e))?;
+        for name in ["preview.png", "run.json"] {
+            let to = kept.join(name);
+            std::fs::rename(output.join(name), &to).map_err(|e| Error::io(&to, e))?;
+            written.push(to);
+        }
+        runs.push((group.label.clone(), run.report));
+    }
+    let mut files = model.write(&images, &upscaled, out)?;
+    files.append(&mut written);
+    let _ = std::fs::remove_dir_all(&work);
+    Ok(ModelRun {
+        written: files,
+        runs,
+        notes: groups.notes,
+    })
+}
+
+/// Whether two paths name one folder.
+fn same_folder(a: &Path, b: &Path) -> bool {
+    let resolved = |p: &Path| p.canonicalize().ok();
+    let b = if b.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        b
+    };
+    resolved(a).is_some() && resolved(a) == resolved(b)
+}
+
+/// An image of the model: its bytes, format and size.
+struct Image {
+    bytes: Vec<u8>,
+    jpeg: bool,
+    size: (u32, u32),
+    /// Where it is stored, for messages: its URI or bufferView.
+    name: String,
+}
+
+impl Image {
+    fn file_name(&self, index: usize) -> String {
+        format!("image-{index}.{}", if self.jpeg { "jpg" } else { "png" })
+    }
+
+    fn mime(&self) -> &'static str {
+        if self.jpeg {
+            "image/jpeg"
+        } else {
+            "image/png"
+        }
+    }
+}
+
+/// Images upscaled together: one material's images of one size that no earlier group took.
+struct Group {
+    label: String,
+    uses: Vec<(usize, Role)>,
+}
+
+struct Groups {
+    groups: Vec<Group>,
+    notes: Vec<String>,
+}
+
+impl Role {
+    fn words(self) -> &'static str {
+        match self {
+            Role::BaseColor => "base colour",
+            Role::Normal => "normal (OpenGL)",
+            Role::MetallicRoughness { occlusion: false } => "metallicRoughness",
+            Role::MetallicRoughness { occlusion: true } => "occlusion/roughness/metallic",
+            Role::Carried { data: true } => "data",
+            Role::Carried { data: false } => "colour",
+        }
+    }
+}
+
+impl Model {
+    fn read(path: &Path) -> Result<Model> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let (json, bin) = if is_glb(path) {
+            let glb = gltf::binary::Glb::from_slice(&bytes)
+                .map_err(|e| Error::file(path, format!("not a readable GLB file: {e}")))?;
+            (glb.json.into_owned(), glb.bin.map(|b| b.into_owned()))
+        } else {
+            (bytes, None)
+        };
+        let json: Value = serde_json::from_slice(&json)
+            .map_err(|e| Error::file(path, format!("not readable glTF JSON: {e}")))?;
+        let version = json["asset"]["version"].as_str().unwrap_or("");
+        if !version.starts_with("2.") {
+            return Err(Error::file(
+                path,
+                format!("glTF version '{version}': matup reads glTF 2.0"),
+            ));
+        }
+        Ok(Model {
+            path: path.to_path_buf(),
+            json,
+            bin,
+            folder: path.parent().unwrap_or(Path::new("")).to_path_buf(),
+        })
+    }
+
+    fn bad(&self, what: impl std::fmt::Display) -> Error {
+        Error::file(&self.path, what.to_string())
+    }
+
+    fn array(&self, key: &str) -> &[Value] {
+        self.json[key].as_array().map_or(&[], Vec::as_slice)
+    }
+
+    /// The bytes of buffer `index`: the GLB's binary chunk, a data URI or a file beside the
+    /// model.
+    fn buffer(&self, index: usize) -> Result<Vec<u8>> {
+        let buffer = (self.array("buffers").get(index))
+            .ok_or_else(|| self.bad(format!("buffer {index} does not exist")))?;
+        match buffer["uri"].as_str() {
+            None => (self.bin.clone()).ok_or_else(|| {
+                self.bad(format!(
+                    "buffer {index} has no URI and the file no binary chunk"
+                ))
+            }),
+            Some(uri) => self.uri_bytes(uri),
+        }
+    }
+
+    fn uri_bytes(&self, uri: &str) -> Result<Vec<u8>> {
+        if let Some(data) = uri.strip_prefix("data:") {
+            let (_, encoded) = data
+                .split_once(";base64,")
+                .ok_or_else(|| self.bad("a data URI that is not base64"))?;
+            return base64::engine::general_purpose::STANDARD
+                .decode(encoded)
+                .map_err(|e| self.bad(format!("a data URI that does not decode: {e}")));
+        }
+        let file = self
+            .folder
+            .join(relative_path(uri).map_err(|e| self.bad(e))?);
+        std::fs::read(&file).map_err(|e| Error::io(&file, e))
+    }
+
+    /// Every image of the model, read and checked to be PNG or JPEG.
+    fn images(&self) -> Result<Vec<Image>> {
+        let mut images = Vec::new();
+        for (i, image) in self.array("images").iter().enumerate() {
+            let (bytes, name) = match (image["uri"].as_str(), image["bufferView"].as_u64()) {
+                (Some(uri), _) => {
+                    let name = if uri.starts_with("data:") {
+                        format!("image {i} (data URI)")
+                    } else {
+                        format!("image {i} ({uri})")
+                    };
+                    (self.uri_bytes(uri)?, name)
+                }
+                (None, Some(view)) => (
+                    self.view_bytes(view as usize)?,
+                    format!("image {i} (bufferView {view})"),
+                ),
+                (None, None) => return Err(self.bad(format!("image {i} has no URI or bufferView"))),
+            };
+            let jpeg = bytes.starts_with(&[0xFF, 0xD8]);
+            if !jpeg && !bytes.starts_with(b"\x89PNG") {
+                return Err(self.bad(format!(
+                    "{name} is neither PNG nor JPEG: matup upscales glTF's core image formats"
+                )));
+            }
+            let size = image::ImageReader::new(std::io::Cursor::new(&bytes))
+                .with_guessed_format()
+                .ok()
+                .and_then(|r| r.into_dimensions().ok())
+                .ok_or_else(|| self.bad(format!("{name} is not a readable image")))?;
+            images.push(Image {
+                bytes,
+                jpeg,
+                size,
+                name,
+            });
+        }
+        Ok(images)
+    }
+
+    fn view_bytes(&self, index: usize) -> Result<Vec<u8>> {
+        let view = (self.array("bufferViews").get(index))
+            .ok_or_else(|| self.bad(format!("bufferView {index} does not exist")))?;
+        let buffer = self.buffer(view["buffer"].as_u64().unwrap_or(0) as usize)?;
+        let start = view["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let length = view["byteLength"].as_u64().unwrap_or(0) as usize;
+        (buffer.get(start..start.saturating_add(length)))
+            .map(<[u8]>::to_vec)
+            .ok_or_else(|| self.bad(format!("bufferView {index} runs past its buffer")))
+    }
+
+    /// The image a texture shows, one of `images`.
+    fn texture_image(&self, texture: usize, images: usize) -> Result<usize> {
+        let t = (self.array("textures").get(texture))
+            .ok_or_else(|| self.bad(format!("texture {texture} does not exist")))?;
+        let source = t["source"].as_u64().ok_or_else(|| {
+            self.bad(format!(
+                "texture {texture} has no PNG or JPEG source (only an extension's image): \
+                 matup upscales glTF's core image formats"
+            ))
+        })? as usize;
+        if source >= images {
+            return Err(self.bad(format!(
+                "texture {texture} shows image {source}, which does not exist"
+            )));
+        }
+        Ok(source)
+    }
+
+    /// Each material's images by role, split by size, each image in the first group that
+    /// uses it; images no material uses come last, carried as colour.
+    fn groups(&self, images: &[Image]) -> Result<Groups> {
+        let mut taken: BTreeMap<usize, (String, Role)> = BTreeMap::new();
+        let mut groups = Vec::new();
+        let mut notes = Vec::new();
+        for (m, material) in self.array("materials").iter().enumerate() {
+            let name = material["name"]
+                .as_str()
+                .map_or(format!("material-{m}"), |n| format!("{m}-{}", sanitised(n)));
+            let mut uses: Vec<(usize, Role)> = Vec::new();
+            for (texture, role) in material_textures(material) {
+                let image = self.texture_image(texture, images.len())?;
+                if let Some((owner, first)) = taken.get(&image) {
+                    if *first != role {
+                        notes.push(format!(
+                            "{}: used as {} by {name}, upscaled as {} with {owner}",
+                            images[image].name,
+                            role.words(),
+                            first.words()
+                        ));
+                    }
+                    continue;
+                }
+                match uses.iter_mut().find(|(i, _)| *i == image) {
+                    // occlusionTexture in the metallicRoughness image: an ORM file.
+                    Some((_, r @ Role::MetallicRoughness { .. }))
+                        if role == (Role::Carried { data: true }) =>
+                    {
+                        *r = Role::MetallicRoughness { occlusion: true }
+                    }
+                    Some((_, first)) => {
+                        if *first != role {
+                            notes.push(format!(
+                                "{}: used as {} and as {} by {name}, upscaled as {}",
+                                images[image].name,
+                                first.words(),
+                                role.words(),
+                                first.words()
+                            ));
+                        }
+                    }
+                    None => uses.push((image, role)),
+                }
+            }
+            for &(image, role) in &uses {
+                taken.insert(image, (name.clone(), role));
+            }
+            groups.extend(by_size(&name, uses, images));
+        }
+        let unused: Vec<(usize, Role)> = (0..images.len())
+            .filter(|i| !taken.contains_key(i))
+            .map(|i| (i, Role::Carried { data: false }))
+            .collect();
+        if !unused.is_empty() {
+            notes.push(format!(
+                "{} image(s) no material uses, upscaled as colour",
+                unused.len()
+            ));
+            groups.extend(by_size("unused-images", unused, images));
+        }
+        Ok(Groups { groups, notes })
+    }
+
+    /// Writes the model into `out` with the upscaled images: external images at their URIs,
+    /// data URIs re-encoded, images in buffers appended to their buffer (the bytes before them,
+    /// which hold the geometry, unchanged); buffers in files copied or rewritten.
+    fn write(
+        &self,
+        images: &[Image],
+        upscaled: &BTreeMap<usize, Vec<u8>>,
+        out: &Path,
+    ) -> Result<Vec<PathBuf>> {
+        let mut json = self.json.clone();
+        let mut written = Vec::new();
+        // Buffers that hold images: their bytes up to the last view that is not an image's,
+        // then the new images.
+        let image_views: BTreeMap<usize, usize> = (self.array("images").iter().enumerate())
+            .filter_map(|(i, image)| Some((image["bufferView"].as_u64()? as usize, i)))
+            .collect();
+        let views = self.array("bufferViews");
+        let mut buffers: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
+        for &view in image_views.keys() {
+            let b = views[view]["buffer"].as_u64().unwrap_or(0) as usize;
+            if buffers.contains_key(&b) {
+                continue;
+            }
+            let mut bytes = self.buffer(b)?;
+            let kept = (views.iter().enumerate())
+                .filter(|(v, view)| {
+                    !image_views.contains_key(v)
+                        && view["buffer"].as_u64().unwrap_or(0) as usize == b
+                })
+                .map(|(_, view)| {
+                    view["byteOffset"].as_u64().unwrap_or(0)
+                        + view["byteLength"].as_u64().unwrap_or(0)
+                })
+                .max()
+                .unwrap_or(0) as usize;
+            bytes.truncate(kept.div_ceil(4) * 4);
+            buffers.insert(b, bytes);
+        }
+        for (&view, &image) in &image_views {
+            let b = views[view]["buffer"].as_u64().unwrap_or(0) as usize;
+            let buffer = buffers.get_mut(&b).expect("a buffer of an image");
+            buffer.resize(buffer.len().div_ceil(4) * 4, 0);
+            let entry = &mut json["bufferViews"][view];
+            entry["byteOffset"] = Value::from(buffer.len());
+            entry["byteLength"] = Value::from(upscaled[&image].len());
+            buffer.extend_from_slice(&upscaled[&image]);
+        }
+        for (i, image) in self.array("images").iter().enumerate() {
+            let Some(uri) = image["uri"].as_str() else {
+                continue;
+            };
+            if uri.starts_with("data:") {
+                let encoded = base64::engine::general_purpose::STANDARD.encode(&upscaled[&i]);
+                json["images"][i]["uri"] =
+                    Value::from(format!("data:{};base64,{encoded}", images[i].mime()));
+            } else {
+                let file = out.join(relative_path(uri).map_err(|e| self.bad(e))?);
+                write_file(&file, &upscaled[&i])?;
+                written.push(file);
+            }
+        }
+        // Buffers: the GLB's chunk, data URIs and files, each rewritten if it held images,
+        // else copied byte for byte.
+        let mut bin = self.bin.clone();
+        for (b, buffer) in self.array("buffers").iter().enumerate() {
+            let new = buffers.get(&b);
+            if let Some(bytes) = new {
+                json["buffers"][b]["byteLength"] = Value::from(bytes.len());
+            }
+            match buffer["uri"].as_str() {
+                None => {
+                    if let Some(bytes) = new {
+                        bin = Some(bytes.clone());
+                    }
+                }
+                Some(uri) if uri.starts_with("data:") => {
+                    if let Some(bytes) = new {
+                        let encoded = base64::engine::general_purpose::STANDARD.encode(bytes);
+                        json["buffers"][b]["uri"] =
+                            Value::from(format!("data:application/octet-stream;base64,{encoded}"));
+                    }
+                }
+                Some(uri) => {
+                    let file = out.join(relative_path(uri).map_err(|e| self.bad(e))?);
+                    let bytes = match new {
+                        Some(bytes) => bytes.clone(),
+                        None => self.uri_bytes(uri)?,
+                    };
+                    write_file(&file, &bytes)?;
+                    written.push(file);
+                }
+            }
+        }
+        let text = serde_json::to_vec(&json).map_err(|e| self.bad(e))?;
+        let model = out.join(self.path.file_name().expect("a model file"));
+        let bytes = if is_glb(&self.path) {
+            let glb = gltf::binary::Glb {
+                // `to_vec` writes the real length.
+                header: gltf::binary::Header {
+                    magic: *b"glTF",
+                    version: 2,
+                    length: 0,
+                },
+                json: text.into(),
+                bin: bin.map(Into::into),
+            };
+            glb.to_vec().map_err(|e| self.bad(e))?
+        } else {
+            text
+        };
+        write_atomic(&model, &bytes)?;
+        written.insert(0, model);
+        Ok(written)
+    }
+}
+
+fn is_glb(path: &Path) -> bool {
+    (path.extension().and_then(|e| e.to_str())).is_some_and(|e| e.eq_ignore_ascii_case("glb"))
+}
+
+/// Writes `bytes` to `file` atomically, making its folder.
+fn write_file(file: &Path, bytes: &[u8]) -> Result<()> {
+    if let Some(parent) = file.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
+    write_atomic(file, bytes)
+}
+
+/// A URI relative to the model as a path that stays inside the model's folder (and the
+/// output's): percent-decoded, no root, no `..`.
+fn relative_path(uri: &str) -> std::result::Result<PathBuf, String> {
+    let decoded = percent_encoding::percent_decode_str(uri)
+        .decode_utf8()
+        .map_err(|_| format!("URI '{uri}' is not UTF-8"))?;
+    let path = PathBuf::from(decoded.as_ref());
+    if path
+        .components()
+        .all(|c| matches!(c, Component::Normal(_) | Component::CurDir))
+    {
+        Ok(path)
+    } else {
+        Err(format!(
+            "URI '{uri}' leaves the model's folder; matup writes only inside the output folder"
+        ))
+    }
+}
+
+/// A material name as a folder name: letters, digits, `-` and `_`.
+fn sanitised(name: &str) -> String {
+    name.chars()
+        .map(|c| {
+            if c.is_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+/// `uses` split by image size (a material's textures may differ in size), each part labelled.
+fn by_size(name: &str, uses: Vec<(usize, Role)>, images: &[Image]) -> Vec<Group> {
+    let mut sizes: Vec<(u32, u32)> = uses.iter().map(|&(i, _)| images[i].size).collect();
+    sizes.sort();
+    sizes.dedup();
+    (sizes.iter())
+        .map(|&size| Group {
+            label: if sizes.len() == 1 {
+                name.to_string()
+            } else {
+                format!("{name}-{}x{}", size.0, size.1)
+            },
+            uses: (uses.iter().copied())
+                .filter(|&(i, _)| images[i].size == size)
+                .collect(),
+        })
+        .collect()
+}
+
+/// The textures a material uses, each with its role: the core ones, then every
+/// `…Texture` of its extensions.
+fn material_textures(material: &Value) -> Vec<(usize, Role)> {
+    let pbr = &material["pbrMetallicRoughness"];
+    let core = [
+        (&pbr["baseColorTexture"], Role::BaseColor),
+        (
+            &pbr["metallicRoughnessTexture"],
+            Role::MetallicRoughness { occlusion: false },
+        ),
+        (&material["normalTexture"], Role::Normal),
+        (&material["occlusionTexture"], Role::Carried { data: true }),
+        (&material["emissiveTexture"], Role::Carried { data: false }),
+    ];
+    let mut found: Vec<(usize, Role)> = (core.iter())
+        .filter_map(|(info, role)| Some((info["index"].as_u64()? as usize, *role)))
+        .collect();
+    fn walk(value: &Value, found: &mut Vec<(usize, Role)>) {
+        if let Value::Object(map) = value {
+            for (key, value) in map {
+                match value["index"].as_u64() {
+                    Some(index) if key.ends_with("Texture") => {
+                        let data = !COLOUR_EXTENSION_TEXTURES.contains(&key.as_str());
+                        found.push((index as usize, Role::Carried { data }));
+                    }
+                    _ => walk(value, found),
+                }
+            }
+        }
+    }
+    walk(&material["extensions"], &mut found);
+    found
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model(json: Value) -> Model {
+        Model {
+            path: PathBuf::from("model.gltf"),
+            json,
+            bin: None,
+            folder: PathBuf::new(),
+        }
+    }
+
+    fn images(sizes: &[u32]) -> Vec<Image> {
+        (sizes.iter().enumerate())
+            .map(|(i, &s)| Image {
+                bytes: Vec::new(),
+                jpeg: false,
+                size: (s, s),
+                name: format!("image {i}"),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn shared_images_are_upscaled_once_and_an_orm_image_is_one_file() {
+        let json = serde_json::json!({
+            "asset": {"version": "2.0"},
+            "textures": [{"source": 0}, {"source": 1}, {"source": 2}, {"source": 3}],
+            "materials": [
+                {"name": "a b", "pbrMetallicRoughness": {
+                    "baseColorTexture": {"index": 0},
+                    "metallicRoughnessTexture": {"index": 2}},
+                 "occlusionTexture": {"index": 2},
+                 "normalTexture": {"index": 1}},
+                {"pbrMetallicRoughness": {"baseColorTexture": {"index": 3}},
+                 "normalTexture": {"index": 1},
+                 "extensions": {"KHR_materials_sheen": {"sheenColorTexture": {"index": 2},
+                                                        "sheenRoughnessTexture": {"index": 3}}}}
+            ]
+        });
+        let groups = model(json).groups(&images(&[64, 64, 64, 32, 8])).unwrap();
+        let uses: Vec<(&str, Vec<(usize, Role)>)> = (groups.groups.iter())
+            .map(|g| (g.label.as_str(), g.uses.clone()))
+            .collect();
+        assert_eq!(
+            uses,
+            [
+                (
+                    "0-a_b",
+                    vec![
+                        (0, Role::BaseColor),
+                        (2, Role::MetallicRoughness { occlusion: true }),
+                        (1, Role::Normal),
+                    ]
+                ),
+                // The shared normal and the first material's ORM are not upscaled again.
+                ("material-1", vec![(3, Role::BaseColor)]),
+                // An image no material uses is still upscaled.
+                ("unused-images", vec![(4, Role::Carried { data: false })]),
+            ]
+        );
+        // The ORM image as sheen colour, and image 3 as sheen roughness, are said.
+        assert_eq!(groups.notes.len(), 3, "{:?}", groups.notes);
+    }
+
+    #[test]
+    fn textures_of_other_sizes_are_upscaled_apart_and_bad_references_are_refused() {
+        let json = serde_json::json!({
+            "asset": {"version": "2.0"},
+            "textures": [{"source": 0}, {"source": 1}, {"extensions": {"KHR_texture_basisu": {"source": 0}}}],
+            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
+                           "normalTexture": {"index": 1}}]
+        });
+        let groups = model(json.clone()).groups(&images(&[128, 64])).unwrap();
+        let labels: Vec<&str> = groups.groups.iter().map(|g| g.label.as_str()).collect();
+        assert_eq!(labels, ["material-0-64x64", "material-0-128x128"]);
+
+        let mut basis = json.clone();
+        basis["materials"][0]["emissiveTexture"] = serde_json::json!({"index": 2});
+        let error = model(basis)
+            .groups(&images(&[128, 64]))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            error.contains("model.gltf") && error.contains("texture 2"),
+            "{error}"
+        );
+
+        let mut missing = json;
+        missing["materials"][0]["emissiveTexture"] = serde_json::json!({"index": 9});
+        let error = model(missing)
+            .groups(&images(&[128, 64]))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(error.contains("texture 9 does not exist"), "{error}");
+    }
+
+    #[test]
+    fn uris_stay_inside_the_folder() {
+        assert_eq!(
+            relative_path("textures/a%20b.png").unwrap(),
+            PathBuf::from("textures/a b.png")
+        );
+        assert!(relative_path("../a.png").is_err());
+        assert!(relative_path("/etc/a.png").is_err());
+    }
+}
