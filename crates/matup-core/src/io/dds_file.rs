@@ -11,17 +11,20 @@ use dds::{
     Precision, Size,
 };
 
-use super::image_file::{check_size, ImageFile};
 use crate::color::{linear_to_srgb, srgb_to_linear};
-use crate::kinds::{BlockQuality, DdsCodec, DdsFormat, FileFormat, DDS_CODECS};
+use crate::kinds::{BlockQuality, DdsCodec, DdsFormat, DDS_CODECS};
 use crate::layout::Stored;
 use crate::map::Map;
 use crate::{Error, Result};
 
 /// Reads the top level of a DDS texture: grey, RGB or RGBA as its format holds them (a BC1
 /// texture without punched-through texels as RGB); a two-channel normal format's x and y
-/// with z rebuilt in B, stored as normals are, `(z + 1) / 2`.
-pub(crate) fn read_dds(path: &Path, max_texels: u64) -> Result<ImageFile> {
+/// with z rebuilt in B, stored as normals are, `(z + 1) / 2`. `check_size(width, height)`
+/// may refuse the texture from its header, before it is decoded.
+pub(crate) fn read_dds(
+    path: &Path,
+    check_size: impl Fn(usize, usize) -> Result<()>,
+) -> Result<(Map, DdsFormat)> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut decoder = Decoder::new(BufReader::new(file))
         .map_err(|e| Error::file(path, format!("not a readable DDS file: {e}")))?;
@@ -49,7 +52,7 @@ pub(crate) fn read_dds(path: &Path, max_texels: u64) -> Result<ImageFile> {
     }
     let size = decoder.main_size();
     let (w, h) = (size.width as usize, size.height as usize);
-    check_size(path, w, h, max_texels)?;
+    check_size(w, h)?;
     let mut bytes = vec![0u8; w * h * 16];
     let view = ImageViewMut::new(&mut bytes, size, ColorFormat::RGBA_F32)
         .expect("a buffer of the texture's size");
@@ -59,18 +62,6 @@ pub(crate) fn read_dds(path: &Path, max_texels: u64) -> Result<ImageFile> {
     let rgba: Vec<f32> = (bytes.chunks_exact(4))
         .map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
         .collect();
-    if codec.is_float() {
-        if let Some(i) = rgba.iter().position(|v| !v.is_finite()) {
-            return Err(Error::file(
-                path,
-                format!(
-                    "holds a non-finite value at texel ({}, {})",
-                    (i / 4) % w,
-                    (i / 4) / w
-                ),
-            ));
-        }
-    }
     let opaque = || rgba.chunks_exact(4).all(|t| t[3] >= 1.0);
     let channels = match codec.channels() {
         4 if codec.name() == "bc1" && opaque() => 3,
@@ -85,15 +76,13 @@ pub(crate) fn read_dds(path: &Path, max_texels: u64) -> Result<ImageFile> {
             texel[c]
         }
     });
-    Ok(ImageFile {
-        map,
-        format: FileFormat::Dds(DdsFormat {
-            codec: Some(codec),
-            srgb: Some(header.is_srgb()),
-            dx10: header.dx10().is_some(),
-            mipmaps: header.mipmap_count().get() > 1,
-        }),
-    })
+    let format = DdsFormat {
+        codec: Some(codec),
+        srgb: Some(header.is_srgb()),
+        dx10: header.dx10().is_some(),
+        mipmaps: header.mipmap_count().get() > 1,
+    };
+    Ok((map, format))
 }
 
 /// The stored z of a unit normal whose stored x and y are `r` and `g`.
@@ -297,7 +286,7 @@ mod tests {
     use super::*;
     use crate::io::image_file::read_image;
     use crate::io::stream::{write_whole, ImageWriter, WriteHints};
-    use crate::kinds::NormalConvention;
+    use crate::kinds::{FileFormat, NormalConvention};
 
     /// A smooth test image (block formats are judged on content like a map's).
     fn image(channels: usize, size: usize) -> Map {

@@ -580,11 +580,20 @@ mod tests {
             role,
             convention: None,
         };
-        assert!(roles.contains(&("rock01.dds".into(), map(Role::BaseColor))), "{roles:?}");
-        assert!(roles.contains(&("rock01_n.dds".into(), map(Role::Normal))), "{roles:?}");
+        assert!(
+            roles.contains(&("rock01.dds".into(), map(Role::BaseColor))),
+            "{roles:?}"
+        );
+        assert!(
+            roles.contains(&("rock01_n.dds".into(), map(Role::Normal))),
+            "{roles:?}"
+        );
         // A PNG named after the material alone is still its picture.
         std::fs::rename(dir.path().join("rock01.dds"), dir.path().join("rock01.png")).unwrap();
         let found = discover(dir.path(), NormalConvention::DirectX).unwrap();
-        assert!(found.files.iter().all(|(p, _)| file_name(p) != "rock01.png"));
+        assert!(found
+            .files
+            .iter()
+            .all(|(p, _)| file_name(p) != "rock01.png"));
     }
 }

@@ -48,13 +48,13 @@ pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
     } else if has_extension(path, &["tif", "tiff"]) {
         read_tiff(path, max_texels)
     } else if has_extension(path, &["dds"]) {
-        super::dds_file::read_dds(path, max_texels)
+        read_dds(path, max_texels)
     } else {
         read_with_image_crate(path, max_texels)
     }
 }
 
-pub(super) fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Result<()> {
+fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Result<()> {
     if width == 0 || height == 0 {
         return Err(Error::file(
             path,
@@ -207,6 +207,18 @@ fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
             FileFormat::ExrFloat
         },
     })
+}
+
+/// DDS through [`super::dds_file`], its float formats checked for non-finite values.
+fn read_dds(path: &Path, max_texels: u64) -> Result<ImageFile> {
+    let (map, dds) = super::dds_file::read_dds(path, |w, h| check_size(path, w, h, max_texels))?;
+    let format = FileFormat::Dds(dds);
+    if format.is_float() {
+        for c in 0..map.channels() {
+            check_finite(path, map.plane(c), map.width(), 1, &format!("channel {c}"))?;
+        }
+    }
+    Ok(ImageFile { map, format })
 }
 
 /// Refuses `values` (`channels` interleaved, rows `width` texels long) if one is NaN or
