@@ -711,12 +711,20 @@ fn unwritable_output_is_an_error_and_writes_leave_no_temporaries() {
 }
 
 #[test]
-fn a_dds_file_a_file_as_material_and_an_output_inside_the_input_are_refused_by_name() {
+fn an_unread_format_a_broken_dds_a_file_as_material_and_an_output_inside_the_input_are_refused_by_name(
+) {
     let dir = folder_without(&[]);
+    fs::write(dir.path().join("wood_Emission.ktx2"), b"KTX 20").unwrap();
+    let refused = error_of(load(dir.path()));
+    assert!(
+        refused.contains("wood_Emission.ktx2") && refused.contains("does not read this format"),
+        "{refused}"
+    );
+    fs::remove_file(dir.path().join("wood_Emission.ktx2")).unwrap();
     fs::write(dir.path().join("wood_Emission.dds"), b"DDS ").unwrap();
     let refused = error_of(load(dir.path()));
     assert!(
-        refused.contains("wood_Emission.dds") && refused.contains("does not read this format"),
+        refused.contains("wood_Emission.dds") && refused.contains("not a readable DDS file"),
         "{refused}"
     );
     fs::remove_file(dir.path().join("wood_Emission.dds")).unwrap();

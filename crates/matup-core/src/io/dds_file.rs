@@ -175,6 +175,31 @@ pub(crate) fn write_dds(
     encoder.finish().map_err(|e| format!("cannot encode: {e}"))
 }
 
+/// Refuses a file of `channels` stored as `stored` in a DDS format that would drop one of
+/// them (a normal's z excepted: two-channel formats rebuild it).
+pub(crate) fn check_fits(
+    channels: usize,
+    format: DdsFormat,
+    stored: &[Stored],
+) -> std::result::Result<(), String> {
+    let codec = format
+        .codec
+        .unwrap_or_else(|| chosen_codec(channels, stored));
+    let normal_xy = codec.channels() == 2
+        && channels == 3
+        && !stored.is_empty()
+        && stored.iter().all(|s| matches!(s, Stored::Normal(_)));
+    if channels > codec.channels() && !normal_xy {
+        return Err(format!(
+            "DDS {} holds {} channel(s), this map has {channels}; write it in a format that \
+             holds them all (--format dds picks one a file)",
+            codec.name().to_ascii_uppercase(),
+            codec.channels()
+        ));
+    }
+    Ok(())
+}
+
 /// The format `dds` (no format named) writes a file in: BC5 for a normal map, BC4 for one
 /// channel, BC7 for the rest.
 fn chosen_codec(channels: usize, stored: &[Stored]) -> DdsCodec {
@@ -362,7 +387,11 @@ mod tests {
                 image(channels, 32)
             };
             let path = dir.path().join(format!("{name}.dds"));
-            write(&path, &map, format(&format!("dds-{name}")), vec![]);
+            let stored = match channels {
+                2 => vec![Stored::Normal(NormalConvention::DirectX); 3],
+                _ => vec![],
+            };
+            write(&path, &map, format(&format!("dds-{name}")), stored);
             let read = read_image(&path, u64::MAX).unwrap();
             let FileFormat::Dds(read_as) = read.format else {
                 panic!("{name}: read as {}", read.format)
@@ -452,6 +481,31 @@ mod tests {
         };
         assert_eq!(read_as.codec.map(|c| c.name()), Some("bc5"));
         assert!((read.map.get(2, 0, 0) - 0.9).abs() < 0.01, "z rebuilt");
+    }
+
+    #[test]
+    fn a_format_that_would_drop_a_channel_is_refused_before_writing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("colour.dds");
+        let hints = WriteHints {
+            stored: vec![Stored::Srgb; 3],
+            block_quality: BlockQuality::Normal,
+        };
+        let bc5 = FileFormat::Dds(format("dds-bc5"));
+        let error = ImageWriter::create_with(&path, 8, 8, 3, bc5, hints)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            error.contains("colour.dds") && error.contains("BC5 holds 2"),
+            "{error}"
+        );
+        assert!(!path.exists());
+        // Normals' z is rebuilt from x and y: BC5 takes them.
+        let normals = vec![Stored::Normal(NormalConvention::OpenGl); 3];
+        assert!(check_fits(3, format("dds-bc5"), &normals).is_ok());
+        assert!(check_fits(2, format("dds-bc4"), &[Stored::Linear; 2]).is_err());
+        assert!(check_fits(2, format("dds"), &[Stored::Linear; 2]).is_ok());
     }
 
     #[test]
