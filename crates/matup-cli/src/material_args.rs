@@ -13,6 +13,7 @@ pub struct MaterialArgs {
     /// Folder holding the material's maps (recognised by name: baseColor/albedo/…_Color,
     /// normal/…_NormalGL/…_nor_dx_…, roughness, metallic, height, packed …_arm_…; any may be
     /// missing). Its other maps (occlusion, opacity, emission, …) come back upscaled too.
+    /// `matup upscale` also takes a glTF model (`.gltf`, `.glb`), upscaled whole.
     pub material: PathBuf,
     #[command(flatten)]
     pub load: LoadArgs,

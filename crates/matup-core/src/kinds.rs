@@ -207,11 +207,6 @@ impl DdsCodec {
     pub fn is_float(self) -> bool {
         self.row().3
     }
-
-    /// Whether its values are 4×4 blocks (so each level's sides are padded to 4).
-    pub fn is_block(self) -> bool {
-        self.name().starts_with("bc")
-    }
 }
 
 /// How hard the block encoders (BC1–BC7) search: slower is closer to the uncompressed map.
