@@ -149,7 +149,7 @@ pub struct DdsFormat {
 /// the common uncompressed ones. Each row: its name for `--format dds-NAME`, the format, the
 /// channels its texture holds (two for the normal formats, whose z is rebuilt), whether it
 /// stores floats.
-pub const DDS_CODECS: [(&str, DdsCodec, usize, bool); 22] = {
+pub const DDS_CODECS: [(&str, DdsCodec, usize, bool); 24] = {
     use dds::Format as F;
     [
         ("bc1", DdsCodec(F::BC1_UNORM), 4, false),
@@ -169,6 +169,8 @@ pub const DDS_CODECS: [(&str, DdsCodec, usize, bool); 22] = {
         ("rg16", DdsCodec(F::R16G16_UNORM), 2, false),
         ("rgba16", DdsCodec(F::R16G16B16A16_UNORM), 4, false),
         ("b5g6r5", DdsCodec(F::B5G6R5_UNORM), 3, false),
+        ("bgr5a1", DdsCodec(F::B5G5R5A1_UNORM), 4, false),
+        ("bgra4", DdsCodec(F::B4G4R4A4_UNORM), 4, false),
         ("rgb10a2", DdsCodec(F::R10G10B10A2_UNORM), 4, false),
         ("r16f", DdsCodec(F::R16_FLOAT), 1, true),
         ("rgba16f", DdsCodec(F::R16G16B16A16_FLOAT), 4, true),

@@ -405,6 +405,8 @@ mod tests {
             let tolerance = match name {
                 "bc1" | "bc2" | "bc3" | "bc7" | "bc4" | "bc5" => 0.06,
                 "b5g6r5" => 0.5 / 31.0,
+                "bgr5a1" => 0.5, // its alpha has 1 bit
+                "bgra4" => 0.5 / 15.0 + 1e-6,
                 "rgb10a2" => 0.5 / 3.0, // its alpha has 2 bits
                 "r16" | "rg16" | "rgba16" | "r32f" | "rgba32f" => 1e-4,
                 "r16f" | "rgba16f" => 1e-3,
@@ -484,28 +486,56 @@ mod tests {
     }
 
     #[test]
-    fn a_format_that_would_drop_a_channel_is_refused_before_writing() {
+    fn a_format_asked_for_that_would_drop_a_channel_is_refused_before_writing() {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("colour.dds");
-        let hints = WriteHints {
-            stored: vec![Stored::Srgb; 3],
-            block_quality: BlockQuality::Normal,
+        let material = crate::material::Material::uniform(8, [0.2, 0.4, 0.6], 0.5, 0.0);
+        let options = crate::io::SaveOptions {
+            format: Some(FileFormat::Dds(format("dds-bc5"))),
+            ..Default::default()
         };
-        let bc5 = FileFormat::Dds(format("dds-bc5"));
-        let error = ImageWriter::create_with(&path, 8, 8, 3, bc5, hints)
+        let out = dir.path().join("out");
+        let error = crate::io::save_material(&material, &out, &options)
             .err()
             .unwrap()
             .to_string();
         assert!(
-            error.contains("colour.dds") && error.contains("BC5 holds 2"),
+            error.contains("baseColor.dds") && error.contains("BC5 holds 2"),
             "{error}"
         );
-        assert!(!path.exists());
+        assert_eq!(
+            std::fs::read_dir(&out).unwrap().count(),
+            0,
+            "nothing written"
+        );
         // Normals' z is rebuilt from x and y: BC5 takes them.
         let normals = vec![Stored::Normal(NormalConvention::OpenGl); 3];
         assert!(check_fits(3, format("dds-bc5"), &normals).is_ok());
         assert!(check_fits(2, format("dds-bc4"), &[Stored::Linear; 2]).is_err());
         assert!(check_fits(2, format("dds"), &[Stored::Linear; 2]).is_ok());
+    }
+
+    #[test]
+    fn a_two_channel_texture_of_any_role_comes_back_in_its_format() {
+        // A BC5 file named as colour: its third channel is rebuilt, not stored.
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in");
+        std::fs::create_dir(&input).unwrap();
+        write(
+            &input.join("baseColor.dds"),
+            &image(3, 16),
+            format("dds-bc5"),
+            vec![],
+        );
+        let material = crate::io::load_material(Some(&input), &Default::default()).unwrap();
+        let out = dir.path().join("out");
+        crate::io::save_material(&material, &out, &Default::default()).unwrap();
+        let FileFormat::Dds(read_as) = read_image(&out.join("baseColor.dds"), u64::MAX)
+            .unwrap()
+            .format
+        else {
+            unreachable!()
+        };
+        assert_eq!(read_as.codec.map(|c| c.name()), Some("bc5"));
     }
 
     #[test]

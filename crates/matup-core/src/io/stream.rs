@@ -130,10 +130,6 @@ impl ImageWriter {
                 "JPEG holds no alpha channel; write this map as PNG, TIFF, TGA or EXR (--format)",
             ));
         }
-        if let FileFormat::Dds(dds) = format {
-            super::dds_file::check_fits(channels, dds, &hints.stored)
-                .map_err(|why| Error::file(path, why))?;
-        }
         let temporary = temporary_beside(path)?;
         let file = || {
             temporary

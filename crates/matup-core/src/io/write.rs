@@ -262,6 +262,15 @@ impl MaterialWriter {
                     format!("{channels} channels: files hold 1 to 4"),
                 ));
             }
+            // A DDS format asked for must hold every channel (a file written back in the
+            // format it was read from holds them: a normal's rebuilt z is not stored).
+            if let (Some(FileFormat::Dds(dds)), FileFormat::Dds(_)) =
+                (self.options.format, planned.format)
+            {
+                let stored: Vec<Stored> = planned.channels.iter().map(|c| c.stored).collect();
+                super::dds_file::check_fits(channels, dds, &stored)
+                    .map_err(|why| Error::file(&path, why))?;
+            }
             self.files.push(FileWriter {
                 file: ImageWriter::create_with(
                     &path,
