@@ -262,12 +262,12 @@ impl MaterialWriter {
                     format!("{channels} channels: files hold 1 to 4"),
                 ));
             }
+            let stored: Vec<Stored> = planned.channels.iter().map(|c| c.stored).collect();
             // A DDS format asked for must hold every channel (a file written back in the
             // format it was read from holds them: a normal's rebuilt z is not stored).
             if let (Some(FileFormat::Dds(dds)), FileFormat::Dds(_)) =
                 (self.options.format, planned.format)
             {
-                let stored: Vec<Stored> = planned.channels.iter().map(|c| c.stored).collect();
                 super::dds_file::check_fits(channels, dds, &stored)
                     .map_err(|why| Error::file(&path, why))?;
             }
@@ -279,7 +279,7 @@ impl MaterialWriter {
                     channels,
                     planned.format,
                     WriteHints {
-                        stored: planned.channels.iter().map(|c| c.stored).collect(),
+                        stored,
                         block_quality: self.options.block_quality,
                     },
                 )?,
