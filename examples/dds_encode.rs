@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use matup::io::{ImageWriter, WriteHints};
 use matup::layout::Stored;
-use matup::material::{BlockQuality, DdsFormat, FileFormat, NormalConvention};
+use matup::material::{BlockQuality, FileFormat, NormalConvention};
 
 fn main() {
     let dir = tempfile::tempdir().expect("a temporary folder");
@@ -49,14 +49,8 @@ fn main() {
                 BlockQuality::Max,
             ] {
                 let out = dir.path().join("map.dds");
-                let format = FileFormat::Dds(DdsFormat {
-                    codec: (matup::material::DDS_CODECS.iter())
-                        .find(|row| row.0 == *codec)
-                        .map(|row| row.1),
-                    srgb: None,
-                    dx10: true,
-                    mipmaps: true,
-                });
+                // As `--format dds-NAME` writes it: DX10 header, full mip chain.
+                let format: FileFormat = format!("dds-{codec}").parse().expect("a DDS format");
                 let hints = WriteHints {
                     stored: vec![stored; channels],
                     block_quality: quality,

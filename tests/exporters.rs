@@ -302,23 +302,6 @@ fn layouts() -> Vec<(&'static str, Vec<File>)> {
     ]
 }
 
-/// The mean of each 4×4 block of a plane.
-fn box4(values: &[f32], width: usize) -> Vec<f32> {
-    let small = width / 4;
-    (0..small * small)
-        .map(|i| {
-            let (y, x) = (i / small, i % small);
-            let mut sum = 0.0;
-            for dy in 0..4 {
-                for dx in 0..4 {
-                    sum += values[(4 * y + dy) * width + 4 * x + dx];
-                }
-            }
-            sum / 16.0
-        })
-        .collect()
-}
-
 #[test]
 fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
     let source = source();
@@ -388,26 +371,12 @@ fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
                     continue; // z is renormalised: x and y carry the normal
                 }
                 let colour = matches!(src, Src::Base(_) | Src::Emit(_));
-                let linear = |v: f32| {
-                    if colour {
-                        matup::color::srgb_to_linear(v)
-                    } else {
-                        v
-                    }
-                };
-                let encode = |v: f32| {
-                    if colour {
-                        matup::color::linear_to_srgb(v)
-                    } else {
-                        v
-                    }
-                };
-                let input_values = plane(&before, c);
-                let output: Vec<f32> = plane(&after, c).into_iter().map(linear).collect();
-                let back: Vec<f32> = box4(&output, 4 * SIZE).into_iter().map(encode).collect();
-                let mut offs: Vec<f32> = (back.iter().zip(&input_values))
-                    .map(|(a, b)| (a - b).abs() * 255.0)
-                    .collect();
+                let mut offs = common::box_back_levels(
+                    &plane(&before, c),
+                    &plane(&after, c),
+                    4 * SIZE,
+                    colour,
+                );
                 offs.sort_by(f32::total_cmp);
                 let (p90, worst) = (offs[offs.len() * 9 / 10], offs[offs.len() - 1]);
                 println!(

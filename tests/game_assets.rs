@@ -95,18 +95,6 @@ fn write_png16(path: &Path, planes: &[&[f32]]) {
         .unwrap();
 }
 
-/// The mean of each 4×4 block of a plane `width` wide.
-fn box4(values: &[f32], width: usize) -> Vec<f32> {
-    let small = width / 4;
-    (0..small * small)
-        .map(|i| {
-            let (y, x) = (i / small, i % small);
-            let block = (0..16).map(|k| values[(4 * y + k / 4) * width + 4 * x + k % 4]);
-            block.sum::<f32>() / 16.0
-        })
-        .collect()
-}
-
 #[test]
 fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
     let dir = tempfile::tempdir().unwrap();
@@ -214,25 +202,9 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
         // 256 → 1: nine levels where the input had a chain.
         assert_eq!(after.mipmaps, if mipmaps { 9 } else { 1 }, "{name}");
         for c in 0..channels {
-            let linear = |v: f32| {
-                if srgb {
-                    matup::color::srgb_to_linear(v)
-                } else {
-                    v
-                }
-            };
-            let encode = |v: f32| {
-                if srgb {
-                    matup::color::linear_to_srgb(v)
-                } else {
-                    v
-                }
-            };
-            let output: Vec<f32> = after.planes[c].iter().map(|&v| linear(v)).collect();
-            let back = box4(&output, 4 * SIZE);
-            let worst = (back.iter().zip(&before.planes[c]))
-                .map(|(&a, &b)| (encode(a) - b).abs() * 255.0)
-                .fold(0.0, f32::max);
+            let levels =
+                common::box_back_levels(&before.planes[c], &after.planes[c], 4 * SIZE, srgb);
+            let worst = levels.into_iter().fold(0.0, f32::max);
             println!("{name} channel {c}: box-filters back within {worst:.2} levels");
             if worst > 6.0 {
                 off.push(format!("{name} channel {c}: {worst:.2} levels"));
@@ -420,24 +392,8 @@ fn check_textures(
                 let values = image.to_rgba32f().into_raw();
                 values.chunks_exact(4).map(|t| t[c]).collect()
             };
-            let linear = |v: f32| {
-                if colour {
-                    matup::color::srgb_to_linear(v)
-                } else {
-                    v
-                }
-            };
-            let encode = |v: f32| {
-                if colour {
-                    matup::color::linear_to_srgb(v)
-                } else {
-                    v
-                }
-            };
-            let output: Vec<f32> = plane(&after).into_iter().map(linear).collect();
-            let back = box4(&output, 4 * SIZE);
-            let worst = (back.iter().zip(plane(&before)))
-                .map(|(&a, b)| (encode(a) - b).abs() * 255.0)
+            let worst = common::box_back_levels(&plane(&before), &plane(&after), 4 * SIZE, colour)
+                .into_iter()
                 .fold(0.0, f32::max);
             println!("{name} channel {c}: box-filters back within {worst:.2} levels");
             let levels = if *name == "metallicRoughness.png" {
@@ -527,16 +483,7 @@ fn glb_model(textures: &[(&str, Vec<u8>)]) -> (serde_json::Value, Vec<u8>, Vec<u
         serde_json::json!({"byteLength": bin.len()}),
         &views,
     );
-    let glb = gltf::binary::Glb {
-        header: gltf::binary::Header {
-            magic: *b"glTF",
-            version: 2,
-            length: 0,
-        },
-        json: serde_json::to_vec(&json).unwrap().into(),
-        bin: Some(bin.clone().into()),
-    };
-    let bytes = glb.to_vec().unwrap();
+    let bytes = common::glb_bytes(&json, bin.clone());
     (json, bin, bytes)
 }
 

@@ -100,16 +100,7 @@ fn glb_of(folder: &Path, scratch: &Path) -> Vec<u8> {
         "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
                        "normalTexture": {"index": 1}, "occlusionTexture": {"index": 2}}]
     });
-    let glb = gltf::binary::Glb {
-        header: gltf::binary::Header {
-            magic: *b"glTF",
-            version: 2,
-            length: 0,
-        },
-        json: serde_json::to_vec(&json).unwrap().into(),
-        bin: Some(bin.into()),
-    };
-    let bytes = glb.to_vec().unwrap();
+    let bytes = common::glb_bytes(&json, bin);
     // It upscales undamaged.
     let model = scratch.join("template.glb");
     std::fs::write(&model, &bytes).unwrap();
@@ -224,6 +215,29 @@ enum Outcome {
     Refused,
 }
 
+/// What a run on damaged input did: upscaled, with every one of `outputs` written, or refused
+/// with a message naming `name`; `None` if it panicked.
+fn judge<T>(
+    run: std::thread::Result<matup::Result<T>>,
+    what: &str,
+    name: &str,
+    outputs: &[PathBuf],
+) -> Option<Outcome> {
+    match run.ok()? {
+        Ok(_) => {
+            for output in outputs {
+                assert!(output.is_file(), "{what}: upscaled, so {output:?} written");
+            }
+            Some(Outcome::Upscaled)
+        }
+        Err(e) => {
+            let message = e.to_string();
+            assert!(message.contains(name), "{what}: '{message}' names no file");
+            Some(Outcome::Refused)
+        }
+    }
+}
+
 #[test]
 fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
     // A 16² crop of the sample, saved in each format: five maps, each a file to damage.
@@ -306,24 +320,13 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
                     )
                 });
                 let what = format!("{format} {damage:?} #{case} ({name})");
-                let outcome = match run {
-                    Err(_) => {
-                        panics.push(what.clone());
-                        continue;
-                    }
-                    Ok(Ok(_)) => {
-                        // Every file back under its name.
-                        for file in &files {
-                            let back = out.join(file.file_name().unwrap());
-                            assert!(back.is_file(), "{what}: upscaled, so {back:?} written");
-                        }
-                        Outcome::Upscaled
-                    }
-                    Ok(Err(e)) => {
-                        let message = e.to_string();
-                        assert!(message.contains(&name), "{what}: '{message}' names no file");
-                        Outcome::Refused
-                    }
+                let outputs: Vec<PathBuf> = files
+                    .iter()
+                    .map(|f| out.join(f.file_name().unwrap()))
+                    .collect();
+                let Some(outcome) = judge(run, &what, &name, &outputs) else {
+                    panics.push(what);
+                    continue;
                 };
                 assert!(
                     snapshot(&folder) == before,
@@ -358,26 +361,10 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
                 )
             });
             let what = format!("glb {damage:?} #{case}");
-            let outcome = match run {
-                Err(_) => {
-                    panics.push(what.clone());
-                    continue;
-                }
-                Ok(Ok(_)) => {
-                    assert!(
-                        out.join("model.glb").is_file(),
-                        "{what}: upscaled, so written"
-                    );
-                    Outcome::Upscaled
-                }
-                Ok(Err(e)) => {
-                    let message = e.to_string();
-                    assert!(
-                        message.contains("model.glb"),
-                        "{what}: '{message}' names no file"
-                    );
-                    Outcome::Refused
-                }
+            let written = [out.join("model.glb")];
+            let Some(outcome) = judge(run, &what, "model.glb", &written) else {
+                panics.push(what);
+                continue;
             };
             assert!(
                 snapshot(&folder) == before,

@@ -52,6 +52,48 @@ pub fn max_abs_diff(a: &Map, b: &Map) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// How far, in 8-bit levels, each texel of `input` lies from the mean of the 4×4 block of
+/// `output` (a ×4 upscale of it, `width` texels wide) above it: in linear light for sRGB
+/// `colour`, as stored otherwise.
+pub fn box_back_levels(input: &[f32], output: &[f32], width: usize, colour: bool) -> Vec<f32> {
+    let linear = |v: f32| {
+        if colour {
+            matup::color::srgb_to_linear(v)
+        } else {
+            v
+        }
+    };
+    let stored = |v: f32| {
+        if colour {
+            matup::color::linear_to_srgb(v)
+        } else {
+            v
+        }
+    };
+    let small = width / 4;
+    (0..small * small)
+        .map(|i| {
+            let (y, x) = (i / small, i % small);
+            let block = (0..16).map(|k| linear(output[(4 * y + k / 4) * width + 4 * x + k % 4]));
+            (stored(block.sum::<f32>() / 16.0) - input[i]).abs() * 255.0
+        })
+        .collect()
+}
+
+/// A GLB file: the `json` chunk and the binary chunk `bin`.
+pub fn glb_bytes(json: &serde_json::Value, bin: Vec<u8>) -> Vec<u8> {
+    let glb = gltf::binary::Glb {
+        header: gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length: 0, // to_vec writes the real one
+        },
+        json: serde_json::to_vec(json).unwrap().into(),
+        bin: Some(bin.into()),
+    };
+    glb.to_vec().unwrap()
+}
+
 /// Asks training to stop once `limit` steps are done.
 pub struct StopAfter {
     steps: AtomicU64,

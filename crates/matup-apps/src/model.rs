@@ -38,9 +38,7 @@ const COLOUR_EXTENSION_TEXTURES: &[&str] = &[
 
 /// Whether `path` names a glTF model (`.gltf` or `.glb`, any case).
 pub fn is_model_file(path: &Path) -> bool {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
+    has_extension(path, "gltf") || is_glb(path)
 }
 
 /// The files a model's result depends on: the model and the images and buffers its URIs name.
@@ -574,7 +572,11 @@ impl Model {
 }
 
 fn is_glb(path: &Path) -> bool {
-    (path.extension().and_then(|e| e.to_str())).is_some_and(|e| e.eq_ignore_ascii_case("glb"))
+    has_extension(path, "glb")
+}
+
+fn has_extension(path: &Path, extension: &str) -> bool {
+    (path.extension().and_then(|e| e.to_str())).is_some_and(|e| e.eq_ignore_ascii_case(extension))
 }
 
 /// Writes `bytes` to `file` atomically, making its folder.

@@ -14,6 +14,7 @@ use matup_method::config::{
     Activation, Backend, Chain, EnsembleMaps, Interpolation, ResidualBase, Schedule, Selection,
     TargetKind, TargetSize,
 };
+use matup_method::report::RunReport;
 use matup_method::train::Stop;
 use matup_method::Config;
 
@@ -349,13 +350,8 @@ pub fn run(args: &UpscaleArgs) -> anyhow::Result<()> {
         println!("{json}");
     } else if !args.quiet {
         println!(
-            "{}×{} → {}×{} ({}) in {:.1} s{}, peak memory {}",
-            report.input_size[0],
-            report.input_size[1],
-            report.output_size[0],
-            report.output_size[1],
-            report.route,
-            report.total_seconds,
+            "{}{}, peak memory {}",
+            size_route_and_time(&report),
             report
                 .final_loss
                 .map_or(String::new(), |l| format!(" (final loss {l:.5})")),
@@ -437,15 +433,7 @@ fn run_model(args: &UpscaleArgs, config: &Config, save: &SaveOptions) -> anyhow:
         println!("{}", serde_json::to_string_pretty(&reports)?);
     } else if !args.quiet {
         for (label, report) in &runs {
-            println!(
-                "{label}: {}×{} → {}×{} ({}) in {:.1} s",
-                report.input_size[0],
-                report.input_size[1],
-                report.output_size[0],
-                report.output_size[1],
-                report.route,
-                report.total_seconds,
-            );
+            println!("{label}: {}", size_route_and_time(report));
         }
         for note in &notes {
             println!("  note: {note}");
@@ -455,4 +443,17 @@ fn run_model(args: &UpscaleArgs, config: &Config, save: &SaveOptions) -> anyhow:
         }
     }
     Ok(())
+}
+
+/// "256×256 → 1024×1024 (×4) in 4.1 s": a run's sizes, route and time.
+fn size_route_and_time(report: &RunReport) -> String {
+    format!(
+        "{}×{} → {}×{} ({}) in {:.1} s",
+        report.input_size[0],
+        report.input_size[1],
+        report.output_size[0],
+        report.output_size[1],
+        report.route,
+        report.total_seconds,
+    )
 }

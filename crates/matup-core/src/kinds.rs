@@ -197,6 +197,13 @@ impl DdsCodec {
             .map(|row| row.1)
     }
 
+    /// The codec `--format dds-NAME` names.
+    pub fn named(name: &str) -> Option<DdsCodec> {
+        (DDS_CODECS.iter())
+            .find(|row| row.0 == name)
+            .map(|row| row.1)
+    }
+
     pub fn name(self) -> &'static str {
         self.row().0
     }
@@ -272,11 +279,9 @@ impl FromStr for FileFormat {
                 dx10: true,
                 mipmaps: true,
             })),
-            name => match (name.strip_prefix("dds-"))
-                .and_then(|codec| DDS_CODECS.iter().find(|row| row.0 == codec))
-            {
-                Some(row) => Ok(FileFormat::Dds(DdsFormat {
-                    codec: Some(row.1),
+            name => match name.strip_prefix("dds-").and_then(DdsCodec::named) {
+                Some(codec) => Ok(FileFormat::Dds(DdsFormat {
+                    codec: Some(codec),
                     srgb: None,
                     dx10: true,
                     mipmaps: true,

@@ -203,12 +203,7 @@ pub(crate) fn check_fits(
 /// The format `dds` (no format named) writes a file in: BC5 for a normal map, BC4 for one
 /// channel, BC7 for the rest.
 fn chosen_codec(channels: usize, stored: &[Stored]) -> DdsCodec {
-    let named = |name: &str| {
-        (DDS_CODECS.iter())
-            .find(|row| row.0 == name)
-            .expect("a row of DDS_CODECS")
-            .1
-    };
+    let named = |name| DdsCodec::named(name).expect("a row of DDS_CODECS");
     if !stored.is_empty() && stored.iter().all(|s| matches!(s, Stored::Normal(_))) {
         named("bc5")
     } else if channels == 1 {
