@@ -1,5 +1,6 @@
 //! Colour transfer functions: sRGB encoding and the display transform renders are compared in.
 
+use candle_core::Tensor;
 use matup_kernels::simd::{fast_exp, fast_ln};
 
 /// sRGB-encoded value in [0, 1] → linear.
@@ -48,6 +49,20 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     srgb_encode(v).0
 }
 
+/// [`srgb_to_linear`] of every value of `t`, on its device.
+pub fn srgb_to_linear_tensor(t: &Tensor) -> candle_core::Result<Tensor> {
+    let curve = ((t + 0.055)? / 1.055)?.powf(2.4)?;
+    t.le(0.04045)?.where_cond(&(t / 12.92)?, &curve)
+}
+
+/// [`linear_to_srgb`] of every value of `t`, on its device.
+pub fn linear_to_srgb_tensor(t: &Tensor) -> candle_core::Result<Tensor> {
+    let v = t.maximum(0f32)?;
+    // The exponent as the host's f32 holds it.
+    let curve = v.powf((1.0f32 / 2.4) as f64)?.affine(1.055, -0.055)?;
+    v.le(0.003_130_8)?.where_cond(&(&v * 12.92)?, &curve)
+}
+
 /// A [0, 1] value as 8 bits, rounded (truncation would drift flat normals and dark colours
 /// down by half a step); values outside are clamped.
 #[inline]
@@ -89,6 +104,30 @@ pub fn display_with_derivative(radiance: f32) -> (f32, f32) {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_curves_on_a_device_are_the_hosts() {
+        let values: Vec<f32> = (0..=1000)
+            .map(|i| i as f32 / 1000.0)
+            .chain([0.002, 0.04])
+            .collect();
+        let t = candle_core::Tensor::new(&values[..], &candle_core::Device::Cpu).unwrap();
+        let to_linear = super::srgb_to_linear_tensor(&t)
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let to_srgb = super::linear_to_srgb_tensor(&t)
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        for (k, &v) in values.iter().enumerate() {
+            assert!(
+                (to_linear[k] - super::srgb_to_linear(v)).abs() < 1e-6,
+                "{v}"
+            );
+            assert!((to_srgb[k] - super::linear_to_srgb(v)).abs() < 1e-6, "{v}");
+        }
+    }
+
     use super::*;
 
     #[test]

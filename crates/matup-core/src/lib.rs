@@ -11,6 +11,7 @@
 
 pub mod color;
 pub mod convention;
+pub mod device_maps;
 mod error;
 pub mod io;
 mod kinds;

@@ -385,6 +385,39 @@ fn resize_by_taps(map: &Map, columns: &[Vec<(usize, f32)>], rows: &[Vec<(usize, 
     Map::from_planar(width, height, map.channels(), out)
 }
 
+/// [`upsample`]'s weights along one axis of `n` texels as a dense `(n·scale) × n` matrix,
+/// row-major, the border folded in: output texel `o` is row `o` times the input. A device
+/// resamples with a matrix product ([`crate::device_maps::Separable`]).
+pub fn upsample_matrix(n: usize, scale: usize, kernel: Kernel, border: Border) -> Vec<f32> {
+    let taps = kernel.phase_taps(scale);
+    let mut matrix = vec![0f32; n * scale * n];
+    for i in 0..n {
+        for (phase, taps) in taps.iter().enumerate() {
+            let row = &mut matrix[(i * scale + phase) * n..][..n];
+            for &(k, w) in taps {
+                row[border.index(i as isize + k, n)] += w;
+            }
+        }
+    }
+    matrix
+}
+
+/// [`shrink`]'s weights along one axis of `from` texels shrunk to `to`, as a dense `to × from`
+/// matrix, row-major (as [`upsample_matrix`]).
+pub fn shrink_matrix(from: usize, to: usize, how: Shrink, border: Border) -> Vec<f32> {
+    let taps = match how {
+        Shrink::Area => area_taps(from, to),
+        Shrink::Kernel(kernel) => kernel_shrink_taps(from, to, kernel, border),
+    };
+    let mut matrix = vec![0f32; to * from];
+    for (row, taps) in matrix.chunks_exact_mut(from.max(1)).zip(&taps) {
+        for &(k, w) in taps {
+            row[k] += w;
+        }
+    }
+    matrix
+}
+
 /// Separable Gaussian blur of a `w × h` plane, truncated at 3σ each side, normalised, with
 /// `border` beyond the edges. Both passes run as whole-row multiply-adds, which the compiler
 /// vectorises.

@@ -1,5 +1,8 @@
 //! The `RgbUpsampler` plugin trait and its registry.
 
+use candle_core::{Device, Tensor};
+
+use crate::device_maps::Separable;
 use crate::map::Map;
 use crate::plugin::{find_registration, sorted_registry, PluginOption, PluginSpec, Registration};
 use crate::resample::{shrink, Border, Shrink};
@@ -44,6 +47,26 @@ pub trait RgbUpsampler: Send + Sync {
     /// Upsamples each image by `scale`. `border` says what lies beyond the edges:
     /// [`Border::Wrap`] for tileable materials, whose output must tile too.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>>;
+
+    /// The candle device it computes on, where it can leave its outputs there
+    /// ([`RgbUpsampler::upsample_on_device`]): the stages after it then run on that device
+    /// too, and only the finished maps come back to the host.
+    fn device(&self) -> Option<Device> {
+        None
+    }
+
+    /// [`RgbUpsampler::upsample`], the outputs left on [`RgbUpsampler::device`] as
+    /// `[3, height, width]` tensors.
+    fn upsample_on_device(
+        &self,
+        _images: &[Map],
+        _scale: usize,
+        _border: Border,
+    ) -> Result<Vec<Tensor>> {
+        Err(Error::Invalid(
+            "this upsampler keeps no outputs on a device".into(),
+        ))
+    }
 }
 
 /// Checks a requested scale against what an upsampler supports: any scale, or one up to its
@@ -159,6 +182,44 @@ impl RgbUpsampler for ThroughNative {
 
     fn serves_smaller_scales(&self) -> bool {
         true
+    }
+
+    fn device(&self) -> Option<Device> {
+        self.inner.device()
+    }
+
+    fn upsample_on_device(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+    ) -> Result<Vec<Tensor>> {
+        if scale >= self.native {
+            return self.inner.upsample_on_device(images, scale, border);
+        }
+        let large = self.inner.upsample_on_device(images, self.native, border)?;
+        let mut out = Vec::with_capacity(large.len());
+        // One shrink a size (the self-ensemble's passes share theirs).
+        let mut shrinks: Vec<([usize; 2], Separable)> = Vec::new();
+        for (up, image) in large.into_iter().zip(images) {
+            let size = [image.width(), image.height()];
+            let (_, h, w) = up.dims3()?;
+            if [w, h] != size.map(|n| n * self.native) {
+                out.push(up); // the wrong size, as the caller's check will say
+                continue;
+            }
+            if !shrinks.iter().any(|(s, _)| *s == size) {
+                let to = size.map(|n| n * scale);
+                let down = Separable::shrink([w, h], to, self.down, border, up.device())?;
+                shrinks.push((size, down));
+            }
+            let (_, down) = shrinks
+                .iter()
+                .find(|(s, _)| *s == size)
+                .expect("made above");
+            out.push(down.apply(&up)?);
+        }
+        Ok(out)
     }
 
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {

@@ -15,7 +15,7 @@ use matup_core::Map;
 use matup_method::features::ALPHA;
 use matup_method::filter::decode::decode_tensors;
 use matup_method::filter::FEATURES;
-use matup_method::residual::SETTLE_ABOVE;
+use matup_method::residual::settled_part_on_device;
 
 /// Rounds of back-projection, as `matup_method::residual` runs them.
 pub const BACK_PROJECTIONS: usize = 3;
@@ -181,8 +181,8 @@ impl BackProjection {
 
 impl BackProjection {
     /// `matup_method::residual::settle_blocks` on `hr` `[B, C, H, W]`: each block whose mean
-    /// misses its `lr` texel by more than `SETTLE_ABOVE` gets the miss shared in proportion to
-    /// each texel's room toward the end of `[lo, hi]` it moves to.
+    /// misses its `lr` texel by more than `SETTLE_ABOVE` gets the miss (its `settled_part`)
+    /// shared in proportion to each texel's room toward the end of `[lo, hi]` it moves to.
     fn settle(
         &self,
         hr: &Tensor,
@@ -193,7 +193,9 @@ impl BackProjection {
         let (_, _, h, w) = hr.dims4()?;
         let blocks = |t: &Tensor| t.upsample_nearest2d(h, w);
         let n = (self.scale * self.scale) as f64;
-        let miss = blocks(&(lr - hr.avg_pool2d(self.scale)?)?)?;
+        let miss = blocks(&settled_part_on_device(
+            &(lr - hr.avg_pool2d(self.scale)?)?,
+        )?)?;
         let up = miss.ge(0f32)?;
         let end = up.where_cond(&hi.broadcast_as(hr.shape())?, &lo.broadcast_as(hr.shape())?)?;
         let room = (end - hr)?.abs()?;
@@ -201,7 +203,7 @@ impl BackProjection {
         let settled = (hr + (&miss * n)?.mul(&room)?.div(&total.maximum(1e-30f32)?)?)?
             .broadcast_maximum(lo)?
             .broadcast_minimum(hi)?;
-        let off = miss.abs()?.gt(SETTLE_ABOVE)?.mul(&total.gt(0f32)?)?;
+        let off = miss.ne(0f32)?.mul(&total.gt(0f32)?)?;
         off.where_cond(&settled, hr)
     }
 }

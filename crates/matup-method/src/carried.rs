@@ -3,14 +3,16 @@
 //! the per-map path upsamples base colour (RGB) or roughness (grey), then back-projected onto
 //! its input. Alpha is kept free of halos, and a cutout's alpha stays binary.
 
+use matup_core::candle_core::{Device, Tensor};
+use matup_core::device_maps;
 use matup_core::map::Map;
 use matup_core::material::{Carried, MapKind, Material};
 use matup_core::resample::{lr_texel, neighbourhood_ranges, upsample, Border, Kernel};
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
 
-use crate::per_map::{upscale_one_map, SelfEnsemble};
-use crate::residual::back_project_within;
+use crate::per_map::{upscale_one_map, upscale_one_map_on_device, SelfEnsemble};
+use crate::residual::{back_project_on_device, back_project_within};
 
 /// How the carried maps are upsampled: the run's upsampler and self-ensemble, and whether the
 /// result is back-projected onto the input (the defaults do; the per-map baseline does not).
@@ -79,8 +81,14 @@ pub fn upscale_carried(
     how: CarriedUpsampling,
 ) -> Result<Carried> {
     let mut out = lr.clone();
+    let device = how.upsampler.device();
     for (map, &method) in out.maps_mut().zip(&plan.0) {
-        *map = upscale(map, method, how)?;
+        *map = match (&device, method) {
+            (Some(device), Method::SoftAlpha | Method::Picture(_)) => {
+                upscale_on_device(map, method, how, device)?
+            }
+            _ => upscale(map, method, how)?,
+        };
     }
     Ok(out)
 }
@@ -207,6 +215,57 @@ fn upscale(map: &Map, method: Method, how: CarriedUpsampling) -> Result<Map> {
             up
         }
     })
+}
+
+/// [`upscale`] of a map through an upsampler that leaves its outputs on `device`: the
+/// passes, the back-projection and the clamps run there, and only the finished map comes back.
+fn upscale_on_device(
+    map: &Map,
+    method: Method,
+    how: CarriedUpsampling,
+    device: &Device,
+) -> Result<Map> {
+    let kind = match method {
+        Method::Picture(kind) => kind,
+        _ => MapKind::Height,
+    };
+    let up = upscale_one_map_on_device(
+        kind,
+        map,
+        how.upsampler,
+        device,
+        how.scale,
+        how.border,
+        how.ensemble,
+    )?;
+    let up = match method {
+        Method::Picture(_) => up.clamp(0f32, 1f32)?,
+        _ => up,
+    };
+    let up = if how.back_project {
+        let c = map.channels();
+        let ends = [0f32, 1.0].map(|v| Tensor::full(v, (c, 1, 1), device));
+        let [lo, hi] = ends;
+        let lr = device_maps::upload(map, device)?;
+        back_project_on_device(&up, &lr, how.scale, how.border, &[lo?, hi?])?
+    } else {
+        up
+    };
+    let up = match method {
+        Method::SoftAlpha => {
+            // As `upscale`: each texel within its LR texel's neighbourhood (no halo).
+            let values: Vec<[f32; 1]> = map.data().iter().map(|&v| [v]).collect();
+            let ranges = neighbourhood_ranges(&values, map.width(), how.border);
+            let bounds = Map::from_fn(map.width(), map.height(), 2, |k, y, x| {
+                ranges[y * map.width() + x][0][k]
+            });
+            let bounds = device_maps::repeated(&device_maps::upload(&bounds, device)?, how.scale)?;
+            up.maximum(&bounds.narrow(0, 0, 1)?)?
+                .minimum(&bounds.narrow(0, 1, 1)?)?
+        }
+        _ => up,
+    };
+    Ok(device_maps::download(&up)?)
 }
 
 #[cfg(test)]

@@ -5,7 +5,11 @@
 
 use rayon::prelude::*;
 
-use matup_core::color::{linear_to_srgb, srgb_to_linear};
+use matup_core::candle_core::{self, Tensor};
+use matup_core::color::{
+    linear_to_srgb, linear_to_srgb_tensor, srgb_to_linear, srgb_to_linear_tensor,
+};
+use matup_core::device_maps;
 use matup_core::map::Map;
 use matup_core::resample::{lr_texel, neighbourhood_ranges, Border};
 
@@ -90,6 +94,61 @@ pub fn clamp_chroma_to_input(hr: &mut Map, lr: &Map, scale: usize, border: Borde
                     from_luma_chroma(luma(colour), clamped).map(srgb_to_linear);
             }
         });
+}
+
+/// [`clamp_chroma_to_input`] on a device: `hr`, `[3, h·scale, w·scale]` linear colours, with
+/// each texel's chroma clamped into its `lr` texel's neighbourhood range (computed on the
+/// host: the input is small), its luma kept.
+pub fn clamp_chroma_on_device(
+    hr: &Tensor,
+    lr: &Map,
+    scale: usize,
+    border: Border,
+) -> candle_core::Result<Tensor> {
+    let lr_chroma: Vec<[f32; 2]> = (0..lr.texels()).map(|i| chroma(encoded(lr, i))).collect();
+    let ranges = neighbourhood_ranges(&lr_chroma, lr.width(), border);
+    // [red's least, red's greatest, blue's least, blue's greatest] of each LR texel.
+    let bounds = Map::from_fn(lr.width(), lr.height(), 4, |k, y, x| {
+        ranges[y * lr.width() + x][k / 2][k % 2]
+    });
+    let bounds = device_maps::repeated(&device_maps::upload(&bounds, hr.device())?, scale)?;
+    let bound = |k: usize| bounds.narrow(0, k, 1);
+    let colour = linear_to_srgb_tensor(hr)?;
+    let channel = |c: usize| colour.narrow(0, c, 1);
+    let (red, green, blue) = (channel(0)?, channel(1)?, channel(2)?);
+    let own = [(&red - &green)?, (&blue - &green)?];
+    let clamped = [
+        own[0].maximum(&bound(0)?)?.minimum(&bound(1)?)?,
+        own[1].maximum(&bound(2)?)?.minimum(&bound(3)?)?,
+    ];
+    let changed = own[0].ne(&clamped[0])?.maximum(&own[1].ne(&clamped[1])?)?;
+    let luma = (((&red * WEIGHTS[0] as f64)? + (&green * WEIGHTS[1] as f64)?)?
+        + (&blue * WEIGHTS[2] as f64)?)?;
+    let moved = srgb_to_linear_tensor(&from_luma_chroma_on_device(&luma, &clamped)?)?;
+    changed.broadcast_as(hr.shape())?.where_cond(&moved, hr)
+}
+
+/// [`from_luma_chroma`] of every texel: `y` `[1, h, w]`, the chroma two such; `[3, h, w]`.
+fn from_luma_chroma_on_device(y: &Tensor, chroma: &[Tensor; 2]) -> candle_core::Result<Tensor> {
+    let y = y.clamp(0f32, 1f32)?;
+    let offsets = |k: &Tensor| -> candle_core::Result<[Tensor; 3]> {
+        let (cr, cb) = (chroma[0].mul(k)?, chroma[1].mul(k)?);
+        let g = ((&cr * WEIGHTS[0] as f64)? + (&cb * WEIGHTS[2] as f64)?)?.neg()?;
+        Ok([(&g + &cr)?, g.clone(), (&g + &cb)?])
+    };
+    let one = y.ones_like()?;
+    let mut k = one.clone();
+    for o in offsets(&one)? {
+        let reached = (&y + &o)?;
+        let over = k.minimum(&((&one - &y)? / &o)?)?;
+        let under = k.minimum(&(&y / &o.neg()?)?)?;
+        k = reached
+            .gt(1f32)?
+            .where_cond(&over, &reached.lt(0f32)?.where_cond(&under, &k)?)?;
+    }
+    let channels = offsets(&k.maximum(0f32)?)?.map(|o| (&y + o).and_then(|v| v.clamp(0f32, 1f32)));
+    let [r, g, b] = channels;
+    Tensor::cat(&[r?, g?, b?], 0)
 }
 
 #[cfg(test)]

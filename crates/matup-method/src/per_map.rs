@@ -4,7 +4,9 @@
 //! One pass of it, not back-projected, is the per-map baseline that evaluations compare with
 //! ([`upscale_per_map`]).
 
-use matup_core::color::{linear_to_srgb, srgb_to_linear};
+use matup_core::candle_core::{DType, Device, Tensor};
+use matup_core::color::{linear_to_srgb, srgb_to_linear, srgb_to_linear_tensor};
+use matup_core::device_maps;
 use matup_core::io::{decode_normals, encode_normals};
 use matup_core::map::Dihedral;
 use matup_core::map::Map;
@@ -120,22 +122,26 @@ fn upscale_maps(
         .collect()
 }
 
-/// `up`, the upsampler's image of `map` at ×`scale`, checked and decoded into a map of `kind`.
-fn decoded(kind: MapKind, map: &Map, up: Map, scale: usize) -> Result<Map> {
+/// An error unless `[width, height, channels]`, the upsampler's image of `map` at ×`scale`,
+/// is the size it should be.
+fn check_upsampled(kind: MapKind, map: &Map, [w, h, c]: [usize; 3], scale: usize) -> Result<()> {
     let want = (map.width() * scale, map.height() * scale);
-    if (up.width(), up.height()) != want || up.channels() < 3 {
+    if (w, h) != want || c < 3 {
         return Err(Error::Invalid(format!(
-            "the upsampler returned a {}×{}×{} image for the {}×{} {kind:?} map at ×{scale} \
+            "the upsampler returned a {w}×{h}×{c} image for the {}×{} {kind:?} map at ×{scale} \
              (expected {}×{}×3)",
-            up.width(),
-            up.height(),
-            up.channels(),
             map.width(),
             map.height(),
             want.0,
             want.1
         )));
     }
+    Ok(())
+}
+
+/// `up`, the upsampler's image of `map` at ×`scale`, checked and decoded into a map of `kind`.
+fn decoded(kind: MapKind, map: &Map, up: Map, scale: usize) -> Result<Map> {
+    check_upsampled(kind, map, [up.width(), up.height(), up.channels()], scale)?;
     let mut decoded = match kind {
         MapKind::BaseColor => up.map_values(|v| srgb_to_linear(v.clamp(0.0, 1.0))),
         MapKind::Normal => {
@@ -159,8 +165,7 @@ fn decoded(kind: MapKind, map: &Map, up: Map, scale: usize) -> Result<Map> {
 /// its own, so none is run on one; most materials' metallic maps are flat, and skipping them
 /// saves a quarter of the upsampler's time.
 fn flat_upsampled(map: &Map, scale: usize) -> Option<Map> {
-    let flat = map.texels() > 0 && (0..map.channels()).all(|c| map.is_constant(c, 0.0));
-    flat.then(|| {
+    is_flat(map).then(|| {
         Map::from_fn(
             map.width() * scale,
             map.height() * scale,
@@ -168,6 +173,139 @@ fn flat_upsampled(map: &Map, scale: usize) -> Option<Map> {
             |c, _, _| map.plane(c)[0],
         )
     })
+}
+
+/// Whether every texel of `map` is the same ([`flat_upsampled`]).
+fn is_flat(map: &Map) -> bool {
+    map.texels() > 0 && (0..map.channels()).all(|c| map.is_constant(c, 0.0))
+}
+
+/// [`upscale_one_map`] where `upsampler` leaves its outputs on a device
+/// ([`RgbUpsampler::upsample_on_device`]): every pass of the self-ensemble in one call, each
+/// decoded, turned back and summed there, the mean's invariants restored there. The map comes
+/// back as a `[channels, h·scale, w·scale]` tensor on that device.
+pub fn upscale_one_map_on_device(
+    kind: MapKind,
+    map: &Map,
+    upsampler: &dyn RgbUpsampler,
+    device: &Device,
+    scale: usize,
+    border: Border,
+    ensemble: SelfEnsemble,
+) -> Result<Tensor> {
+    let (w, h) = (map.width() * scale, map.height() * scale);
+    if is_flat(map) {
+        let planes = (0..map.channels())
+            .map(|c| Tensor::full(map.plane(c)[0], (1, h, w), device))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        return Ok(Tensor::cat(&planes, 0)?);
+    }
+    let covered = ensemble.covers(kind);
+    if covered && kind == MapKind::AnisotropyAngle {
+        return Err(Error::Invalid(
+            "the self-ensemble does not handle anisotropy directions".into(),
+        ));
+    }
+    let symmetries = if covered {
+        ensemble.symmetries()?
+    } else {
+        &Dihedral::ALL[..1] // the identity
+    };
+    let images: Vec<Map> = (symmetries.iter())
+        .map(|&t| encode_for_upsampler(kind, &transformed_map(kind, map, t)))
+        .collect();
+    let ups = upsampler.upsample_on_device(&images, scale, border)?;
+    if ups.len() != images.len() {
+        return Err(Error::Invalid(format!(
+            "the upsampler returned {} images for {} {kind:?} maps",
+            ups.len(),
+            images.len()
+        )));
+    }
+    let mut sum: Option<Tensor> = None;
+    for (&t, up) in symmetries.iter().zip(&ups) {
+        let (c, uh, uw) = up.dims3()?;
+        check_upsampled(kind, map, [uw, uh, c], scale)?;
+        let decoded = decoded_on_device(kind, &up.narrow(0, 0, 3)?)?;
+        // Turned back: the directions first, then the texels, into the sum.
+        let back = t.inverse();
+        let turned =
+            device_maps::turned(&turn_with_surface_on_device(kind, &decoded, back)?, back)?;
+        sum = Some(match sum {
+            None => turned,
+            Some(sum) => (sum + turned)?,
+        });
+    }
+    let sum = sum.expect("at least the identity");
+    if !covered {
+        return Ok(sum);
+    }
+    Ok(restore_invariants_on_device(
+        kind,
+        &(sum / symmetries.len() as f64)?,
+    )?)
+}
+
+/// [`decoded`] of `up`, `[3, h, w]` on a device (its size checked by the caller).
+fn decoded_on_device(kind: MapKind, up: &Tensor) -> candle_core::Result<Tensor> {
+    let decoded = match kind {
+        MapKind::BaseColor => srgb_to_linear_tensor(&up.clamp(0f32, 1f32)?)?,
+        // DirectX colours, matup's own frame: 2v − 1, renormalised (as `decode_normals`).
+        MapKind::Normal => unit_normals(&up.affine(2.0, -1.0)?)?,
+        // The grey image's three channels averaged, added in order as on the host.
+        _ => {
+            let channel = |c| up.narrow(0, c, 1);
+            (((channel(0)? + channel(1)?)? + channel(2)?)? / 3.0)?
+        }
+    };
+    restore_invariants_on_device(kind, &decoded)
+}
+
+/// [`restore_map_invariants`] on a device.
+fn restore_invariants_on_device(kind: MapKind, map: &Tensor) -> candle_core::Result<Tensor> {
+    match kind {
+        MapKind::BaseColor | MapKind::Metallic | MapKind::Roughness => map.clamp(0f32, 1f32),
+        MapKind::Normal => unit_normals(map),
+        _ => Ok(map.clone()),
+    }
+}
+
+/// Normals `[3, h, w]` scaled to unit length; +z where one is nearly zero (as
+/// `normalize_normals`).
+fn unit_normals(n: &Tensor) -> candle_core::Result<Tensor> {
+    let squared = n.sqr()?.sum_keepdim(0)?;
+    let unit = n.broadcast_mul(&squared.sqrt()?.recip()?)?;
+    let (_, h, w) = n.dims3()?;
+    let up = Tensor::cat(
+        &[
+            Tensor::zeros((2, h, w), DType::F32, n.device())?,
+            Tensor::ones((1, h, w), DType::F32, n.device())?,
+        ],
+        0,
+    )?;
+    squared
+        .gt(1e-12)?
+        .broadcast_as(n.shape())?
+        .where_cond(&unit, &up)
+}
+
+/// [`turn_with_surface`] of normals `[3, h, w]` on a device (other kinds hold no directions
+/// the ensemble turns).
+fn turn_with_surface_on_device(kind: MapKind, map: &Tensor, t: Dihedral) -> Result<Tensor> {
+    if kind != MapKind::Normal || t == Dihedral::default() {
+        return Ok(map.clone());
+    }
+    let signed = |c: usize, flip: bool| -> candle_core::Result<Tensor> {
+        let v = map.narrow(0, c, 1)?;
+        if flip {
+            v.neg()
+        } else {
+            Ok(v)
+        }
+    };
+    let (x, y) = (signed(0, t.flip_x)?, signed(1, t.flip_y)?);
+    let (x, y) = if t.transpose { (y, x) } else { (x, y) };
+    Ok(Tensor::cat(&[x, y, map.narrow(0, 2, 1)?], 0)?)
 }
 
 /// A map of `kind` upsampled under each of `symmetries`, turned back and averaged (geometric

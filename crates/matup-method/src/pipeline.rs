@@ -20,6 +20,7 @@ use crate::report::{peak_memory_mib, timed, LevelReport, RunReport};
 use crate::residual::{self, project_onto_input, upsampled_base};
 use crate::select::choose_settings;
 use crate::train::TrainStats;
+use matup_core::map::Map;
 use matup_core::material::Material;
 use matup_core::progress::{Progress, Silent};
 use matup_core::resample::Border;
@@ -371,21 +372,21 @@ fn run_level(
             Some(base) if whole => base,
             _ => {
                 inner.stage(&tag("residual base"), 1);
-                // residual_base in its two stages, timed apart: the upsampler's and the
-                // projection onto the input's.
-                let mut base = timed(timings, tag("residual base"), || {
-                    upsampled_base(
-                        lr_band,
-                        &config.filter,
-                        ctx.upsampler.as_ref(),
-                        scale,
-                        ctx.border,
-                    )
-                })?;
-                timed(timings, tag("back-projection"), || {
-                    project_onto_input(&mut base, lr_band, &config.filter, scale, ctx.border);
-                    Ok(())
-                })?;
+                let on_device = residual::device_for(&config.filter, ctx.upsampler.as_ref());
+                // On a device its stages run there, one after another: timed as one.
+                let base = match on_device {
+                    Some(device) => timed(timings, tag("residual base"), || {
+                        residual::residual_base_on_device(
+                            lr_band,
+                            &config.filter,
+                            ctx.upsampler.as_ref(),
+                            &device,
+                            scale,
+                            ctx.border,
+                        )
+                    })?,
+                    None => host_residual_base(lr_band, scale, ctx, timings, &tag)?,
+                };
                 inner.advance(1, None);
                 Arc::new(base)
             }
@@ -434,6 +435,32 @@ fn run_level(
         *single_filter = Some(t);
     }
     Ok(report)
+}
+
+/// The residual base on the host, in its two stages timed apart: the upsampler's and the
+/// projection onto the input's.
+fn host_residual_base(
+    lr_band: &Material,
+    scale: usize,
+    ctx: &Context,
+    timings: &mut Vec<(String, f64)>,
+    tag: &dyn Fn(&str) -> String,
+) -> Result<Map> {
+    let config = ctx.config;
+    let mut base = timed(timings, tag("residual base"), || {
+        upsampled_base(
+            lr_band,
+            &config.filter,
+            ctx.upsampler.as_ref(),
+            scale,
+            ctx.border,
+        )
+    })?;
+    timed(timings, tag("back-projection"), || {
+        project_onto_input(&mut base, lr_band, &config.filter, scale, ctx.border);
+        Ok(())
+    })?;
+    Ok(base)
 }
 
 /// Heap bytes per output texel an upsampler adds to a band where it serves `scale` through

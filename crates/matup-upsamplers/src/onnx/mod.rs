@@ -361,26 +361,11 @@ impl OnnxUpsampler {
                 })
             }
             Engine::Candle { net, .. } => {
+                let out = self.run_on_device(net, tiles, h, w, padding)?;
                 let failed = |e: candle_core::Error| self.source.error("inference failed", e);
-                let input = candle_core::Tensor::from_vec(
-                    network_input(tiles),
-                    (tiles.len(), 3, h, w),
-                    net.device(),
-                )
-                .map_err(failed)?;
-                let out = net.run(input, padding).map_err(failed)?;
-                let (b, c, oh, ow) = out.dims4().map_err(failed)?;
-                if b != tiles.len() || c != 3 {
-                    return Err(self.source.error(
-                        "unsupported output",
-                        format!("shape {:?}, want [batch, 3, height, width]", out.dims()),
-                    ));
-                }
-                let out =
-                    unit_rgb(&out, &self.info).and_then(|t| t.flatten_all()?.to_vec1::<f32>());
-                let data = out.map_err(failed)?;
-                let image = 3 * oh * ow;
-                Ok((data.chunks(image))
+                let (_, _, oh, ow) = out.dims4().map_err(failed)?;
+                let data = (out.flatten_all().and_then(|t| t.to_vec1::<f32>())).map_err(failed)?;
+                Ok((data.chunks(3 * oh * ow))
                     .map(|planes| Map::from_planar(ow, oh, 3, planes.to_vec()))
                     .collect())
             }
@@ -411,6 +396,74 @@ impl OnnxUpsampler {
                     .collect())
             }
         }
+    }
+}
+
+impl OnnxUpsampler {
+    /// [`OnnxUpsampler::run_batch`] on the candle engine's device, the outputs left there:
+    /// `[batch, 3, h·scale, w·scale]`, values in [0, 1].
+    fn run_on_device(
+        &self,
+        net: &TensorNet,
+        tiles: &[Vec<f32>],
+        h: usize,
+        w: usize,
+        padding: Padding,
+    ) -> Result<candle_core::Tensor> {
+        let failed = |e: candle_core::Error| self.source.error("inference failed", e);
+        let planes: Vec<&[f32]> = tiles.iter().map(|t| &t[..]).collect();
+        let input = candle_core::Tensor::from_vec(
+            self.network_input(&planes),
+            (tiles.len(), 3, h, w),
+            net.device(),
+        )
+        .map_err(failed)?;
+        let out = net.run(input, padding).map_err(failed)?;
+        let (b, c, _, _) = out.dims4().map_err(failed)?;
+        if b != tiles.len() || c != 3 {
+            return Err(self.source.error(
+                "unsupported output",
+                format!("shape {:?}, want [batch, 3, height, width]", out.dims()),
+            ));
+        }
+        unit_rgb(&out, &self.info).map_err(failed)
+    }
+
+    /// `images` grouped by size, each group handed to `run` (the indices of its images) and
+    /// its outputs put back in the images' order.
+    fn by_size<T>(
+        images: &[Map],
+        mut run: impl FnMut(&[usize]) -> Result<Vec<T>>,
+    ) -> Result<Vec<T>> {
+        let mut results: Vec<Option<T>> = (0..images.len()).map(|_| None).collect();
+        let mut sizes: Vec<(usize, usize)> =
+            images.iter().map(|m| (m.width(), m.height())).collect();
+        sizes.sort_unstable();
+        sizes.dedup();
+        for (w, h) in sizes {
+            let same: Vec<usize> = (0..images.len())
+                .filter(|&k| (images[k].width(), images[k].height()) == (w, h))
+                .collect();
+            for (k, out) in same.iter().zip(run(&same)?) {
+                results[*k] = Some(out);
+            }
+        }
+        Ok(results
+            .into_iter()
+            .map(|m| m.expect("every size is run"))
+            .collect())
+    }
+
+    /// Refuses any scale but the network's.
+    fn check_scale(&self, scale: usize) -> Result<()> {
+        let s = self.info.scale;
+        if scale != s {
+            return Err(Error::Unsupported {
+                plugin: format!("onnx:{}", self.source),
+                what: format!("scale ×{scale} (the network upsamples ×{s})"),
+            });
+        }
+        Ok(())
     }
 }
 
@@ -664,23 +717,19 @@ impl RgbUpsampler for OnnxUpsampler {
     /// together and run as many a call as the engine takes, so the self-ensemble's passes and
     /// a material's renders fill a GPU's batch.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
-        let s = self.info.scale;
-        if scale != s {
-            return Err(Error::Unsupported {
-                plugin: format!("onnx:{}", self.source),
-                what: format!("scale ×{scale} (the network upsamples ×{s})"),
-            });
-        }
-        let mut results: Vec<Option<Map>> = vec![None; images.len()];
-        let mut sizes: Vec<(usize, usize)> =
-            images.iter().map(|m| (m.width(), m.height())).collect();
-        sizes.sort_unstable();
-        sizes.dedup();
-        for (w, h) in sizes {
-            let same: Vec<usize> = (0..images.len())
-                .filter(|&k| (images[k].width(), images[k].height()) == (w, h))
+        if let Engine::Candle { .. } = &self.engine {
+            let outputs = self.upsample_on_device(images, scale, border)?;
+            return (outputs.iter())
+                .map(|t| {
+                    matup_core::device_maps::download(t)
+                        .map_err(|e| self.source.error("inference failed", e))
+                })
                 .collect();
-            let outputs = if self.runs_whole_wrapping(w, h, border) {
+        }
+        self.check_scale(scale)?;
+        OnnxUpsampler::by_size(images, |same| {
+            let (w, h) = (images[same[0]].width(), images[same[0]].height());
+            if self.runs_whole_wrapping(w, h, border) {
                 let mut outputs = Vec::with_capacity(same.len());
                 for group in same.chunks(self.tiles_per_call(h, w)) {
                     let planes: Vec<Vec<f32>> = (group.iter())
@@ -688,24 +737,58 @@ impl RgbUpsampler for OnnxUpsampler {
                         .collect();
                     outputs.extend(self.run_batch(&planes, h, w, Padding::Wrap)?);
                 }
-                outputs
+                Ok(outputs)
             } else {
                 let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
-                match &self.engine {
-                    Engine::Candle { net, .. } => self
-                        .upsample_tiled_on_device(net, &same_images, border)
-                        .map_err(|e| self.source.error("inference failed", e))?,
-                    _ => self.upsample_tiled(&same_images, border)?,
-                }
-            };
-            for (k, out) in same.into_iter().zip(outputs) {
-                results[k] = Some(out);
+                self.upsample_tiled(&same_images, border)
             }
+        })
+    }
+
+    /// The candle engine's device.
+    fn device(&self) -> Option<candle_core::Device> {
+        match &self.engine {
+            Engine::Candle { net, .. } => Some(net.device().clone()),
+            _ => None,
         }
-        Ok(results
-            .into_iter()
-            .map(|m| m.expect("every size is run"))
-            .collect())
+    }
+
+    /// [`RgbUpsampler::upsample`] on the candle engine, each output blended on the device and
+    /// left there.
+    fn upsample_on_device(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+    ) -> Result<Vec<candle_core::Tensor>> {
+        let Engine::Candle { net, .. } = &self.engine else {
+            return Err(self.source.error(
+                "keeps no outputs on a device",
+                "only the candle engine (engine=candle or a GPU) does",
+            ));
+        };
+        self.check_scale(scale)?;
+        let failed = |e: candle_core::Error| self.source.error("inference failed", e);
+        OnnxUpsampler::by_size(images, |same| {
+            let (w, h) = (images[same[0]].width(), images[same[0]].height());
+            if self.runs_whole_wrapping(w, h, border) {
+                let mut outputs = Vec::with_capacity(same.len());
+                for group in same.chunks(self.tiles_per_call(h, w)) {
+                    let planes: Vec<Vec<f32>> = (group.iter())
+                        .map(|&k| images[k].data()[..3 * w * h].to_vec())
+                        .collect();
+                    let out = self.run_on_device(net, &planes, h, w, Padding::Wrap)?;
+                    for b in 0..group.len() {
+                        outputs.push(out.get(b).map_err(failed)?);
+                    }
+                }
+                Ok(outputs)
+            } else {
+                let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
+                self.upsample_tiled_on_device(net, &same_images, border)
+                    .map_err(failed)
+            }
+        })
     }
 }
 
@@ -747,14 +830,14 @@ impl OnnxUpsampler {
 
     /// [`OnnxUpsampler::upsample_tiled`] on the candle engine's device: the images are
     /// uploaded once; the tiles' windows are cut, run, mapped to [0, 1], weighted and blended
-    /// along each row of tiles there; each finished row of tiles comes back to be added into
-    /// the output, so the host only adds rows and the device holds a batch and a row.
+    /// along each row of tiles there, and each finished row of tiles is added into its
+    /// output there. The outputs stay on the device.
     fn upsample_tiled_on_device(
         &self,
         net: &TensorNet,
         images: &[&Map],
         border: Border,
-    ) -> candle_core::Result<Vec<Map>> {
+    ) -> candle_core::Result<Vec<candle_core::Tensor>> {
         use candle_core::Tensor;
         let s = self.info.scale;
         let (w, h) = (images[0].width(), images[0].height());
@@ -795,27 +878,19 @@ impl OnnxUpsampler {
             Tensor::from_vec(self.network_input(&planes), (images.len(), 3, h, w), device)?;
 
         let (out_w, out_h) = (w * s, h * s);
-        let mut accs = vec![vec![0f32; 3 * out_w * out_h]; images.len()];
+        let outputs = (0..images.len())
+            .map(|_| Tensor::zeros((3, out_h, out_w), candle_core::DType::F32, device))
+            .collect::<candle_core::Result<Vec<_>>>()?;
         // The row of tiles being blended: (image, row of tiles) and its [3, rows, out_w] sum.
         let mut strip: Option<((usize, usize), Tensor)> = None;
-        let mut finish = |strip: Option<((usize, usize), Tensor)>| -> candle_core::Result<()> {
+        let finish = |strip: Option<((usize, usize), Tensor)>| -> candle_core::Result<()> {
             let Some(((k, i), sum)) = strip else {
                 return Ok(());
             };
             let kept = &kept_rows[i];
-            let sum = sum.flatten_all()?.to_vec1::<f32>()?;
-            let n = kept.weights.len() * out_w;
-            // Adds its rows into the output, a run of rows of one channel a task (a channel a
-            // task would leave all but three of a GPU host's cores idle).
-            let to = kept.in_image * out_w;
-            (accs[k].par_chunks_mut((out_w * out_h).max(1)))
-                .zip(sum.par_chunks(n.max(1)))
-                .flat_map(|(plane, rows)| {
-                    (plane[to..to + n].par_chunks_mut((out_w * BLEND_ROWS).max(1)))
-                        .zip(rows.par_chunks((out_w * BLEND_ROWS).max(1)))
-                })
-                .for_each(|(dst, src)| dst.iter_mut().zip(src).for_each(|(d, v)| *d += v));
-            Ok(())
+            let (to, n) = (kept.in_image, kept.weights.len());
+            let blended = (outputs[k].narrow(1, to, n)? + sum)?.contiguous()?;
+            outputs[k].slice_set(&blended, 1, to)
         };
         let batch = self.tiles_per_call(rows.window, columns.window);
         for group in grid.chunks(batch) {
@@ -854,10 +929,7 @@ impl OnnxUpsampler {
             }
         }
         finish(strip)?;
-        Ok(accs
-            .into_iter()
-            .map(|acc| Map::from_planar(out_w, out_h, 3, acc))
-            .collect())
+        Ok(outputs)
     }
 }
 
@@ -1060,6 +1132,17 @@ impl RgbUpsampler for Shared {
     }
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         self.0.upsample(images, scale, border)
+    }
+    fn device(&self) -> Option<candle_core::Device> {
+        self.0.device()
+    }
+    fn upsample_on_device(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+    ) -> Result<Vec<candle_core::Tensor>> {
+        self.0.upsample_on_device(images, scale, border)
     }
 }
 
