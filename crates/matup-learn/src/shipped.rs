@@ -9,9 +9,8 @@
 //! invented, and a network trained without it is judged with it.
 
 use candle_core::{Device, Tensor, D};
-use matup_core::resample::{upsample, Border, Kernel};
+use matup_core::resample::{upsample_matrix, Border, Kernel};
 use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
-use matup_core::Map;
 use matup_method::features::ALPHA;
 use matup_method::filter::decode::decode_tensors;
 use matup_method::filter::FEATURES;
@@ -76,8 +75,10 @@ pub fn normal_params(xy: &Tensor) -> candle_core::Result<Tensor> {
 }
 
 /// Back-projection onto the LR features as matrix products: the box filter as a mean of
-/// `scale × scale` blocks, the bilinear spread as `U · M · Uᵀ` with `U` matup's own bilinear
-/// upsampling of unit impulses (so borders are handled exactly as `upsample` handles them).
+/// `scale × scale` blocks, the bilinear spread as `U · M · Uᵀ` with `U` the weights of matup's
+/// own bilinear upsampling (`upsample_matrix`: borders as `upsample` handles them). The
+/// differentiable, batched form of `matup_method::residual::back_project_on_device`, which
+/// inference uses: training needs floors that keep gradients finite.
 pub struct BackProjection {
     scale: usize,
     /// `[H, h]`.
@@ -95,17 +96,9 @@ impl BackProjection {
         border: Border,
         device: &Device,
     ) -> candle_core::Result<Self> {
-        // Channel j: an impulse at column j. Its bilinear upsampling's first row is column j
-        // of U (the kernel is separable and its weights along one axis sum to 1).
-        let impulses = Map::from_fn(size, 1, size, |c, _, x| (c == x) as u8 as f32);
-        let up = upsample(&impulses, scale, Kernel::Bilinear, border);
-        let big = size * scale;
         let u = Tensor::from_vec(
-            (0..big)
-                .flat_map(|x| (0..size).map(move |j| (x, j)))
-                .map(|(x, j)| up.get(j, 0, x))
-                .collect::<Vec<f32>>(),
-            (big, size),
+            upsample_matrix(size, scale, Kernel::Bilinear, border),
+            (size * scale, size),
             device,
         )?;
         let range = |f: fn(usize) -> f32| {

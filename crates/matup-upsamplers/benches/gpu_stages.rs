@@ -1,8 +1,9 @@
 //! Where the SR stage's time goes on a GPU: the per-map path's eight 1K² images (four maps,
-//! two self-ensemble passes) through `span_x4_materials` on the candle engine, against the
-//! network's arithmetic alone on the same tiles, the download of the outputs, and the host's
-//! share of blending them (fresh output-size planes, rows added in). Each the median of three,
-//! the device synchronised around each timing. Prints a table.
+//! two self-ensemble passes) through `span_x4_materials` on the candle engine, outputs left on
+//! the device (the default path's) and brought to the host, against the network's arithmetic
+//! alone on the same tiles, the download of the eight outputs, and the download of one
+//! material's 7 features at the output size (what the default path brings back). Each the
+//! median of three, the device synchronised around each timing. Prints a table.
 //!
 //! `cargo bench -p matup-upsamplers --features cuda --bench gpu_stages` (`MATUP_BENCH_DEVICE`:
 //! `cuda` by default, or `cpu` for a small check of the bench itself; `MATUP_BENCH_SIZE`: the
@@ -48,7 +49,13 @@ fn main() {
     let (tile, overlap) = (up.info.tile, up.info.overlap);
     let scale = up.info.scale;
 
-    // The whole call, as the per-map path makes it: eight images, outputs on the host.
+    // The whole call, as the default path makes it: eight images, outputs left on the device.
+    let on_device = median(|| {
+        up.upsample_on_device(&images, scale, Border::Mirror)
+            .unwrap();
+        sync();
+    });
+    // The same, outputs brought to the host.
     let whole = median(|| {
         up.upsample(&images, scale, Border::Mirror).unwrap();
     });
@@ -75,14 +82,11 @@ fn main() {
         outputs.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     });
 
-    // The host's share of blending: eight fresh output-size planes, every row added into.
-    let rows = vec![0.5f32; 3 * out_side * out_side];
-    let host = median(|| {
-        for _ in 0..8 {
-            let mut acc = vec![0f32; 3 * out_side * out_side];
-            acc.iter_mut().zip(&rows).for_each(|(a, r)| *a += r);
-            std::hint::black_box(&acc);
-        }
+    // What the default path brings back: one material's 7 features.
+    let features = Tensor::zeros((7, out_side, out_side), DType::F32, &device).unwrap();
+    sync();
+    let features_download = median(|| {
+        matup_core::device_maps::download(&features).unwrap();
     });
 
     println!(
@@ -92,8 +96,9 @@ fn main() {
     );
     println!("| part | seconds (median of 3) |");
     println!("|---|---|");
-    println!("| the whole call (outputs on the host) | {whole:.3} |");
+    println!("| the whole call, outputs left on the device | {on_device:.3} |");
+    println!("| the whole call, outputs on the host | {whole:.3} |");
     println!("| the network alone, batches of 32 windows | {network:.3} |");
     println!("| downloading 8 outputs ({out_side}² × 3) | {download:.3} |");
-    println!("| the host's share of blending (8 fresh planes, rows added) | {host:.3} |");
+    println!("| downloading one material's 7 features ({out_side}²) | {features_download:.3} |");
 }
