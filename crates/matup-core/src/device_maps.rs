@@ -9,6 +9,20 @@ use candle_core::{DType, Device, Tensor};
 use crate::map::{Dihedral, Map};
 use crate::resample::{shrink_matrix, upsample_matrix, Border, Kernel, Shrink};
 
+/// Bytes of memory free on `device` now, as its driver reports them: a GPU's; `None` for the
+/// CPU (the host's memory limit governs it).
+pub fn free_memory(device: &Device) -> candle_core::Result<Option<u64>> {
+    match device {
+        #[cfg(feature = "cuda")]
+        Device::Cuda(gpu) => {
+            let (free, _total) =
+                (gpu.cuda_stream().context().mem_get_info()).map_err(candle_core::Error::wrap)?;
+            Ok(Some(free as u64))
+        }
+        _ => Ok(None),
+    }
+}
+
 /// `map` on `device`, `[channels, height, width]`.
 pub fn upload(map: &Map, device: &Device) -> candle_core::Result<Tensor> {
     Tensor::from_slice(

@@ -23,6 +23,13 @@ pub const BYTES_PER_BAND_TEXEL: u64 = 80;
 /// at 757 MiB with two passes against 655 MiB with one (docs/experiments/2026-11-25-self-ensemble.md).
 pub const ENSEMBLE_BYTES_PER_BAND_TEXEL: u64 = 12;
 
+/// GPU bytes per output texel of a band whose residual base is made on the GPU
+/// (`residual::residual_base_on_device`): a map's passes as the network leaves them (2 × 3
+/// f32) and their sum, the 7 features, and the back-projection's, settling's and chroma
+/// clamp's full-size temporaries, several alive at once. Counted from the stages' tensors, not
+/// yet measured on a GPU; a band is planned within half the GPU's free memory.
+pub const DEVICE_BYTES_PER_BAND_TEXEL: u64 = 320;
+
 /// Heap bytes per texel of an upsampler's native scale where it serves a smaller one
 /// ([`matup_core::upsample::route`]): the image at the native scale (RGB f32) and the
 /// network's last feature map before it is rearranged into that image. At ×2 through ×4

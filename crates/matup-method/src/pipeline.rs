@@ -8,8 +8,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crate::bands::{
-    plan_bands, Assembler, BYTES_PER_BAND_TEXEL, ENSEMBLE_BYTES_PER_BAND_TEXEL,
-    ROUTE_BYTES_PER_NATIVE_TEXEL,
+    plan_bands, Assembler, BYTES_PER_BAND_TEXEL, DEVICE_BYTES_PER_BAND_TEXEL,
+    ENSEMBLE_BYTES_PER_BAND_TEXEL, ROUTE_BYTES_PER_NATIVE_TEXEL,
 };
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
 use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
@@ -26,7 +26,7 @@ use matup_core::progress::{Progress, Silent};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::upsample::{route, RgbUpsampler};
-use matup_core::{PluginSpec, Result};
+use matup_core::{Error, PluginSpec, Result};
 
 pub use crate::features::{constant_features, features};
 pub use matup_core::tileable::{
@@ -321,23 +321,32 @@ fn run_level(
         ResidualBase::Upsampler => ctx.upsampler.tile(),
         ResidualBase::Kernel(_) => None,
     };
-    let plan = plan_bands(
-        lr.width(),
-        lr.height_px(),
-        scale,
-        context,
-        tile,
-        ctx.border,
+    let plan_within = |limit: Option<u64>, per_texel: u64| {
+        plan_bands(
+            lr.width(),
+            lr.height_px(),
+            scale,
+            context,
+            tile,
+            ctx.border,
+            limit,
+            per_texel,
+        )
+    };
+    let passes = if config.filter.residual_base == ResidualBase::Upsampler {
+        config.filter.self_ensemble.max(1) as u64
+    } else {
+        1
+    };
+    let plan = plan_within(
         ctx.options.memory_limit,
         BYTES_PER_BAND_TEXEL
             + route_bytes_per_texel(ctx, scale)
-            + if config.filter.residual_base == ResidualBase::Upsampler
-                && config.filter.self_ensemble > 1
-            {
+            + if passes > 1 {
                 // The sum of the passes; where they run in one call, each pass's output too
                 // (the one pass made at a time is in the band's own bytes).
                 let held = if ctx.upsampler.batches_images() {
-                    config.filter.self_ensemble as u64
+                    passes
                 } else {
                     1
                 };
@@ -346,6 +355,30 @@ fn run_level(
                 0
             },
     )?;
+    // Where the residual base is made on a GPU, a band must also fit half its free memory.
+    let on_device = residual::device_for(&config.filter, ctx.upsampler.as_ref());
+    let free = match &on_device {
+        Some(device) => matup_core::device_maps::free_memory(device)?,
+        None => None,
+    };
+    let plan = match free {
+        Some(free) => {
+            let per_texel =
+                DEVICE_BYTES_PER_BAND_TEXEL + route_bytes_per_texel(ctx, scale) * passes;
+            let fitting = plan_within(Some(free / 2), per_texel).map_err(|e| {
+                Error::Invalid(format!(
+                    "the GPU has {} MiB free, and a band needs half of it at most: {e}",
+                    free >> 20
+                ))
+            })?;
+            if fitting.count() > plan.count() {
+                fitting
+            } else {
+                plan
+            }
+        }
+        None => plan,
+    };
     report.bands = plan.count();
     let whole = plan.is_whole();
     let tileable = ctx.border == Border::Wrap;
@@ -372,15 +405,14 @@ fn run_level(
             Some(base) if whole => base,
             _ => {
                 inner.stage(&tag("residual base"), 1);
-                let on_device = residual::device_for(&config.filter, ctx.upsampler.as_ref());
                 // On a device its stages run there, one after another: timed as one.
-                let base = match on_device {
+                let base = match &on_device {
                     Some(device) => timed(timings, tag("residual base"), || {
                         residual::residual_base_on_device(
                             lr_band,
                             &config.filter,
                             ctx.upsampler.as_ref(),
-                            &device,
+                            device,
                             scale,
                             ctx.border,
                         )

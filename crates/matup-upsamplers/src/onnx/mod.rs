@@ -479,15 +479,7 @@ fn device_name(device: &candle_core::Device) -> String {
 /// Bytes of memory free on `device` for the network's tiles: on a GPU, what its driver reports
 /// free now; on the CPU, the 1 GiB that a host batch of tiles is allowed.
 fn free_memory(device: &candle_core::Device) -> candle_core::Result<usize> {
-    match device {
-        #[cfg(feature = "cuda")]
-        candle_core::Device::Cuda(gpu) => {
-            let (free, _total) =
-                (gpu.cuda_stream().context().mem_get_info()).map_err(candle_core::Error::wrap)?;
-            Ok(free)
-        }
-        _ => Ok(1 << 30),
-    }
+    Ok(matup_core::device_maps::free_memory(device)?.map_or(1 << 30, |free| free as usize))
 }
 
 /// The candle engine for `proto` on `device`: the executor's graph, its weights uploaded once,
