@@ -75,9 +75,9 @@ pub fn project_onto_input(
     }
 }
 
-/// The device the residual base is made on where it can be: the per-map base, its colour's
-/// chroma from the upsampler too, and an upsampler that leaves its outputs on a device (a
-/// GPU's network). `None`: the host's path.
+/// The device to make the residual base on: the upsampler's, where it leaves its outputs on
+/// one (a GPU's network) and the base is the per-map one, its colour's chroma its own.
+/// `None`: the host's path.
 pub fn device_for(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> Option<Device> {
     let per_map = config.residual_base == ResidualBase::Upsampler
         && config.base_color_chroma == Chroma::Upsampler;
@@ -347,9 +347,10 @@ pub fn settled_part_on_device(miss: &Tensor) -> candle_core::Result<Tensor> {
 /// more than [`SETTLE_ABOVE`]: the miss ([`settled_part`] of it) is shared among the block's
 /// texels in proportion to the room each has toward the end of `range(c)` it moves to, so the
 /// block's mean comes out equal to its LR texel (within `SETTLE_ABOVE`) and no value leaves
-/// the range (an unbounded end gives every texel the same share). Bilinear rounds cannot bring back a block whose texels are pinned at the
-/// range's ends (a white speck, a metal edge); this does, and touches no other block, so a
-/// file box-filters back to its input within its precision and bands need no more context.
+/// the range (an unbounded end gives every texel the same share). Bilinear rounds cannot bring
+/// back a block whose texels are pinned at the range's ends (a white speck, a metal edge);
+/// this does, and touches no other block, so a file box-filters back to its input within its
+/// precision and bands need no more context.
 pub fn settle_blocks(
     hr: &mut Map,
     lr: &Map,
