@@ -27,7 +27,7 @@ pub const ENSEMBLE_BYTES_PER_BAND_TEXEL: u64 = 12;
 /// (`residual::residual_base_on_device`): a map's passes as the network leaves them (2 × 3
 /// f32) and their sum, the 7 features, and the back-projection's, settling's and chroma
 /// clamp's full-size temporaries, several alive at once. Counted from the stages' tensors, not
-/// yet measured on a GPU; a band is planned within half the GPU's free memory.
+/// yet measured on a GPU; a band is planned within a quarter of the GPU's free memory.
 pub const DEVICE_BYTES_PER_BAND_TEXEL: u64 = 320;
 
 /// Heap bytes per texel of an upsampler's native scale where it serves a smaller one

@@ -355,7 +355,8 @@ fn run_level(
                 0
             },
     )?;
-    // Where the residual base is made on a GPU, a band must also fit half its free memory.
+    // Where the residual base is made on a GPU, a band must also fit a quarter of its free
+    // memory: the network's batches take up to half (`onnx`'s `tiles_per_call`).
     let on_device = residual::device_for(&config.filter, ctx.upsampler.as_ref());
     let free = match &on_device {
         Some(device) => matup_core::device_maps::free_memory(device)?,
@@ -365,9 +366,9 @@ fn run_level(
         Some(free) => {
             let per_texel =
                 DEVICE_BYTES_PER_BAND_TEXEL + route_bytes_per_texel(ctx, scale) * passes;
-            let fitting = plan_within(Some(free / 2), per_texel).map_err(|e| {
+            let fitting = plan_within(Some(free / 4), per_texel).map_err(|e| {
                 Error::Invalid(format!(
-                    "the GPU has {} MiB free, and a band needs half of it at most: {e}",
+                    "the GPU has {} MiB free, and a band may take a quarter of it: {e}",
                     free >> 20
                 ))
             })?;
