@@ -408,6 +408,59 @@ fn an_interrupted_batch_resumes_its_material_from_the_checkpoint() {
     }
 }
 
+/// Two materials in flight (a GPU's batch: one's files written while the next is upscaled)
+/// give the files of one at a time, and report the materials in the library's order.
+#[test]
+fn materials_in_flight_together_give_the_files_of_one_at_a_time() {
+    let library = tempfile::tempdir().unwrap();
+    let sample = load_material(Some(&common::sample_material()), &Default::default()).unwrap();
+    for (name, factor) in [("a", 4), ("b", 8), ("c", 2)] {
+        let material = sample.box_downsample(factor);
+        save_material(&material, &library.path().join(name), &Default::default()).unwrap();
+    }
+    let config = Config {
+        upsampler: "bicubic".into(),
+        ..Config::default()
+    };
+    let run = |in_flight: usize| {
+        let out = tempfile::tempdir().unwrap();
+        let options = BatchOptions {
+            config: config.clone(),
+            in_flight,
+            memory_limit: Some(512 << 20),
+            ..Default::default()
+        };
+        let report = run_batch(library.path(), out.path(), &options, &Silent).unwrap();
+        let handled: Vec<(String, Outcome)> = (report.handled.into_iter())
+            .map(|h| (h.material, h.outcome))
+            .collect();
+        (out, handled)
+    };
+    let (one, handled_one) = run(1);
+    let (two, handled_two) = run(2);
+    assert_eq!(handled_one, handled_two);
+    assert_eq!(
+        handled_two
+            .iter()
+            .map(|(m, _)| m.as_str())
+            .collect::<Vec<_>>(),
+        ["a", "b", "c"]
+    );
+    assert!(handled_two.iter().all(|(_, o)| *o == Outcome::Upscaled));
+    for name in ["a", "b", "c"] {
+        for map in [
+            "baseColor.png",
+            "normal.png",
+            "roughness.png",
+            "preview.png",
+        ] {
+            let read =
+                |root: &tempfile::TempDir| std::fs::read(root.path().join(name).join(map)).unwrap();
+            assert!(read(&one) == read(&two), "{name}/{map} differs");
+        }
+    }
+}
+
 // Outputs made in bands of rows within a memory limit equal the whole-image path: matup's
 // defaults (each map through SPAN ×4, back-projected, height rebuilt from the normals) on a
 // real material, ×4 and ×16, tileable and not, every map within 1/255 of the whole run's as

@@ -60,8 +60,15 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
         args.claim_timeout > 0,
         "--claim-timeout must be at least 1 second"
     );
+    let config = args.settings.config()?;
+    // On a GPU one material's files are written while the next is upscaled.
+    let in_flight = if matup_core::tensor::cuda_ordinal(&config.device)?.is_some() {
+        2
+    } else {
+        1
+    };
     let options = BatchOptions {
-        config: args.settings.config()?,
+        config,
         save: SaveOptions {
             format: args.settings.format,
             normal_convention: None,
@@ -73,6 +80,7 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
         claims: ClaimTiming::with_timeout(Duration::from_secs(args.claim_timeout)),
         view: args.view,
         memory_limit: Some(args.settings.memory_limit()),
+        in_flight,
     };
     let bars = BatchBars::new(args.quiet || args.json);
     if let Some(s) = shard {

@@ -11,8 +11,10 @@ pub mod library;
 pub mod shard;
 pub mod summary;
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::ScopedJoinHandle;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
@@ -43,8 +45,13 @@ pub struct BatchOptions {
     pub claims: ClaimTiming,
     /// Also write each material's `view.html` (linked from `index.html`).
     pub view: bool,
-    /// Heap each material's output is made within (none: whole).
+    /// Heap each material's output is made within (none: whole), shared by the materials in
+    /// flight.
     pub memory_limit: Option<u64>,
+    /// Materials worked on at once (0 or 1: one at a time). On a GPU, 2: one material's files
+    /// are encoded and written on the CPU while the next is upscaled on the GPU. On the CPU
+    /// one material already fills every core.
+    pub in_flight: usize,
 }
 
 /// What this worker did with one material.
@@ -173,40 +180,62 @@ pub fn run_batch(
         .collect();
     progress.materials(mine.len());
 
+    // Each material in flight makes its output within its share of the memory limit.
+    let in_flight = options.in_flight.max(1);
+    let per_material = BatchOptions {
+        memory_limit: options.memory_limit.map(|m| m / in_flight as u64),
+        ..options.clone()
+    };
     let mut handled = Vec::new();
     let mut interrupted = false;
-    for &i in &mine {
-        if progress.cancelled() {
-            interrupted = true;
-            break;
-        }
-        let relative = &library.materials[i];
-        let name = material_name(relative);
-        progress.material_started(&name);
-        let start = Instant::now();
-        let outcome = match &fingerprints[i] {
-            Ok(fingerprint) => handle_material(
-                &root.join(relative),
-                &out.join(relative),
-                fingerprint,
-                began,
-                options,
-                progress,
-            ),
-            Err(error) => Outcome::Failed(error.clone()),
+    std::thread::scope(|scope| {
+        // The materials being worked on, oldest first.
+        let mut working: VecDeque<InFlight> = VecDeque::new();
+        let mut finish_oldest = |working: &mut VecDeque<InFlight>| {
+            let (material, start, worker) = working.pop_front().expect("one is in flight");
+            let h = Handled {
+                material,
+                outcome: worker.join().unwrap_or_else(|_| {
+                    Outcome::Failed("matup stopped on an internal error (a bug)".into())
+                }),
+                seconds: start.elapsed().as_secs_f64(),
+            };
+            progress.material_done(&h);
+            let stop = h.outcome == Outcome::Interrupted;
+            handled.push(h);
+            stop
         };
-        let h = Handled {
-            material: name,
-            outcome,
-            seconds: start.elapsed().as_secs_f64(),
-        };
-        progress.material_done(&h);
-        interrupted = h.outcome == Outcome::Interrupted;
-        handled.push(h);
-        if interrupted {
-            break;
+        for &i in &mine {
+            if working.len() == in_flight && finish_oldest(&mut working) {
+                interrupted = true;
+                break;
+            }
+            if progress.cancelled() {
+                interrupted = true;
+                break;
+            }
+            let relative = &library.materials[i];
+            let name = material_name(relative);
+            progress.material_started(&name);
+            let fingerprint = &fingerprints[i];
+            let per_material = &per_material;
+            let worker = scope.spawn(move || match fingerprint {
+                Ok(fingerprint) => handle_material(
+                    &root.join(relative),
+                    &out.join(relative),
+                    fingerprint,
+                    began,
+                    per_material,
+                    progress,
+                ),
+                Err(error) => Outcome::Failed(error.clone()),
+            });
+            working.push_back((name, Instant::now(), worker));
         }
-    }
+        while !working.is_empty() {
+            interrupted |= finish_oldest(&mut working);
+        }
+    });
 
     let summary = summary::summarize(&library, out, &fingerprints, options.claims);
     summary::write_summary(&library, out, &summary)?;
@@ -217,6 +246,9 @@ pub fn run_batch(
         interrupted,
     })
 }
+
+/// A material being worked on: its name, when it began, and its worker.
+type InFlight<'scope> = (String, Instant, ScopedJoinHandle<'scope, Outcome>);
 
 /// One material: skipped when done, else claimed, loaded, upscaled and released.
 fn handle_material(
