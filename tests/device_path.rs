@@ -13,9 +13,9 @@ use matup::config::Config;
 use matup::core::device_maps::upload;
 use matup::core::resample::{upsample, Border, Kernel};
 use matup::core::upsample::{RgbUpsampler, UpsamplerRegistration};
-use matup::material::{Extra, MapKind, Material};
+use matup::material::{MapKind, Material};
 use matup::progress::Silent;
-use matup::{FileFormat, Map, NormalConvention, Result, RunOptions};
+use matup::{Map, NormalConvention, Result, RunOptions};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// A ×4-only upsampler as a network is (outputs in [0, 1]): Lanczos-3. `device` keeps its
@@ -85,19 +85,7 @@ fn material(side: usize) -> Material {
         &Default::default(),
     )
     .unwrap();
-    let mut lr = whole.box_downsample(whole.width() / side);
-    let green = |y: usize, x: usize| lr.base_color.get(1, y, x);
-    let occlusion = Map::from_fn(side, side, 1, |_, y, x| 0.5 + 0.5 * green(y, x));
-    let alpha = Map::from_fn(side, side, 1, |_, y, x| (green(y, x) * 3.0).min(1.0));
-    lr.carried.extras.push(Extra {
-        name: "occlusion".into(),
-        source: "occlusion.png".into(),
-        format: FileFormat::Png8,
-        map: occlusion,
-        alpha: None,
-    });
-    lr.carried.alpha.insert(MapKind::BaseColor, alpha);
-    lr
+    common::with_occlusion_and_alpha(whole.box_downsample(whole.width() / side))
 }
 
 fn run(lr: &Material, device: bool, scale: usize, tileable: bool, limit: Option<u64>) -> Material {

@@ -6,9 +6,9 @@
 mod common;
 
 use matup::config::Config;
-use matup::material::{Extra, MapKind, Material};
+use matup::material::Material;
 use matup::progress::Silent;
-use matup::{FileFormat, Map, RunOptions};
+use matup::{Map, RunOptions};
 
 /// The material moved by `d` texels on both axes, wrapping around.
 fn rolled(m: &Material, d: usize) -> Material {
@@ -30,19 +30,7 @@ fn tiles(side: usize) -> Material {
         &Default::default(),
     )
     .unwrap();
-    let mut lr = whole.box_downsample(whole.width() / side);
-    let luminance = |c: usize, y: usize, x: usize| lr.base_color.get(c, y, x);
-    let occlusion = Map::from_fn(side, side, 1, |_, y, x| 0.5 + 0.5 * luminance(1, y, x));
-    let alpha = Map::from_fn(side, side, 1, |_, y, x| (luminance(0, y, x) * 2.0).min(1.0));
-    lr.carried.extras.push(Extra {
-        name: "occlusion".into(),
-        source: "occlusion.png".into(),
-        format: FileFormat::Png8,
-        map: occlusion,
-        alpha: None,
-    });
-    lr.carried.alpha.insert(MapKind::BaseColor, alpha);
-    lr
+    common::with_occlusion_and_alpha(whole.box_downsample(whole.width() / side))
 }
 
 /// The largest difference, over every map, between `expected` and `got`.

@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use matup::config::Config;
-use matup::material::Material;
+use matup::material::{Extra, MapKind, Material};
 use matup::progress::Progress;
-use matup::{Map, RunOptions};
+use matup::{FileFormat, Map, RunOptions};
 
 pub mod nets;
 
@@ -37,6 +37,24 @@ pub fn test_material_names() -> Vec<String> {
 /// The sample material shipped with the repository.
 pub fn sample_material() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("samples/victorian_wood")
+}
+
+/// `material` with two maps carried along, made from its base colour: an occlusion map (grey,
+/// from green) and a soft base-colour alpha (from red, doubled, 1 at most).
+pub fn with_occlusion_and_alpha(mut material: Material) -> Material {
+    let colour = material.base_color.clone();
+    let (w, h) = (colour.width(), colour.height());
+    let occlusion = Map::from_fn(w, h, 1, |_, y, x| 0.5 + 0.5 * colour.get(1, y, x));
+    let alpha = Map::from_fn(w, h, 1, |_, y, x| (colour.get(0, y, x) * 2.0).min(1.0));
+    material.carried.extras.push(Extra {
+        name: "occlusion".into(),
+        source: "occlusion.png".into(),
+        format: FileFormat::Png8,
+        map: occlusion,
+        alpha: None,
+    });
+    material.carried.alpha.insert(MapKind::BaseColor, alpha);
+    material
 }
 
 /// The largest absolute difference between two maps of one shape.

@@ -454,6 +454,21 @@ impl OnnxUpsampler {
             .collect())
     }
 
+    /// The images `same` of `images` (all of one size), run whole, as the calls that run
+    /// them: each call's images as their three planes.
+    fn whole_calls<'a>(
+        &'a self,
+        images: &'a [Map],
+        same: &'a [usize],
+    ) -> impl Iterator<Item = Vec<Vec<f32>>> + 'a {
+        let (w, h) = (images[same[0]].width(), images[same[0]].height());
+        same.chunks(self.tiles_per_call(h, w)).map(move |call| {
+            (call.iter())
+                .map(|&k| images[k].data()[..3 * w * h].to_vec())
+                .collect()
+        })
+    }
+
     /// Refuses any scale but the network's.
     fn check_scale(&self, scale: usize) -> Result<()> {
         let s = self.info.scale;
@@ -723,10 +738,7 @@ impl RgbUpsampler for OnnxUpsampler {
             let (w, h) = (images[same[0]].width(), images[same[0]].height());
             if self.runs_whole_wrapping(w, h, border) {
                 let mut outputs = Vec::with_capacity(same.len());
-                for group in same.chunks(self.tiles_per_call(h, w)) {
-                    let planes: Vec<Vec<f32>> = (group.iter())
-                        .map(|&k| images[k].data()[..3 * w * h].to_vec())
-                        .collect();
+                for planes in self.whole_calls(images, same) {
                     outputs.extend(self.run_batch(&planes, h, w, Padding::Wrap)?);
                 }
                 Ok(outputs)
@@ -765,12 +777,9 @@ impl RgbUpsampler for OnnxUpsampler {
             let (w, h) = (images[same[0]].width(), images[same[0]].height());
             if self.runs_whole_wrapping(w, h, border) {
                 let mut outputs = Vec::with_capacity(same.len());
-                for group in same.chunks(self.tiles_per_call(h, w)) {
-                    let planes: Vec<Vec<f32>> = (group.iter())
-                        .map(|&k| images[k].data()[..3 * w * h].to_vec())
-                        .collect();
+                for planes in self.whole_calls(images, same) {
                     let out = self.run_on_device(net, &planes, h, w, Padding::Wrap)?;
-                    for b in 0..group.len() {
+                    for b in 0..planes.len() {
                         outputs.push(out.get(b).map_err(failed)?);
                     }
                 }
