@@ -7,7 +7,9 @@
 use candle_core::{DType, Device, Tensor};
 
 use crate::map::{Dihedral, Map};
-use crate::resample::{shrink_matrix, upsample_matrix, Border, Kernel, Shrink};
+use crate::resample::{
+    neighbourhood_ranges, shrink_matrix, upsample_matrix, Border, Kernel, Shrink,
+};
 
 /// Bytes of memory free on `device` now, as its driver reports them: a GPU's; `None` for the
 /// CPU (the host's memory limit governs it).
@@ -150,6 +152,25 @@ pub fn repeated(t: &Tensor, scale: usize) -> candle_core::Result<Tensor> {
         .broadcast_as((c, h, scale, w, scale))?
         .contiguous()?
         .reshape((c, h * scale, w * scale))
+}
+
+/// The least and greatest of each of `values`' `N` components over each texel's 3×3
+/// neighbourhood ([`crate::resample::neighbourhood_ranges`], computed on the host: `values`
+/// are an input's, small), on `device` at `scale` times their size: `[2·N, h·scale,
+/// w·scale]`, each component's least, then its greatest.
+pub fn neighbourhood_bounds<const N: usize>(
+    values: &[[f32; N]],
+    width: usize,
+    scale: usize,
+    border: Border,
+    device: &Device,
+) -> candle_core::Result<Tensor> {
+    let ranges = neighbourhood_ranges(values, width, border);
+    let height = values.len() / width.max(1);
+    let bounds = Map::from_fn(width, height, 2 * N, |k, y, x| {
+        ranges[y * width + x][k / 2][k % 2]
+    });
+    repeated(&upload(&bounds, device)?, scale)
 }
 
 /// The sums of `t`'s `scale × scale` blocks, `[channels, h / scale, w / scale]`.

@@ -255,11 +255,13 @@ fn upscale_on_device(
         Method::SoftAlpha => {
             // As `upscale`: each texel within its LR texel's neighbourhood (no halo).
             let values: Vec<[f32; 1]> = map.data().iter().map(|&v| [v]).collect();
-            let ranges = neighbourhood_ranges(&values, map.width(), how.border);
-            let bounds = Map::from_fn(map.width(), map.height(), 2, |k, y, x| {
-                ranges[y * map.width() + x][0][k]
-            });
-            let bounds = device_maps::repeated(&device_maps::upload(&bounds, device)?, how.scale)?;
+            let bounds = device_maps::neighbourhood_bounds(
+                &values,
+                map.width(),
+                how.scale,
+                how.border,
+                device,
+            )?;
             up.maximum(&bounds.narrow(0, 0, 1)?)?
                 .minimum(&bounds.narrow(0, 1, 1)?)?
         }

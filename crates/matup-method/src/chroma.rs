@@ -96,22 +96,22 @@ pub fn clamp_chroma_to_input(hr: &mut Map, lr: &Map, scale: usize, border: Borde
         });
 }
 
-/// [`clamp_chroma_to_input`] on a device: `hr`, `[3, h·scale, w·scale]` linear colours, with
-/// each texel's chroma clamped into its `lr` texel's neighbourhood range (computed on the
-/// host: the input is small), its luma kept.
-pub fn clamp_chroma_on_device(
-    hr: &Tensor,
+/// The chroma range of each of `lr`'s texels' 3×3 neighbourhoods (the range
+/// [`clamp_chroma_to_input`] keeps to), on `device` at `scale` times `lr`'s size: `[4, h·scale,
+/// w·scale]`, red's least and greatest, then blue's.
+pub fn chroma_bounds_on_device(
     lr: &Map,
     scale: usize,
     border: Border,
+    device: &candle_core::Device,
 ) -> candle_core::Result<Tensor> {
     let lr_chroma: Vec<[f32; 2]> = (0..lr.texels()).map(|i| chroma(encoded(lr, i))).collect();
-    let ranges = neighbourhood_ranges(&lr_chroma, lr.width(), border);
-    // [red's least, red's greatest, blue's least, blue's greatest] of each LR texel.
-    let bounds = Map::from_fn(lr.width(), lr.height(), 4, |k, y, x| {
-        ranges[y * lr.width() + x][k / 2][k % 2]
-    });
-    let bounds = device_maps::repeated(&device_maps::upload(&bounds, hr.device())?, scale)?;
+    device_maps::neighbourhood_bounds(&lr_chroma, lr.width(), scale, border, device)
+}
+
+/// [`clamp_chroma_to_input`] on a device: `hr`, `[3, H, W]` linear colours, with each texel's
+/// chroma clamped into `bounds` ([`chroma_bounds_on_device`]), its luma kept.
+pub fn clamp_chroma_on_device(hr: &Tensor, bounds: &Tensor) -> candle_core::Result<Tensor> {
     let bound = |k: usize| bounds.narrow(0, k, 1);
     let colour = linear_to_srgb_tensor(hr)?;
     let channel = |c: usize| colour.narrow(0, c, 1);

@@ -80,8 +80,8 @@ pub fn upscale_one_map(
 ) -> Result<Map> {
     if let Some(flat) = flat_upsampled(map, scale) {
         Ok(flat)
-    } else if ensemble.covers(kind) {
-        upscale_map_ensemble(kind, map, upsampler, scale, border, ensemble.symmetries()?)
+    } else if let Some(symmetries) = ensemble.symmetries_for(kind)? {
+        upscale_map_ensemble(kind, map, upsampler, scale, border, symmetries)
     } else {
         upscale_map(kind, map, upsampler, scale, border)
     }
@@ -109,17 +109,22 @@ fn upscale_maps(
 ) -> Result<Vec<Map>> {
     let images: Vec<Map> = maps.iter().map(|m| encode_for_upsampler(kind, m)).collect();
     let ups = upsampler.upsample(&images, scale, border)?;
-    if ups.len() != maps.len() {
-        return Err(Error::Invalid(format!(
-            "the upsampler returned {} images for {} {kind:?} maps",
-            ups.len(),
-            maps.len()
-        )));
-    }
+    check_count(kind, ups.len(), maps.len())?;
     ups.into_iter()
         .zip(maps)
         .map(|(up, map)| decoded(kind, map, up, scale))
         .collect()
+}
+
+/// An error unless the upsampler returned as many images (`returned`) as it was given maps of
+/// `kind` (`given`).
+fn check_count(kind: MapKind, returned: usize, given: usize) -> Result<()> {
+    if returned != given {
+        return Err(Error::Invalid(format!(
+            "the upsampler returned {returned} images for {given} {kind:?} maps"
+        )));
+    }
+    Ok(())
 }
 
 /// An error unless `[width, height, channels]`, the upsampler's image of `map` at ×`scale`,
@@ -200,28 +205,14 @@ pub fn upscale_one_map_on_device(
             .collect::<candle_core::Result<Vec<_>>>()?;
         return Ok(Tensor::cat(&planes, 0)?);
     }
-    let covered = ensemble.covers(kind);
-    if covered && kind == MapKind::AnisotropyAngle {
-        return Err(Error::Invalid(
-            "the self-ensemble does not handle anisotropy directions".into(),
-        ));
-    }
-    let symmetries = if covered {
-        ensemble.symmetries()?
-    } else {
-        &Dihedral::ALL[..1] // the identity
-    };
+    let covered = ensemble.symmetries_for(kind)?;
+    // Not covered: one pass, the identity.
+    let symmetries = covered.unwrap_or(&Dihedral::ALL[..1]);
     let images: Vec<Map> = (symmetries.iter())
         .map(|&t| encode_for_upsampler(kind, &transformed_map(kind, map, t)))
         .collect();
     let ups = upsampler.upsample_on_device(&images, scale, border)?;
-    if ups.len() != images.len() {
-        return Err(Error::Invalid(format!(
-            "the upsampler returned {} images for {} {kind:?} maps",
-            ups.len(),
-            images.len()
-        )));
-    }
+    check_count(kind, ups.len(), images.len())?;
     let mut sum: Option<Tensor> = None;
     for (&t, up) in symmetries.iter().zip(&ups) {
         let (c, uh, uw) = up.dims3()?;
@@ -237,7 +228,7 @@ pub fn upscale_one_map_on_device(
         });
     }
     let sum = sum.expect("at least the identity");
-    if !covered {
+    if covered.is_none() {
         return Ok(sum);
     }
     Ok(restore_invariants_on_device(
@@ -320,12 +311,6 @@ fn upscale_map_ensemble(
     border: Border,
     symmetries: &[Dihedral],
 ) -> Result<Map> {
-    if kind == MapKind::AnisotropyAngle {
-        // Directions do not average as numbers; not what the ensemble is for.
-        return Err(Error::Invalid(
-            "the self-ensemble does not handle anisotropy directions".into(),
-        ));
-    }
     let (w, h) = (map.width() * scale, map.height() * scale);
     let mut sum: Option<Map> = None;
     // All passes in one call where the upsampler batches images (a GPU: their outputs held at
@@ -416,6 +401,21 @@ impl SelfEnsemble {
     /// Whether a map of `kind` is upsampled under more than the identity.
     pub fn covers(self, kind: MapKind) -> bool {
         self.symmetries > 1 && (self.maps == EnsembleMaps::All || kind == MapKind::Normal)
+    }
+
+    /// The symmetries a map of `kind` is averaged over: `None` where it is upsampled once; an
+    /// error for anisotropy directions, which do not average as numbers.
+    pub fn symmetries_for(self, kind: MapKind) -> Result<Option<&'static [Dihedral]>> {
+        if !self.covers(kind) {
+            return Ok(None);
+        }
+        let symmetries = self.symmetries()?;
+        if kind == MapKind::AnisotropyAngle {
+            return Err(Error::Invalid(
+                "the self-ensemble does not handle anisotropy directions".into(),
+            ));
+        }
+        Ok(Some(symmetries))
     }
 
     /// The symmetries averaged, or an error for a size that is not 1, 2, 4 or 8.

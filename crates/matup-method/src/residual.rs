@@ -5,7 +5,9 @@
 
 use rayon::prelude::*;
 
-use crate::chroma::{clamp_chroma_on_device, clamp_chroma_to_input, with_chroma_of};
+use crate::chroma::{
+    chroma_bounds_on_device, clamp_chroma_on_device, clamp_chroma_to_input, with_chroma_of,
+};
 use crate::config::{Chroma, FilterConfig, ResidualBase};
 use crate::features::{features, pack_features};
 use crate::features::{ALPHA, FEATURES};
@@ -132,6 +134,7 @@ fn project_on_device(
     }
     let lr_features = features(lr);
     let device = base.device().clone();
+    let lr_on_device = device_maps::upload(&lr_features, &device)?;
     let ranges = |channels: std::ops::Range<usize>| -> candle_core::Result<[Tensor; 2]> {
         let ends = |end: fn((f32, f32)) -> f32| {
             let values: Vec<f32> = channels.clone().map(|c| end(stored_range(c))).collect();
@@ -145,7 +148,7 @@ fn project_on_device(
         let as_stored = |t: &Tensor| -> candle_core::Result<Tensor> {
             Tensor::cat(&[t.narrow(0, 0, ALPHA)?, t.narrow(0, ALPHA, 1)?.sqrt()?], 0)
         };
-        let lr = as_stored(&device_maps::upload(&lr_features, &device)?)?;
+        let lr = as_stored(&lr_on_device)?;
         let hr = back_project_on_device(
             &as_stored(&base)?,
             &lr,
@@ -160,15 +163,15 @@ fn project_on_device(
     }
     if config.clamp_chroma {
         let rest = base.narrow(0, 3, FEATURES - 3)?;
-        let mut colour =
-            clamp_chroma_on_device(&base.narrow(0, 0, 3)?, &lr_features, scale, border)?;
+        let bounds = chroma_bounds_on_device(&lr_features, scale, border, &device)?;
+        let mut colour = clamp_chroma_on_device(&base.narrow(0, 0, 3)?, &bounds)?;
         if config.back_project {
             // As `project_onto_input` settles and clamps them, and why.
-            let lr_colour = device_maps::upload(&lr_features, &device)?.narrow(0, 0, 3)?;
+            let lr_colour = lr_on_device.narrow(0, 0, 3)?;
             let range = ranges(0..3)?;
             for _ in 0..2 {
                 colour = settle_blocks_on_device(&colour, &lr_colour, scale, &range)?;
-                colour = clamp_chroma_on_device(&colour, &lr_features, scale, border)?;
+                colour = clamp_chroma_on_device(&colour, &bounds)?;
             }
             colour = settle_blocks_on_device(&colour, &lr_colour, scale, &range)?;
         }
