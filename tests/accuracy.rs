@@ -449,13 +449,14 @@ fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
 fn every_scale_runs_the_tuned_network_through_its_own_scale() {
     // A corpus validation set (never trained on), scored as `matup sweep` scores: ×2 from 128²
     // and ×3 from 85², each against the former default (Lanczos-3, back-projected) and
-    // Lanczos-3 per map; sweeps/x2_route.toml and x3_route.toml measure the same on 16 sets.
+    // Lanczos-3 per map; sweeps/x2_maps.toml and x3_route.toml measure the same on 16 sets.
     let whole = rock035();
     let lights = LightSetSpec::held_out(16);
     let ggx = shading_model(&"ggx".parse().unwrap()).unwrap();
     let lanczos = upsampler(&"lanczos3".parse().unwrap()).unwrap();
-    // Measured: ×2 28.72 dB / FLIP 0.0572 against 27.94 / 0.0611 (former default) and 27.78 /
-    // 0.0666 (per map); ×3 25.89 / 0.0888 against 25.29 / 0.0956 and 25.19 / 0.1005.
+    // Measured: ×2 28.70 dB / FLIP 0.0573 (the network on the normal map) against 27.95 /
+    // 0.0604 (former default) and 27.78 / 0.0666 (per map); ×3 25.89 / 0.0888 against 25.29 /
+    // 0.0951 and 25.19 / 0.1005.
     for (scale, side, psnr_gain) in [(2, 256, 0.5), (3, 255, 0.4)] {
         let truth = whole.crop(0, 0, side, side);
         let lr = truth.box_downsample(scale);
@@ -477,7 +478,7 @@ fn every_scale_runs_the_tuned_network_through_its_own_scale() {
         assert_eq!(report.upsampler_used, "onnx:span_x4_materials");
         let route = &report.levels[0].route;
         let through = if scale == 2 {
-            "at ×4, then ÷2 by area"
+            "at ×4, then ÷2 by area (2 passes) on the normal map, lanczos3 on the others"
         } else {
             "at ×4, then area-shrunk to ×3"
         };

@@ -275,3 +275,22 @@ fn experiments_record_failures_and_resume_without_rerunning() {
         before
     );
 }
+
+#[test]
+fn every_shipped_sweep_reads_and_its_points_are_valid_settings() {
+    // Settings only: their networks may be in ../shared or in runs/, which a clone lacks.
+    let folder = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sweeps");
+    let mut read = 0;
+    for entry in std::fs::read_dir(&folder).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let experiment = Experiment::from_file(&path).unwrap();
+        let points = (experiment.settings()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(!points.is_empty(), "{name}: no points");
+        read += 1;
+    }
+    assert!(read >= 30, "{read} sweeps in {}", folder.display());
+}

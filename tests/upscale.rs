@@ -301,8 +301,8 @@ fn sixteen_times_in_two_levels_or_by_reusing_the_filter() {
 
 #[test]
 fn eight_times_and_sizes_between_scales_with_the_defaults() {
-    // ×8: ×4, then ×2 through the network's ×4 and an area filter; carried maps and height
-    // follow.
+    // ×8: ×4, then ×2 through the network's ×4 and an area filter on the normals (Lanczos-3
+    // on the other maps); carried maps and height follow.
     let lr = lr_material("ambientcg_Metal053C", 16);
     let eight = Config {
         scale: 8,
@@ -316,7 +316,8 @@ fn eight_times_and_sizes_between_scales_with_the_defaults() {
         routes,
         [
             "×4 by onnx:span_x4_materials (2 passes), back-projected",
-            "×2 by onnx:span_x4_materials at ×4, then ÷2 by area (2 passes), back-projected"
+            "×2 by onnx:span_x4_materials at ×4, then ÷2 by area (2 passes) on the normal map, \
+             lanczos3 on the others, back-projected"
         ]
     );
     assert_eq!(report.levels[1].input_size, [64, 64]);

@@ -193,8 +193,18 @@ impl Experiment {
     }
 
     /// The matup configurations of the sweep: (axis values, configuration) per point, each
-    /// checked (unknown keys and bad values are errors naming the axis point).
+    /// checked, its plugins built once (unknown keys, bad values and plugins that do not load
+    /// are errors naming the axis point).
     pub fn points(&self) -> Result<Vec<(BTreeMap<String, String>, Config)>> {
+        let points = self.settings()?;
+        for (settings, config) in &points {
+            check_plugins(config).map_err(|e| in_point(settings, e.to_string()))?;
+        }
+        Ok(points)
+    }
+
+    /// [`Experiment::points`] without building their plugins: the settings alone, checked.
+    pub fn settings(&self) -> Result<Vec<(BTreeMap<String, String>, Config)>> {
         let axes: Vec<(&String, &Vec<toml::Value>)> = self.axes.iter().collect();
         if let Some((key, _)) = axes.iter().find(|(_, values)| values.is_empty()) {
             return Err(Error::Invalid(format!("axis '{key}' has no values")));
@@ -233,19 +243,10 @@ impl Experiment {
                     set_key(&mut table, key, values[i].clone())?;
                     settings.insert(key.to_string(), value_text(&values[i]));
                 }
-                let point = settings
-                    .iter()
-                    .map(|(k, v)| format!("{k} = {v}"))
-                    .collect::<Vec<_>>()
-                    .join(", ");
-                let in_point = |e: String| Error::Invalid(format!("sweep point [{point}]: {e}"));
                 let config: Config = toml::Value::Table(table)
                     .try_into()
-                    .map_err(|e: toml::de::Error| in_point(e.message().to_string()))?;
-                config
-                    .validate()
-                    .and_then(|_| check_plugins(&config))
-                    .map_err(|e| in_point(e.to_string()))?;
+                    .map_err(|e: toml::de::Error| in_point(&settings, e.message().to_string()))?;
+                (config.validate()).map_err(|e| in_point(&settings, e.to_string()))?;
                 Ok((settings, config))
             })
             .collect()
@@ -386,6 +387,15 @@ fn make_pair(path: &Path, experiment: &Experiment) -> Result<Pair> {
     }
     let lr = truth.box_downsample(f);
     Ok(Pair { truth, lr })
+}
+
+/// An error `e` of the sweep point of these axis values.
+fn in_point(settings: &BTreeMap<String, String>, e: String) -> Error {
+    let point = (settings.iter())
+        .map(|(k, v)| format!("{k} = {v}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    Error::Invalid(format!("sweep point [{point}]: {e}"))
 }
 
 /// Runs `runs` (skipping those `out/results.jsonl` already holds without error) and returns

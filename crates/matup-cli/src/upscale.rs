@@ -12,7 +12,7 @@ use matup_core::{BlockQuality, FileFormat, LossNorm, SaveOptions};
 use matup_method::bands::default_memory_limit;
 use matup_method::config::{
     Activation, Backend, Chain, EnsembleMaps, Interpolation, ResidualBase, Schedule, Selection,
-    TargetKind, TargetSize,
+    TargetKind, TargetSize, UpsampledMaps,
 };
 use matup_method::report::RunReport;
 use matup_method::train::Stop;
@@ -122,6 +122,11 @@ pub struct SettingsArgs {
     /// The maps the self-ensemble covers: all, or normal (the normal map alone).
     #[arg(long, value_name = "MAPS")]
     pub self_ensemble_maps: Option<EnsembleMaps>,
+    /// The maps the upsampler runs on, the others through Lanczos-3: all, normal, or auto (the
+    /// default: the normal map alone at ×2 where the upsampler is a network, every map
+    /// otherwise).
+    #[arg(long, value_name = "MAPS")]
+    pub upsampled_maps: Option<UpsampledMaps>,
     /// Learning rate.
     #[arg(long)]
     pub lr: Option<f64>,
@@ -302,6 +307,9 @@ impl SettingsArgs {
         }
         if let Some(maps) = self.self_ensemble_maps {
             c.filter.self_ensemble_maps = maps;
+        }
+        if let Some(maps) = self.upsampled_maps {
+            c.filter.upsampled_maps = maps;
         }
         if self.early_stop {
             c.train.early_stop.enabled = true;

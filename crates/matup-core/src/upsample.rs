@@ -2,10 +2,10 @@
 
 use candle_core::{Device, Tensor};
 
-use crate::device_maps::Separable;
+use crate::device_maps::{upload, Separable};
 use crate::map::Map;
 use crate::plugin::{find_registration, sorted_registry, PluginOption, PluginSpec, Registration};
-use crate::resample::{shrink, Border, Shrink};
+use crate::resample::{shrink, upsample, Border, Kernel, Shrink};
 use crate::{Error, Result};
 
 /// Turns a batch of RGB images (3-channel [`Map`]s in display space, values in [0, 1]) into
@@ -66,6 +66,77 @@ pub trait RgbUpsampler: Send + Sync {
         Err(Error::Invalid(
             "this upsampler keeps no outputs on a device".into(),
         ))
+    }
+}
+
+/// An upsampler that interpolates with a separable kernel (the registry's `bilinear`,
+/// `bicubic` and `lanczos3`). [`KernelUpsampler::on`] a device, it leaves its outputs there,
+/// for a run whose other maps a network upsamples on that device.
+pub struct KernelUpsampler {
+    pub kernel: Kernel,
+    device: Option<Device>,
+}
+
+impl KernelUpsampler {
+    /// `kernel` on the host.
+    pub fn new(kernel: Kernel) -> KernelUpsampler {
+        KernelUpsampler {
+            kernel,
+            device: None,
+        }
+    }
+
+    /// `kernel`, its outputs left on `device`.
+    pub fn on(kernel: Kernel, device: Device) -> KernelUpsampler {
+        KernelUpsampler {
+            kernel,
+            device: Some(device),
+        }
+    }
+}
+
+impl RgbUpsampler for KernelUpsampler {
+    fn context(&self) -> usize {
+        self.kernel.radius().ceil() as usize
+    }
+
+    fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        Ok(images
+            .iter()
+            .map(|image| upsample(image, scale, self.kernel, border))
+            .collect())
+    }
+
+    fn device(&self) -> Option<Device> {
+        self.device.clone()
+    }
+
+    fn upsample_on_device(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+    ) -> Result<Vec<Tensor>> {
+        let Some(device) = &self.device else {
+            return Err(Error::Invalid(
+                "this kernel upsampler is on the host".into(),
+            ));
+        };
+        let mut out = Vec::with_capacity(images.len());
+        // One matrix pair a size (the self-ensemble's passes share theirs).
+        let mut resamplings: Vec<([usize; 2], Separable)> = Vec::new();
+        for image in images {
+            let size = [image.width(), image.height()];
+            if !resamplings.iter().any(|(s, _)| *s == size) {
+                let resampling = Separable::upsample(size, scale, self.kernel, border, device)?;
+                resamplings.push((size, resampling));
+            }
+            let (_, resampling) = (resamplings.iter())
+                .find(|(s, _)| *s == size)
+                .expect("made above");
+            out.push(resampling.apply(&upload(image, device)?)?);
+        }
+        Ok(out)
     }
 }
 

@@ -11,15 +11,16 @@ use matup_core::resample::{lr_texel, neighbourhood_ranges, upsample, Border, Ker
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
 
-use crate::per_map::{upscale_one_map, upscale_one_map_on_device, SelfEnsemble};
+use crate::per_map::{upscale_one_map, upscale_one_map_on_device, MapPasses};
 use crate::residual::{back_project_on_device, back_project_within};
 
-/// How the carried maps are upsampled: the run's upsampler and self-ensemble, and whether the
-/// result is back-projected onto the input (the defaults do; the per-map baseline does not).
+/// How the carried maps are upsampled: the run's upsampler and its passes (Lanczos-3 where
+/// they leave a map out), and whether the result is back-projected onto the input (the
+/// defaults do; the per-map baseline does not).
 #[derive(Clone, Copy)]
 pub struct CarriedUpsampling<'a> {
     pub upsampler: &'a dyn RgbUpsampler,
-    pub ensemble: SelfEnsemble,
+    pub passes: MapPasses,
     pub back_project: bool,
     pub scale: usize,
     pub border: Border,
@@ -102,9 +103,19 @@ pub fn describe_carried(
     upsampler: &str,
     how: CarriedUpsampling,
 ) -> Vec<String> {
-    let passes = match how.ensemble.symmetries {
-        1 => String::new(),
-        n => format!(" ({n} passes)"),
+    // What upsamples a map the upsampler would see as `kind`, its passes named.
+    let by = |kind| {
+        if !how
+            .passes
+            .upsampled
+            .includes(kind, how.upsampler, how.scale)
+        {
+            return "lanczos3".to_string();
+        }
+        match how.passes.ensemble.symmetries {
+            1 => upsampler.to_string(),
+            n => format!("{upsampler} ({n} passes)"),
+        }
     };
     let projected = if how.back_project {
         ", back-projected"
@@ -114,11 +125,13 @@ pub fn describe_carried(
     let describe = |method| match method {
         Method::Cutout => "alpha of a cutout: bicubic, thresholded at 0.5 (stays 0 or 1)".into(),
         Method::SoftAlpha => format!(
-            "alpha: by {upsampler}{passes}{projected}, kept within its 3×3 neighbourhood \
-             (no halo)"
+            "alpha: by {}{projected}, kept within its 3×3 neighbourhood (no halo)",
+            by(MapKind::Height)
         ),
-        Method::Picture(MapKind::BaseColor) => format!("RGB, by {upsampler}{passes}{projected}"),
-        Method::Picture(_) => format!("grey, by {upsampler}{passes}{projected}"),
+        Method::Picture(MapKind::BaseColor) => {
+            format!("RGB, by {}{projected}", by(MapKind::BaseColor))
+        }
+        Method::Picture(kind) => format!("grey, by {}{projected}", by(kind)),
         Method::Lanczos => format!("by lanczos3 (values outside [0, 1]){projected}"),
         Method::Constant => "one value throughout: kept exactly".into(),
     };
@@ -153,16 +166,8 @@ pub fn describe_carried(
 
 /// One carried map upsampled by `method`.
 fn upscale(map: &Map, method: Method, how: CarriedUpsampling) -> Result<Map> {
-    let through_upsampler = |kind| {
-        upscale_one_map(
-            kind,
-            map,
-            how.upsampler,
-            how.scale,
-            how.border,
-            how.ensemble,
-        )
-    };
+    let through_upsampler =
+        |kind| upscale_one_map(kind, map, how.upsampler, how.scale, how.border, how.passes);
     Ok(match method {
         Method::Constant => Map::filled(
             map.width() * how.scale,
@@ -236,7 +241,7 @@ fn upscale_on_device(
         device,
         how.scale,
         how.border,
-        how.ensemble,
+        how.passes,
     )?;
     let up = match method {
         Method::Picture(_) => up.clamp(0f32, 1f32)?,
@@ -288,7 +293,7 @@ mod tests {
     fn how(upsampler: &dyn RgbUpsampler) -> CarriedUpsampling<'_> {
         CarriedUpsampling {
             upsampler,
-            ensemble: SelfEnsemble::NONE,
+            passes: MapPasses::ONE,
             back_project: true,
             scale: 4,
             border: Border::Mirror,

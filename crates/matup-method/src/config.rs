@@ -7,7 +7,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-pub use crate::per_map::{EnsembleMaps, SelfEnsemble};
+pub use crate::per_map::{EnsembleMaps, MapPasses, SelfEnsemble, UpsampledMaps};
 use matup_core::loss::LossNorm;
 use matup_core::resample::Kernel;
 use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
@@ -396,6 +396,10 @@ pub struct FilterConfig {
     pub self_ensemble: usize,
     /// The maps the self-ensemble covers: "all", or "normal" (the normal map alone).
     pub self_ensemble_maps: EnsembleMaps,
+    /// The maps an `upsampler` residual base runs through the upsampler, the others through
+    /// Lanczos-3: "all", "normal", or "auto" (the normal map alone at ×2 where the upsampler
+    /// is a network, every map otherwise).
+    pub upsampled_maps: UpsampledMaps,
     /// Where an `upsampler` residual base's base colour takes its chroma from: "upsampler",
     /// or a kernel ("bilinear", "bicubic", "lanczos3") on the LR colour, the upsampler's
     /// luma kept.
@@ -406,6 +410,14 @@ pub struct FilterConfig {
 }
 
 impl FilterConfig {
+    /// How the per-map path runs the upsampler, as these settings ask.
+    pub fn map_passes(&self) -> MapPasses {
+        MapPasses {
+            ensemble: self.self_ensemble(),
+            upsampled: self.upsampled_maps,
+        }
+    }
+
     /// The self-ensemble these settings ask for.
     pub fn self_ensemble(&self) -> SelfEnsemble {
         SelfEnsemble {
@@ -470,6 +482,9 @@ impl Default for FilterConfig {
             // budgets (2 s for the main job, 60 s for 1K² → 4K²) hold two passes, not four.
             self_ensemble: 2,
             self_ensemble_maps: EnsembleMaps::All,
+            // Measured (docs/experiments/2026-11-27-x2-at-the-cost-of-x4.md): at ×2 the
+            // normals alone keep ×2 of a 1K² material within the time of ×4 of a 512² one.
+            upsampled_maps: UpsampledMaps::Auto,
             base_color_chroma: Chroma::Upsampler,
             // Measured (docs/experiments/2026-11-25-false-colour.md): no false colour left on
             // the shared and val sets, render PSNR +0.004 / +0.008 dB, FLIP lower.

@@ -13,8 +13,8 @@ use matup_core::map::Map;
 use matup_core::material::{
     restore_map_invariants, transformed_map, turn_with_surface, MapKind, Material, NormalConvention,
 };
-use matup_core::resample::Border;
-use matup_core::upsample::RgbUpsampler;
+use matup_core::resample::{Border, Kernel};
+use matup_core::upsample::{KernelUpsampler, RgbUpsampler};
 use matup_core::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -36,7 +36,7 @@ pub fn upscale_per_map(
         upsampler,
         scale,
         border,
-        SelfEnsemble::NONE,
+        MapPasses::ONE,
         |kind, map| {
             *out.map_mut(kind).expect("present in the clone") = map;
             Ok(())
@@ -45,16 +45,15 @@ pub fn upscale_per_map(
     Ok(out)
 }
 
-/// [`upscale_per_map`] a map at a time, the maps `ensemble` covers under its symmetries: each
-/// map of `material` is upsampled, decoded and handed to `each` before the next is upsampled,
-/// so a caller that packs them elsewhere never holds all of them at the output size (at 8K²
-/// each map is 0.25–0.75 GB).
+/// [`upscale_per_map`] a map at a time, as `passes` says: each map of `material` is upsampled,
+/// decoded and handed to `each` before the next is upsampled, so a caller that packs them
+/// elsewhere never holds all of them at the output size (at 8K² each map is 0.25–0.75 GB).
 pub fn upscale_each_map(
     material: &Material,
     upsampler: &dyn RgbUpsampler,
     scale: usize,
     border: Border,
-    ensemble: SelfEnsemble,
+    passes: MapPasses,
     mut each: impl FnMut(MapKind, Map) -> Result<()>,
 ) -> Result<()> {
     for kind in MapKind::ALL {
@@ -63,7 +62,7 @@ pub fn upscale_each_map(
         };
         each(
             kind,
-            upscale_one_map(kind, map, upsampler, scale, border, ensemble)?,
+            upscale_one_map(kind, map, upsampler, scale, border, passes)?,
         )?;
     }
     Ok(())
@@ -76,11 +75,16 @@ pub fn upscale_one_map(
     upsampler: &dyn RgbUpsampler,
     scale: usize,
     border: Border,
-    ensemble: SelfEnsemble,
+    passes: MapPasses,
 ) -> Result<Map> {
+    if !passes.upsampled.includes(kind, upsampler, scale) {
+        // A kernel is the same under every symmetry: one pass.
+        let lanczos = KernelUpsampler::new(Kernel::Lanczos3);
+        return upscale_one_map(kind, map, &lanczos, scale, border, MapPasses::ONE);
+    }
     if let Some(flat) = flat_upsampled(map, scale) {
         Ok(flat)
-    } else if let Some(symmetries) = ensemble.symmetries_for(kind)? {
+    } else if let Some(symmetries) = passes.ensemble.symmetries_for(kind)? {
         upscale_map_ensemble(kind, map, upsampler, scale, border, symmetries)
     } else {
         upscale_map(kind, map, upsampler, scale, border)
@@ -196,8 +200,20 @@ pub fn upscale_one_map_on_device(
     device: &Device,
     scale: usize,
     border: Border,
-    ensemble: SelfEnsemble,
+    passes: MapPasses,
 ) -> Result<Tensor> {
+    if !passes.upsampled.includes(kind, upsampler, scale) {
+        let lanczos = KernelUpsampler::on(Kernel::Lanczos3, device.clone());
+        return upscale_one_map_on_device(
+            kind,
+            map,
+            &lanczos,
+            device,
+            scale,
+            border,
+            MapPasses::ONE,
+        );
+    }
     let (w, h) = (map.width() * scale, map.height() * scale);
     if is_flat(map) {
         let planes = (0..map.channels())
@@ -205,7 +221,7 @@ pub fn upscale_one_map_on_device(
             .collect::<candle_core::Result<Vec<_>>>()?;
         return Ok(Tensor::cat(&planes, 0)?);
     }
-    let covered = ensemble.symmetries_for(kind)?;
+    let covered = passes.ensemble.symmetries_for(kind)?;
     // Not covered: one pass, the identity.
     let symmetries = covered.unwrap_or(&Dihedral::ALL[..1]);
     let images: Vec<Map> = (symmetries.iter())
@@ -351,6 +367,22 @@ fn upscale_map_ensemble(
     Ok(mean)
 }
 
+/// How the per-map path runs the upsampler over a material's maps: on which of them (the others
+/// go through Lanczos-3), and under which symmetries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MapPasses {
+    pub ensemble: SelfEnsemble,
+    pub upsampled: UpsampledMaps,
+}
+
+impl MapPasses {
+    /// One pass of every map.
+    pub const ONE: MapPasses = MapPasses {
+        ensemble: SelfEnsemble::NONE,
+        upsampled: UpsampledMaps::All,
+    };
+}
+
 /// The geometric self-ensemble of the per-map upsampling: the maps it covers are upsampled
 /// under `symmetries` symmetries of the square and averaged, the others once. Each symmetry
 /// past the first is one more pass of the upsampler over the maps covered.
@@ -376,6 +408,41 @@ serde_plain::derive_display_from_serialize!(EnsembleMaps);
 serde_plain::derive_fromstr_from_deserialize!(EnsembleMaps, |e| -> Error {
     Error::Invalid(format!("the maps of the self-ensemble: {e}"))
 });
+
+/// The maps of a material the per-map path runs through the run's upsampler; the others go
+/// through Lanczos-3.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpsampledMaps {
+    /// The normal map alone at ×2 where the upsampler is a network (it has a native scale),
+    /// every map otherwise. At ×2 a network runs on 4× the input texels of a ×4 run of the same
+    /// output, and the normals carry most of its gain there
+    /// (docs/experiments/2026-11-27-x2-at-the-cost-of-x4.md).
+    #[default]
+    Auto,
+    /// Every map.
+    All,
+    /// The normal map alone.
+    Normal,
+}
+
+serde_plain::derive_display_from_serialize!(UpsampledMaps);
+serde_plain::derive_fromstr_from_deserialize!(UpsampledMaps, |e| -> Error {
+    Error::Invalid(format!("the maps the upsampler runs on: {e}"))
+});
+
+impl UpsampledMaps {
+    /// Whether `upsampler` upsamples a map of `kind` at a ×`scale` level.
+    pub fn includes(self, kind: MapKind, upsampler: &dyn RgbUpsampler, scale: usize) -> bool {
+        match self {
+            UpsampledMaps::All => true,
+            UpsampledMaps::Normal => kind == MapKind::Normal,
+            UpsampledMaps::Auto => {
+                kind == MapKind::Normal || scale != 2 || upsampler.native_scale().is_none()
+            }
+        }
+    }
+}
 
 /// The symmetries of a self-ensemble, in the order its size takes them: the identity, the half
 /// turn (it reverses both axes, so a shift the network makes along either cancels), the two
@@ -508,11 +575,21 @@ mod tests {
                 symmetries,
                 maps: EnsembleMaps::All,
             };
-            upscale_each_map(&m, &Bilinear, 4, Border::Wrap, ensemble, |kind, map| {
-                let d = max_difference(&map, once.map(kind).unwrap());
-                assert!(d < 1e-5, "{symmetries} symmetries, {kind:?}: {d}");
-                Ok(())
-            })
+            upscale_each_map(
+                &m,
+                &Bilinear,
+                4,
+                Border::Wrap,
+                MapPasses {
+                    ensemble,
+                    upsampled: UpsampledMaps::All,
+                },
+                |kind, map| {
+                    let d = max_difference(&map, once.map(kind).unwrap());
+                    assert!(d < 1e-5, "{symmetries} symmetries, {kind:?}: {d}");
+                    Ok(())
+                },
+            )
             .unwrap();
         }
     }
@@ -535,20 +612,30 @@ mod tests {
                 symmetries: 2,
                 maps,
             };
-            upscale_each_map(&m, &Shifted, 4, Border::Wrap, ensemble, |kind, map| {
-                let d_shifted = max_difference(&map, shifted.map(kind).unwrap());
-                if ensemble.covers(kind) {
-                    assert!(d_shifted > 0.01, "{maps:?} {kind:?}: {d_shifted}");
-                    if kind == MapKind::Roughness {
-                        let d = max_difference(&map, &centred(&plain.roughness));
-                        assert!(d < 1e-5, "{maps:?}: {d}");
+            upscale_each_map(
+                &m,
+                &Shifted,
+                4,
+                Border::Wrap,
+                MapPasses {
+                    ensemble,
+                    upsampled: UpsampledMaps::All,
+                },
+                |kind, map| {
+                    let d_shifted = max_difference(&map, shifted.map(kind).unwrap());
+                    if ensemble.covers(kind) {
+                        assert!(d_shifted > 0.01, "{maps:?} {kind:?}: {d_shifted}");
+                        if kind == MapKind::Roughness {
+                            let d = max_difference(&map, &centred(&plain.roughness));
+                            assert!(d < 1e-5, "{maps:?}: {d}");
+                        }
+                    } else {
+                        // Maps the ensemble leaves out are upsampled once, as without it.
+                        assert_eq!(d_shifted, 0.0, "{maps:?} {kind:?}");
                     }
-                } else {
-                    // Maps the ensemble leaves out are upsampled once, as without it.
-                    assert_eq!(d_shifted, 0.0, "{maps:?} {kind:?}");
-                }
-                Ok(())
-            })
+                    Ok(())
+                },
+            )
             .unwrap();
         }
         let err = SelfEnsemble {
@@ -562,6 +649,59 @@ mod tests {
             err.contains("1, 2, 4 or 8") && err.contains("not 3"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn at_x2_a_network_upsamples_the_normals_alone_and_lanczos_the_rest() {
+        // A ×4 "network" (its native scale) that is bilinear and counts the images it is given.
+        struct Network(std::sync::atomic::AtomicUsize);
+        impl RgbUpsampler for Network {
+            fn native_scale(&self) -> Option<usize> {
+                Some(4)
+            }
+            fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+                (self.0).fetch_add(images.len(), std::sync::atomic::Ordering::Relaxed);
+                Bilinear.upsample(images, scale, border)
+            }
+        }
+        let m = varied_material();
+        let lanczos = KernelUpsampler::new(Kernel::Lanczos3);
+        let by_lanczos = upscale_per_map(&m, &lanczos, 2, Border::Wrap).unwrap();
+        let by_network = |upsampled, scale| {
+            let network = Network(0.into());
+            let mut maps = Vec::new();
+            let passes = MapPasses {
+                ensemble: SelfEnsemble::NONE,
+                upsampled,
+            };
+            upscale_each_map(&m, &network, scale, Border::Wrap, passes, |k, map| {
+                maps.push((k, map));
+                Ok(())
+            })
+            .unwrap();
+            (maps, network.0.into_inner())
+        };
+        // Every map of the material varies: none is spared as flat.
+        let (maps, images) = by_network(UpsampledMaps::Auto, 2);
+        assert_eq!(images, 1, "the normal map alone goes through the network");
+        for (kind, map) in &maps {
+            let d = max_difference(map, by_lanczos.map(*kind).unwrap());
+            if *kind == MapKind::Normal {
+                assert!(d > 0.01, "the normals are the network's: {d}");
+            } else {
+                assert_eq!(d, 0.0, "{kind:?} is Lanczos-3's");
+            }
+        }
+        assert_eq!(by_network(UpsampledMaps::Normal, 4).1, 1);
+        assert_eq!(by_network(UpsampledMaps::All, 2).1, 4);
+        // At its own scale, and at ×3, `auto` runs it on every map.
+        assert_eq!(by_network(UpsampledMaps::Auto, 4).1, 4);
+        assert_eq!(by_network(UpsampledMaps::Auto, 3).1, 4);
+        // A kernel upsampler upsamples every map at ×2 too.
+        let kernel = KernelUpsampler::new(Kernel::Bilinear);
+        for kind in MapKind::ALL {
+            assert!(UpsampledMaps::Auto.includes(kind, &kernel, 2));
+        }
     }
 
     #[test]

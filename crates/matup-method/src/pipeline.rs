@@ -21,7 +21,7 @@ use crate::residual::{self, project_onto_input, upsampled_base};
 use crate::select::choose_settings;
 use crate::train::TrainStats;
 use matup_core::map::Map;
-use matup_core::material::Material;
+use matup_core::material::{MapKind, Material};
 use matup_core::progress::{Progress, Silent};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
@@ -184,12 +184,25 @@ pub fn upscale_streamed(
     if material.anisotropy.is_some() || material.anisotropy_angle.is_some() {
         skipped.push("anisotropy maps: upsampled bilinearly, not learned".to_string());
     }
-    let carried = describe_carried(
-        material,
-        &CarriedPlan::of(&material.carried),
-        &upsampler_used,
-        carried_upsampling(config, upsampler.as_ref(), 1, Border::for_tiling(tileable)),
-    );
+    // Each level may upsample them differently (×8: the network at ×4, Lanczos-3 at ×2).
+    let carried_plan = CarriedPlan::of(&material.carried);
+    let describe_at = |scale| {
+        let how = carried_upsampling(
+            config,
+            upsampler.as_ref(),
+            scale,
+            Border::for_tiling(tileable),
+        );
+        describe_carried(material, &carried_plan, &upsampler_used, how)
+    };
+    let by_level: Vec<Vec<String>> = config.levels().into_iter().map(describe_at).collect();
+    let carried = if by_level.iter().all(|d| *d == by_level[0]) {
+        by_level[0].clone()
+    } else {
+        (by_level.iter().enumerate())
+            .flat_map(|(i, lines)| lines.iter().map(move |l| format!("level {}: {l}", i + 1)))
+            .collect()
+    };
     let lights = config.lights.build();
     let ctx = Context {
         config,
@@ -522,10 +535,18 @@ fn level_route(ctx: &Context, scale: usize) -> String {
     let trains = ctx.config.train.epochs > 0;
     match filter.residual_base {
         ResidualBase::Upsampler => format!(
-            "×{scale} by {upsampler}{}{}{}",
+            "×{scale} by {upsampler}{}{}{}{}",
             match filter.self_ensemble {
                 1 => String::new(),
                 n => format!(" ({n} passes)"),
+            },
+            if filter
+                .upsampled_maps
+                .includes(MapKind::BaseColor, ctx.upsampler.as_ref(), scale)
+            {
+                ""
+            } else {
+                " on the normal map, lanczos3 on the others"
             },
             if filter.back_project {
                 ", back-projected"
@@ -546,7 +567,7 @@ fn level_route(ctx: &Context, scale: usize) -> String {
     }
 }
 
-/// How a run upsamples the maps a material carries: with its upsampler and self-ensemble,
+/// How a run upsamples the maps a material carries: with its upsampler and passes,
 /// back-projected when its residual base is.
 fn carried_upsampling<'a>(
     config: &Config,
@@ -556,7 +577,7 @@ fn carried_upsampling<'a>(
 ) -> CarriedUpsampling<'a> {
     CarriedUpsampling {
         upsampler,
-        ensemble: config.filter.self_ensemble(),
+        passes: config.filter.map_passes(),
         back_project: config.filter.back_project,
         scale,
         border,

@@ -106,7 +106,7 @@ pub fn residual_base_on_device(
             device,
             scale,
             border,
-            config.self_ensemble(),
+            config.map_passes(),
         )
     };
     // In feature order (`pack_features`): colour, metallic, normal x and y, alpha = r².
@@ -431,7 +431,7 @@ pub fn upsampled_base(
                 upsampler,
                 scale,
                 border,
-                config.self_ensemble(),
+                config.map_passes(),
                 |kind, map| {
                     let map = match (kind, config.base_color_chroma) {
                         (MapKind::BaseColor, Chroma::Kernel(kernel)) => {

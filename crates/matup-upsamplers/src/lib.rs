@@ -6,33 +6,14 @@
 pub mod onnx;
 
 use matup_core::plugin::{option_value, parse_options, PluginOption};
-use matup_core::resample::{upsample, Border, Kernel};
+use matup_core::resample::Kernel;
+pub use matup_core::upsample::KernelUpsampler;
 use matup_core::upsample::{RgbUpsampler, UpsamplerRegistration};
-use matup_core::{Map, Result};
-
-/// An upsampler that interpolates with a separable kernel.
-pub struct KernelUpsampler {
-    pub kernel: Kernel,
-}
-
-impl RgbUpsampler for KernelUpsampler {
-    fn context(&self) -> usize {
-        self.kernel.radius().ceil() as usize
-    }
-
-    fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
-        Ok(images
-            .iter()
-            .map(|image| upsample(image, scale, self.kernel, border))
-            .collect())
-    }
-}
+use matup_core::Result;
 
 fn bilinear(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     parse_options("bilinear", argument, &[])?;
-    Ok(Box::new(KernelUpsampler {
-        kernel: Kernel::Bilinear,
-    }))
+    Ok(Box::new(KernelUpsampler::new(Kernel::Bilinear)))
 }
 
 const BICUBIC_OPTIONS: &[PluginOption] = &[PluginOption {
@@ -44,16 +25,12 @@ const BICUBIC_OPTIONS: &[PluginOption] = &[PluginOption {
 fn bicubic(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     let options = parse_options("bicubic", argument, BICUBIC_OPTIONS)?;
     let a: f32 = option_value("bicubic", &options, "a")?;
-    Ok(Box::new(KernelUpsampler {
-        kernel: Kernel::Bicubic { a },
-    }))
+    Ok(Box::new(KernelUpsampler::new(Kernel::Bicubic { a })))
 }
 
 fn lanczos3(argument: Option<&str>) -> Result<Box<dyn RgbUpsampler>> {
     parse_options("lanczos3", argument, &[])?;
-    Ok(Box::new(KernelUpsampler {
-        kernel: Kernel::Lanczos3,
-    }))
+    Ok(Box::new(KernelUpsampler::new(Kernel::Lanczos3)))
 }
 
 inventory::submit! {
@@ -86,7 +63,8 @@ inventory::submit! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use matup_core::{upsampler, PluginSpec};
+    use matup_core::resample::Border;
+    use matup_core::{upsampler, Map, PluginSpec};
 
     fn build(name: &str) -> Box<dyn RgbUpsampler> {
         upsampler(&name.parse::<PluginSpec>().unwrap()).unwrap()
