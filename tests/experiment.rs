@@ -278,7 +278,8 @@ fn experiments_record_failures_and_resume_without_rerunning() {
 
 #[test]
 fn every_shipped_sweep_reads_and_its_points_are_valid_settings() {
-    // Settings only: their networks may be in ../shared or in runs/, which a clone lacks.
+    // Settings only: their networks may lie beside the repository or in runs/, which a clone
+    // lacks.
     let folder = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sweeps");
     let mut read = 0;
     for entry in std::fs::read_dir(&folder).unwrap() {

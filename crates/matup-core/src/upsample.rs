@@ -123,21 +123,33 @@ impl RgbUpsampler for KernelUpsampler {
             ));
         };
         let mut out = Vec::with_capacity(images.len());
-        // One matrix pair a size (the self-ensemble's passes share theirs).
-        let mut resamplings: Vec<([usize; 2], Separable)> = Vec::new();
+        let mut resamplings = Vec::new();
         for image in images {
             let size = [image.width(), image.height()];
-            if !resamplings.iter().any(|(s, _)| *s == size) {
-                let resampling = Separable::upsample(size, scale, self.kernel, border, device)?;
-                resamplings.push((size, resampling));
-            }
-            let (_, resampling) = (resamplings.iter())
-                .find(|(s, _)| *s == size)
-                .expect("made above");
+            let resampling = once_a_size(&mut resamplings, size, || {
+                Separable::upsample(size, scale, self.kernel, border, device)
+            })?;
             out.push(resampling.apply(&upload(image, device)?)?);
         }
         Ok(out)
     }
+}
+
+/// The resampling of images of `size` from `made`, made there first if it is not: one a size,
+/// which the self-ensemble's passes share.
+fn once_a_size(
+    made: &mut Vec<([usize; 2], Separable)>,
+    size: [usize; 2],
+    make: impl FnOnce() -> candle_core::Result<Separable>,
+) -> candle_core::Result<&Separable> {
+    let i = match made.iter().position(|(s, _)| *s == size) {
+        Some(i) => i,
+        None => {
+            made.push((size, make()?));
+            made.len() - 1
+        }
+    };
+    Ok(&made[i].1)
 }
 
 /// Checks a requested scale against what an upsampler supports: any scale, or one up to its
@@ -270,8 +282,7 @@ impl RgbUpsampler for ThroughNative {
         }
         let large = self.inner.upsample_on_device(images, self.native, border)?;
         let mut out = Vec::with_capacity(large.len());
-        // One shrink a size (the self-ensemble's passes share theirs).
-        let mut shrinks: Vec<([usize; 2], Separable)> = Vec::new();
+        let mut shrinks = Vec::new();
         for (up, image) in large.into_iter().zip(images) {
             let size = [image.width(), image.height()];
             let (_, h, w) = up.dims3()?;
@@ -279,15 +290,10 @@ impl RgbUpsampler for ThroughNative {
                 out.push(up); // the wrong size, as the caller's check will say
                 continue;
             }
-            if !shrinks.iter().any(|(s, _)| *s == size) {
+            let down = once_a_size(&mut shrinks, size, || {
                 let to = size.map(|n| n * scale);
-                let down = Separable::shrink([w, h], to, self.down, border, up.device())?;
-                shrinks.push((size, down));
-            }
-            let (_, down) = shrinks
-                .iter()
-                .find(|(s, _)| *s == size)
-                .expect("made above");
+                Separable::shrink([w, h], to, self.down, border, up.device())
+            })?;
             out.push(down.apply(&up)?);
         }
         Ok(out)
