@@ -40,7 +40,8 @@ pub struct LearnConfig {
     /// What the network upsamples: `maps` (the default), `renders` or `normals`.
     #[serde(default)]
     pub target: Target,
-    /// Upsampling factor (the network's).
+    /// Upsampling factor: the network's, or a smaller one that matup reaches through it (×4,
+    /// then area-shrunk: `matup_core::upsample::route`), which training then goes through too.
     #[serde(default = "default_scale")]
     pub scale: usize,
     /// Optimiser steps in all (a resumed run continues to this count).

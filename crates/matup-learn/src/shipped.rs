@@ -9,7 +9,7 @@
 //! invented, and a network trained without it is judged with it.
 
 use candle_core::{Device, Tensor, D};
-use matup_core::resample::{upsample_matrix, Border, Kernel};
+use matup_core::resample::{shrink_matrix, upsample_matrix, Border, Kernel, Shrink};
 use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
 use matup_method::features::ALPHA;
 use matup_method::filter::decode::decode_tensors;
@@ -72,6 +72,43 @@ pub fn normal_params(xy: &Tensor) -> candle_core::Result<Tensor> {
     )?;
     let (params, _) = decode_tensors(&features.zeros_like()?, &features, &[None; FEATURES])?;
     params.narrow(1, 4, 3)
+}
+
+/// The filter down from the network's native scale to a smaller one, as matup's route makes
+/// it (`matup_core::upsample::serving_smaller_scales`): each output image area-shrunk before
+/// it is decoded, as the matrix products `S · X · Sᵀ` of `shrink_matrix`'s weights.
+pub struct Route {
+    /// `[scale · h, native · h]`.
+    shrink: Tensor,
+    shrink_t: Tensor,
+}
+
+impl Route {
+    /// For LR images of `size × size` upsampled ×`native` and shrunk to ×`scale`.
+    pub fn new(
+        size: usize,
+        native: usize,
+        scale: usize,
+        border: Border,
+        device: &Device,
+    ) -> candle_core::Result<Route> {
+        let (from, to) = (size * native, size * scale);
+        let shrink = Tensor::from_vec(
+            shrink_matrix(from, to, Shrink::Area, border),
+            (to, from),
+            device,
+        )?;
+        Ok(Route {
+            shrink_t: shrink.t()?.contiguous()?,
+            shrink,
+        })
+    }
+
+    /// Images `[N, C, native · h, native · w]` → `[N, C, scale · h, scale · w]`.
+    pub fn apply(&self, images: &Tensor) -> candle_core::Result<Tensor> {
+        self.shrink
+            .broadcast_matmul(&images.broadcast_matmul(&self.shrink_t)?)
+    }
 }
 
 /// Back-projection onto the LR features as matrix products: the box filter as a mean of
@@ -193,10 +230,17 @@ impl BackProjection {
         let end = up.where_cond(&hi.broadcast_as(hr.shape())?, &lo.broadcast_as(hr.shape())?)?;
         let room = (end - hr)?.abs()?;
         let total = blocks(&(room.avg_pool2d(self.scale)? * n)?)?;
-        let settled = (hr + (&miss * n)?.mul(&room)?.div(&total.maximum(1e-30f32)?)?)?
+        // A block without room is left as it is. Its share is divided by 1, not by a tiny
+        // floor: the gradient of the branch not taken is multiplied by 0, and 0 · ∞ (a floor
+        // squared underflows) is NaN in every weight. A block with less room than `ROOM`
+        // moves by less than that, so leaving it too changes nothing anyone can see.
+        const ROOM: f32 = 1e-12;
+        let has_room = total.gt(ROOM)?;
+        let divisor = has_room.where_cond(&total, &total.ones_like()?)?;
+        let settled = (hr + (&miss * n)?.mul(&room)?.div(&divisor)?)?
             .broadcast_maximum(lo)?
             .broadcast_minimum(hi)?;
-        let off = miss.ne(0f32)?.mul(&total.gt(0f32)?)?;
+        let off = miss.ne(0f32)?.mul(&has_room)?;
         off.where_cond(&settled, hr)
     }
 }

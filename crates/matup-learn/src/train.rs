@@ -37,7 +37,7 @@ use crate::export::export;
 use crate::net::TrainableNet;
 use crate::shipped::{
     decode_normal_image, decode_outputs, normal_chord, normal_params, shading_params, shown,
-    BackProjection,
+    BackProjection, Route,
 };
 
 /// Adam (Kingma & Ba 2015) over the network's tensors, its moments checkpointed with them;
@@ -155,6 +155,8 @@ pub struct Trainer {
     norm: LossNorm,
     corpus: Corpus,
     back_projection: BackProjection,
+    /// Where `config.scale` is below the network's: the filter down to it.
+    route: Option<Route>,
     lights: LightSetSpec,
     device: Device,
 }
@@ -166,14 +168,23 @@ impl Trainer {
             net.add_height_guide()
                 .map_err(|e| Error::file(&config.base_model, e.to_string()))?;
         }
-        if net.info.scale != config.scale {
+        let native = net.info.scale;
+        if native < config.scale {
             return Err(Error::Invalid(format!(
-                "{}: a ×{} network, but the configuration asks for ×{}",
+                "{}: a ×{native} network, but the configuration asks for ×{}",
                 config.base_model.display(),
-                net.info.scale,
                 config.scale
             )));
         }
+        if native > config.scale && config.target != Target::Maps {
+            return Err(Error::Invalid(format!(
+                "{}: a ×{native} network trained for ×{} goes through matup's route, which \
+                 training models for target = \"maps\" only",
+                config.base_model.display(),
+                config.scale
+            )));
+        }
+        let lr_size = config.patch / config.scale + 2 * config.context;
         let model = shading_model(&"ggx".parse::<PluginSpec>()?)?;
         tensor_form(model.as_ref())?;
         Ok(Trainer {
@@ -187,12 +198,10 @@ impl Trainer {
             )?,
             // Crops do not tile: the bilinear spread mirrors at their borders, as `matup
             // upscale` does for materials that do not tile.
-            back_projection: BackProjection::new(
-                config.patch / config.scale + 2 * config.context,
-                config.scale,
-                Border::Mirror,
-                device,
-            )?,
+            back_projection: BackProjection::new(lr_size, config.scale, Border::Mirror, device)?,
+            route: (native > config.scale)
+                .then(|| Route::new(lr_size, native, config.scale, Border::Mirror, device))
+                .transpose()?,
             lights: LightSetSpec::default(),
             config: config.clone(),
             device: device.clone(),
@@ -256,7 +265,13 @@ impl Trainer {
     /// without the `context` around them.
     fn maps_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
         let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
-        let (hr, fixed) = shipped_maps(&self.net, &lrs, &self.back_projection, &self.device)?;
+        let (hr, fixed) = shipped_maps(
+            &self.net,
+            &lrs,
+            self.route.as_ref(),
+            &self.back_projection,
+            &self.device,
+        )?;
         let margin = self.config.context * self.config.scale;
         let hr = centre(&hr, margin)?;
         let params = (0..pairs.len())
@@ -358,16 +373,21 @@ impl TrueTexels {
 /// What `matup upscale`'s defaults make of `net`'s upsampling of LR materials: the 7
 /// features `[B, 7, H, W]`, decoded and back-projected, and per material the features held
 /// constant. The network reads each LR crop whole, zero padded at its edges, which inference
-/// inside an image never meets: [`centre`] keeps what lies out of the padding's reach.
+/// inside an image never meets: [`centre`] keeps what lies out of the padding's reach. A
+/// `route` shrinks the network's outputs to the scale trained for.
 pub fn shipped_maps(
     net: &TrainableNet,
     lrs: &[&Material],
+    route: Option<&Route>,
     back_projection: &BackProjection,
     device: &Device,
 ) -> Result<(Tensor, Vec<[Option<f32>; FEATURES]>)> {
     let inputs = network_inputs(lrs, device)?;
     let (lr, fixed) = lr_features(lrs, device)?;
-    let outputs = net.forward(&inputs)?;
+    let mut outputs = net.forward(&inputs)?;
+    if let Some(route) = route {
+        outputs = route.apply(&outputs)?;
+    }
     let hr = back_projection.apply(&decode_outputs(&outputs)?, &lr)?;
     Ok((hr, fixed))
 }
@@ -656,6 +676,10 @@ fn validate_maps(
         ..one_pass_defaults()
     };
     score_each(set, lights, |v| {
+        let config = Config {
+            scale: v.truth.width() / v.lr.width(),
+            ..config.clone()
+        };
         let (out, _) = upscale(
             &v.lr,
             &config,

@@ -9,7 +9,7 @@ use matup_core::resample::{upsample, Border, Kernel};
 use matup_core::shading::shading_model;
 use matup_core::shading::tensor_form;
 use matup_core::tensor::{params_tensor, LightTensors};
-use matup_core::upsample::RgbUpsampler;
+use matup_core::upsample::{serving_smaller_scales, RgbUpsampler};
 use matup_core::{
     load_material, save_material, Dihedral, LightSetSpec, LoadOptions, Map, Material, PluginSpec,
     SaveOptions,
@@ -17,7 +17,7 @@ use matup_core::{
 use matup_learn::config::Target;
 use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
-use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection};
+use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection, Route};
 use matup_learn::train::{centre, one_pass_defaults, shipped_maps};
 use matup_learn::{train, LearnConfig};
 use matup_method::config::{FilterConfig, ResidualBase};
@@ -64,16 +64,34 @@ impl RgbUpsampler for Lanczos {
 
 #[test]
 fn a_training_crops_centre_beyond_the_zero_paddings_reach_is_what_matup_upscale_ships() {
+    let (whole, centre_only) = shipped_against_matup(4);
+    // At the crop's edges the zero padding shows; its centre is what users get.
+    assert!(whole > 1e-2, "{whole}");
+    assert!(centre_only <= 1e-4, "{centre_only}");
+}
+
+#[test]
+fn training_for_x3_goes_through_matups_route_from_the_x4_network() {
+    let (whole, centre_only) = shipped_against_matup(3);
+    assert!(whole > 1e-2, "{whole}");
+    assert!(centre_only <= 1e-4, "{centre_only}");
+}
+
+/// The largest differences, over the whole crop and over its centre beyond the zero padding's
+/// reach, between the maps training computes for stock SPAN ×4 run at ×`scale` (64² LR
+/// texels) and matup's own residual base.
+fn shipped_against_matup(scale: usize) -> (f32, f32) {
     let device = Device::Cpu;
     let model = repo().join("models/span_x4_ch48.onnx");
     let net = TrainableNet::load(&model, &device).unwrap();
     // 64² LR texels; SPAN reads 22 around each, back-projection's 3 rounds 6 more.
-    let lr = corpus_crop("ambientcg_Rock029", 256).box_downsample(4);
-    let back_projection = BackProjection::new(64, 4, Border::Mirror, &device).unwrap();
-    let (ours, _) = shipped_maps(&net, &[&lr], &back_projection, &device).unwrap();
+    let lr = corpus_crop("ambientcg_Rock029", 64 * scale).box_downsample(scale);
+    let back_projection = BackProjection::new(64, scale, Border::Mirror, &device).unwrap();
+    let route = (scale < 4).then(|| Route::new(64, 4, scale, Border::Mirror, &device).unwrap());
+    let (ours, _) = shipped_maps(&net, &[&lr], route.as_ref(), &back_projection, &device).unwrap();
     let ours = ours.get(0).unwrap();
     // matup's defaults: the same network on matup's own executor, each map read with its
-    // mirrored surroundings, then back-projected.
+    // mirrored surroundings, ×4 and shrunk to ×`scale` where that is less, then back-projected.
     let config = FilterConfig {
         residual_base: ResidualBase::Upsampler,
         back_project: true,
@@ -82,8 +100,10 @@ fn a_training_crops_centre_beyond_the_zero_paddings_reach_is_what_matup_upscale_
         clamp_chroma: false,
         ..FilterConfig::default()
     };
-    let executor = OnnxUpsampler::load(&model, EngineChoice::Matup).unwrap();
-    let shipped = residual_base(&lr, &config, &executor, 4, Border::Mirror).unwrap();
+    let executor = serving_smaller_scales(Box::new(
+        OnnxUpsampler::load(&model, EngineChoice::Matup).unwrap(),
+    ));
+    let shipped = residual_base(&lr, &config, executor.as_ref(), scale, Border::Mirror).unwrap();
     let shipped = Tensor::from_vec(shipped.into_data(), ours.dims(), &device).unwrap();
     let difference = |margin: usize| -> f32 {
         let d = (centre(&ours.unsqueeze(0).unwrap(), margin).unwrap()
@@ -91,11 +111,56 @@ fn a_training_crops_centre_beyond_the_zero_paddings_reach_is_what_matup_upscale_
         .unwrap();
         d.abs().unwrap().max_all().unwrap().to_scalar().unwrap()
     };
-    let (whole, centre_only) = (difference(0), difference(4 * 28));
-    println!("max |difference|: whole crop {whole:.2e}, its centre {centre_only:.2e}");
-    // At the crop's edges the zero padding shows; its centre is what users get.
-    assert!(whole > 1e-2, "{whole}");
-    assert!(centre_only <= 1e-4, "{centre_only}");
+    let (whole, centre_only) = (difference(0), difference(scale * 28));
+    println!("×{scale}: max |difference|: whole crop {whole:.2e}, its centre {centre_only:.2e}");
+    (whole, centre_only)
+}
+
+#[test]
+fn back_projection_keeps_every_gradient_finite_where_a_block_has_no_room_to_move() {
+    // 7 features of 8² texels; the base colour's red is white (1, the top of its range) over
+    // a whole 4×4 block, as a network's clamped output often is. Settling cannot move that
+    // block, and the branch it does not take must not make every weight's gradient NaN.
+    let device = Device::Cpu;
+    let values: Vec<f32> = (0..7 * 64)
+        .map(|i| {
+            let (k, y, x) = (i / 64, i / 8 % 8, i % 8);
+            match k {
+                0 if y < 4 && x < 4 => 1.0,
+                4 | 5 => 0.1 - 0.02 * ((x + y) % 3) as f32,
+                _ => 0.4 + 0.05 * ((x * 3 + y) % 4) as f32,
+            }
+        })
+        .collect();
+    let hr = candle_core::Var::from_vec(values, (1, 7, 8, 8), &device).unwrap();
+    // The LR texels a little above the blocks' means: every block but the white one settles.
+    let lr = (hr.as_tensor().avg_pool2d(4).unwrap() + 0.001)
+        .unwrap()
+        .minimum(1f32)
+        .unwrap();
+    let back_projection = BackProjection::new(2, 4, Border::Mirror, &device).unwrap();
+    let out = back_projection.apply(hr.as_tensor(), &lr).unwrap();
+    let grads = out.sum_all().unwrap().backward().unwrap();
+    let grad: Vec<f32> = grads
+        .get(hr.as_tensor())
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    let bad = grad.iter().filter(|g| !g.is_finite()).count();
+    assert_eq!(bad, 0, "{bad} of {} gradients are not finite", grad.len());
+    // The white block stays white.
+    let red: Vec<f32> = out
+        .get(0)
+        .unwrap()
+        .get(0)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    assert!((0..16).all(|i| red[i / 4 * 8 + i % 4] == 1.0));
 }
 
 #[test]
@@ -480,6 +545,47 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
         4,
         "{val}"
     );
+}
+
+#[test]
+fn a_x4_network_trains_and_validates_at_x3_through_matups_route() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = LearnConfig {
+        scale: 3,
+        patch: 30,
+        val_crop: 30,
+        validate_every: 2,
+        ..tiny_run(dir.path(), 2)
+    };
+    let run = dir.path().join("x3");
+    let summary = train(&config, &run, &Device::Cpu, &matup_core::progress::Silent).unwrap();
+    assert_eq!(summary.iterations, 2);
+    // Validated by matup upscale at ×3 (the truth's size over the LR's), at steps 0 and 2.
+    let val = std::fs::read_to_string(run.join("val.csv")).unwrap();
+    let means: Vec<f64> = (val.lines())
+        .filter(|l| l.contains(",mean,"))
+        .map(|l| l.split(',').nth(2).unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(means.len(), 2, "{val}");
+    assert!(
+        means.iter().all(|psnr| (10.0..60.0).contains(psnr)),
+        "{val}"
+    );
+    // The route is modelled for networks of maps only.
+    let renders = LearnConfig {
+        target: Target::Renders,
+        normal_weight: 0.0,
+        ..config.clone()
+    };
+    let err = train(
+        &renders,
+        &dir.path().join("r"),
+        &Device::Cpu,
+        &matup_core::progress::Silent,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("route") && err.contains("maps"), "{err}");
 }
 
 #[test]
