@@ -9,7 +9,8 @@
 //! invented, and a network trained without it is judged with it.
 
 use candle_core::{Device, Tensor, D};
-use matup_core::resample::{shrink_matrix, upsample_matrix, Border, Kernel, Shrink};
+use matup_core::device_maps::Separable;
+use matup_core::resample::{upsample_matrix, Border, Kernel, Shrink};
 use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
 use matup_method::features::ALPHA;
 use matup_method::filter::decode::decode_tensors;
@@ -76,12 +77,9 @@ pub fn normal_params(xy: &Tensor) -> candle_core::Result<Tensor> {
 
 /// The filter down from the network's native scale to a smaller one, as matup's route makes
 /// it (`matup_core::upsample::serving_smaller_scales`): each output image area-shrunk before
-/// it is decoded, as the matrix products `S · X · Sᵀ` of `shrink_matrix`'s weights.
-pub struct Route {
-    /// `[scale · h, native · h]`.
-    shrink: Tensor,
-    shrink_t: Tensor,
-}
+/// it is decoded, by the device path's own resampling (`device_maps::Separable`), whose matrix
+/// products candle differentiates.
+pub struct Route(Separable);
 
 impl Route {
     /// For LR images of `size × size` upsampled ×`native` and shrunk to ×`scale`.
@@ -92,22 +90,22 @@ impl Route {
         border: Border,
         device: &Device,
     ) -> candle_core::Result<Route> {
-        let (from, to) = (size * native, size * scale);
-        let shrink = Tensor::from_vec(
-            shrink_matrix(from, to, Shrink::Area, border),
-            (to, from),
+        let [from, to] = [native, scale].map(|s| [size * s; 2]);
+        Ok(Route(Separable::shrink(
+            from,
+            to,
+            Shrink::Area,
+            border,
             device,
-        )?;
-        Ok(Route {
-            shrink_t: shrink.t()?.contiguous()?,
-            shrink,
-        })
+        )?))
     }
 
     /// Images `[N, C, native · h, native · w]` → `[N, C, scale · h, scale · w]`.
     pub fn apply(&self, images: &Tensor) -> candle_core::Result<Tensor> {
-        self.shrink
-            .broadcast_matmul(&images.broadcast_matmul(&self.shrink_t)?)
+        let (n, c, h, w) = images.dims4()?;
+        let shrunk = self.0.apply(&images.reshape((n * c, h, w))?)?;
+        let (_, oh, ow) = shrunk.dims3()?;
+        shrunk.reshape((n, c, oh, ow))
     }
 }
 
