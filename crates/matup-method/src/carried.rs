@@ -104,19 +104,7 @@ pub fn describe_carried(
     how: CarriedUpsampling,
 ) -> Vec<String> {
     // What upsamples a map the upsampler would see as `kind`, its passes named.
-    let by = |kind| {
-        if !how
-            .passes
-            .upsampled
-            .includes(kind, how.upsampler, how.scale)
-        {
-            return "lanczos3".to_string();
-        }
-        match how.passes.ensemble.symmetries {
-            1 => upsampler.to_string(),
-            n => format!("{upsampler} ({n} passes)"),
-        }
-    };
+    let by = |kind| how.passes.by(kind, upsampler, how.upsampler, how.scale);
     let projected = if how.back_project {
         ", back-projected"
     } else {

@@ -4,6 +4,7 @@
 //! One pass of it, not back-projected, is the per-map baseline that evaluations compare with
 //! ([`upscale_per_map`]).
 
+use crate::config::Interpolation;
 use matup_core::candle_core::{DType, Device, Tensor};
 use matup_core::color::{linear_to_srgb, srgb_to_linear, srgb_to_linear_tensor};
 use matup_core::device_maps;
@@ -78,9 +79,8 @@ pub fn upscale_one_map(
     passes: MapPasses,
 ) -> Result<Map> {
     if !passes.upsampled.includes(kind, upsampler, scale) {
-        // A kernel is the same under every symmetry: one pass.
-        let lanczos = KernelUpsampler::new(Kernel::Lanczos3);
-        return upscale_one_map(kind, map, &lanczos, scale, border, MapPasses::ONE);
+        let left_out = KernelUpsampler::new(LEFT_OUT);
+        return upscale_one_map(kind, map, &left_out, scale, border, MapPasses::ONE);
     }
     if let Some(flat) = flat_upsampled(map, scale) {
         Ok(flat)
@@ -203,11 +203,11 @@ pub fn upscale_one_map_on_device(
     passes: MapPasses,
 ) -> Result<Tensor> {
     if !passes.upsampled.includes(kind, upsampler, scale) {
-        let lanczos = KernelUpsampler::on(Kernel::Lanczos3, device.clone());
+        let left_out = KernelUpsampler::on(LEFT_OUT, device.clone());
         return upscale_one_map_on_device(
             kind,
             map,
-            &lanczos,
+            &left_out,
             device,
             scale,
             border,
@@ -381,7 +381,29 @@ impl MapPasses {
         ensemble: SelfEnsemble::NONE,
         upsampled: UpsampledMaps::All,
     };
+
+    /// What upsamples a map of `kind` at a ×`scale` level, in words: `upsampler` (called
+    /// `name`) and its passes, or the kernel of the maps left out.
+    pub fn by(
+        self,
+        kind: MapKind,
+        name: &str,
+        upsampler: &dyn RgbUpsampler,
+        scale: usize,
+    ) -> String {
+        if !self.upsampled.includes(kind, upsampler, scale) {
+            return Interpolation(LEFT_OUT).to_string();
+        }
+        match self.ensemble.symmetries {
+            1 => name.to_string(),
+            n => format!("{name} ({n} passes)"),
+        }
+    }
 }
+
+/// What upsamples the maps [`UpsampledMaps`] leaves out of the upsampler: one pass, as a
+/// kernel is the same under every symmetry.
+pub const LEFT_OUT: Kernel = Kernel::Lanczos3;
 
 /// The geometric self-ensemble of the per-map upsampling: the maps it covers are upsampled
 /// under `symmetries` symmetries of the square and averaged, the others once. Each symmetry

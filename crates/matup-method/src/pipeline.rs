@@ -12,10 +12,11 @@ use crate::bands::{
     ENSEMBLE_BYTES_PER_BAND_TEXEL, ROUTE_BYTES_PER_NATIVE_TEXEL,
 };
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
-use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
+use crate::config::{choose_upsampler, Chain, Config, Interpolation, ResidualBase};
 use crate::context::{Context, RunOptions};
 use crate::fit::{infer_material, learn_level, TrainedFilter};
 use crate::height::{band_margin, detail_scale, rebuild_height};
+use crate::per_map::LEFT_OUT;
 use crate::report::{peak_memory_mib, timed, LevelReport, RunReport};
 use crate::residual::{self, project_onto_input, upsampled_base};
 use crate::select::choose_settings;
@@ -533,20 +534,18 @@ fn level_route(ctx: &Context, scale: usize) -> String {
         None => ctx.upsampler_name.to_string(),
     };
     let trains = ctx.config.train.epochs > 0;
+    let passes = filter.map_passes();
     match filter.residual_base {
         ResidualBase::Upsampler => format!(
-            "×{scale} by {upsampler}{}{}{}{}",
-            match filter.self_ensemble {
-                1 => String::new(),
-                n => format!(" ({n} passes)"),
-            },
-            if filter
-                .upsampled_maps
-                .includes(MapKind::BaseColor, ctx.upsampler.as_ref(), scale)
-            {
-                ""
+            "×{scale} by {}{}{}{}",
+            passes.by(MapKind::Normal, &upsampler, ctx.upsampler.as_ref(), scale),
+            if (passes.upsampled).includes(MapKind::BaseColor, ctx.upsampler.as_ref(), scale) {
+                String::new()
             } else {
-                " on the normal map, lanczos3 on the others"
+                format!(
+                    " on the normal map, {} on the others",
+                    Interpolation(LEFT_OUT)
+                )
             },
             if filter.back_project {
                 ", back-projected"
@@ -557,7 +556,7 @@ fn level_route(ctx: &Context, scale: usize) -> String {
         ),
         ResidualBase::Kernel(kernel) => format!(
             "×{scale}: {} maps{}",
-            crate::config::Interpolation(kernel),
+            Interpolation(kernel),
             if trains {
                 format!(" and a filter fitted to renders upsampled by {upsampler}")
             } else {
