@@ -81,6 +81,17 @@ pub enum Kernel {
     Lanczos3,
 }
 
+/// A kernel's name, as configurations and the upsampler registry spell it.
+impl fmt::Display for Kernel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Kernel::Bilinear => "bilinear",
+            Kernel::Bicubic { .. } => "bicubic",
+            Kernel::Lanczos3 => "lanczos3",
+        })
+    }
+}
+
 impl Kernel {
     /// Half-width of the kernel's support, in input texels.
     pub fn radius(self) -> f32 {

@@ -165,11 +165,7 @@ impl FromStr for Interpolation {
 
 impl fmt::Display for Interpolation {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self.0 {
-            Kernel::Bilinear => "bilinear",
-            Kernel::Bicubic { .. } => "bicubic",
-            Kernel::Lanczos3 => "lanczos3",
-        })
+        self.0.fmt(f)
     }
 }
 

@@ -4,7 +4,6 @@
 //! One pass of it, not back-projected, is the per-map baseline that evaluations compare with
 //! ([`upscale_per_map`]).
 
-use crate::config::Interpolation;
 use matup_core::candle_core::{DType, Device, Tensor};
 use matup_core::color::{linear_to_srgb, srgb_to_linear, srgb_to_linear_tensor};
 use matup_core::device_maps;
@@ -392,7 +391,7 @@ impl MapPasses {
         scale: usize,
     ) -> String {
         if !self.upsampled.includes(kind, upsampler, scale) {
-            return Interpolation(LEFT_OUT).to_string();
+            return LEFT_OUT.to_string();
         }
         match self.ensemble.symmetries {
             1 => name.to_string(),
