@@ -1,11 +1,13 @@
 //! How strongly upscaled base colours show the input's texel grid: the block-edge ratio
 //! (`matup_eval::metrics::block_edge_ratio`: steps across the input texels' edges over steps
 //! inside them) of matup's defaults, the same without back-projection, and plain resamplers
-//! per map, for each material box-filtered ÷SCALE from its whole and upscaled ×SCALE.
+//! per map, for each material box-filtered ÷SCALE from its whole and upscaled ×SCALE. With
+//! `--upsampler SPEC` every column but the plain resamplers' runs that upsampler (another
+//! network) instead of the defaults' own.
 //!
-//! `cargo run --release --example block_edges -- SCALE MATERIAL_FOLDER...`
+//! `cargo run --release --example block_edges -- SCALE [--upsampler SPEC] MATERIAL_FOLDER...`
 
-use matup::config::Config;
+use matup::config::{Config, MATERIAL_NETWORK};
 use matup::eval::metrics::block_edge_ratio;
 use matup::per_map::upscale_per_map;
 use matup::progress::Silent;
@@ -15,12 +17,19 @@ use matup::{load_material, upsampler, Material, RunOptions};
 fn main() -> matup::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let scale: usize = args[0].parse().expect("SCALE is a whole number");
+    let (upsampler_spec, folders) = match args.get(1).map(String::as_str) {
+        Some("--upsampler") => (Some(args[2].clone()), &args[3..]),
+        _ => (None, &args[1..]),
+    };
     let defaults = |back_project: bool, clamp_chroma: bool| {
         let mut c = Config {
             scale,
             seed: 1,
             ..Config::default()
         };
+        // `auto` picks the material network only where the maps are back-projected: named,
+        // every column runs the same network and differs only in the stages.
+        c.upsampler = upsampler_spec.clone().unwrap_or(MATERIAL_NETWORK.into());
         c.filter.back_project = back_project;
         c.filter.clamp_chroma = clamp_chroma;
         c
@@ -31,7 +40,7 @@ fn main() -> matup::Result<()> {
         plain.join(" | ")
     );
     println!("|---|---|---|---|---|---|{}", "---|".repeat(plain.len()));
-    for folder in &args[1..] {
+    for folder in folders {
         let truth = load_material(Some(std::path::Path::new(folder)), &Default::default())?;
         let lr = truth.box_downsample(scale);
         let ratio = |m: &Material| format!("{:.2}", block_edge_ratio(&m.base_color, scale));

@@ -6,7 +6,7 @@
 //!
 //! `cargo run --release --example x16_projection -- MATERIAL_FOLDER...`
 
-use matup::config::Config;
+use matup::config::{Config, MATERIAL_NETWORK};
 use matup::eval::metrics::block_edge_ratio;
 use matup::features::features;
 use matup::progress::Silent;
@@ -25,6 +25,9 @@ fn main() -> matup::Result<()> {
         };
         c.filter.back_project = back_project;
         c.filter.clamp_chroma = back_project;
+        // `auto` picks the material network only where the maps are back-projected: named,
+        // every column runs the defaults' network and differs only in the projection.
+        c.upsampler = MATERIAL_NETWORK.into();
         c
     };
     println!(

@@ -3,13 +3,16 @@
 # upscaled ×SCALE with the defaults, and each output map's wrap-around seam compared, at the
 # phase of the input's texel grid, with the true material's at the same size. Prints one row
 # per material: the worst map's seam over max(1, the truth's), and each map's pair.
-#   scripts/whole-seams.sh [--down D] [--scale S] MATERIAL_FOLDER...   (÷8, ×4; needs jq)
+# `--upsampler SPEC` runs the defaults with another upsampler (another network).
+#   scripts/whole-seams.sh [--down D] [--scale S] [--upsampler SPEC] MATERIAL_FOLDER...
+#   (÷8, ×4; needs jq)
 set -euo pipefail
-down=8 scale=4
+down=8 scale=4 upsampler=auto
 while [ $# -gt 0 ]; do
     case $1 in
     --down) down=$2; shift 2 ;;
     --scale) scale=$2; shift 2 ;;
+    --upsampler) upsampler=$2; shift 2 ;;
     *) break ;;
     esac
 done
@@ -27,7 +30,8 @@ for m in "$@"; do
         truth=$work/$name.truth
         "$matup" downsample "$m" -o "$truth" --factor $((down / scale)) >/dev/null 2>&1
     fi
-    "$matup" upscale "$work/$name.lr" -o "$work/$name.out" --scale "$scale" --quiet >/dev/null
+    "$matup" upscale "$work/$name.lr" -o "$work/$name.out" --scale "$scale" \
+        --upsampler "$upsampler" --quiet >/dev/null
     "$matup" eval --reference "$truth" --candidate "$work/$name.out" --scale "$scale" \
         --lights 1 --json >"$work/$name.json"
     jq -r --arg name "$name" '

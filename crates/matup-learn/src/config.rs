@@ -85,6 +85,11 @@ pub struct LearnConfig {
     /// and with a 32² LR crop most of the loss lies within its reach; 0: the crop alone.
     #[serde(default)]
     pub context: usize,
+    /// Weight of the grid term beside the renders (maps only): what the steps across the
+    /// output's `scale`-texel block edges exceed the truth's block-edge ratio by
+    /// ([`crate::grid::grid_term`]); 0: none.
+    #[serde(default)]
+    pub grid_weight: f64,
     /// Pull toward the base model's weights: after each step every weight `w` moves by
     /// `learning_rate · anchor_weight · (w₀ − w)` toward its start `w₀` (decoupled, as AdamW
     /// decays toward zero; the idea of L2-SP, Li et al. 2018). A blend with the base model
@@ -214,6 +219,9 @@ impl LearnConfig {
             if !(0.0..=1.0).contains(&share) {
                 return Err(format!("{key} {share} must be between 0 and 1"));
             }
+        }
+        if self.grid_weight != 0.0 && (self.target != Target::Maps || self.grid_weight < 0.0) {
+            return Err("grid_weight needs target = \"maps\" and is at least 0".into());
         }
         if self.height_guide && self.target != Target::Normals {
             return Err("height_guide needs target = \"normals\"".into());

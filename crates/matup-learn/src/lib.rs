@@ -8,6 +8,7 @@
 pub mod config;
 pub mod data;
 pub mod export;
+pub mod grid;
 pub mod net;
 pub mod shipped;
 pub mod tiles;

@@ -34,6 +34,7 @@ use crate::data::{
     lr_features, material_extent, network_inputs, normal_inputs, random_pair, Corpus, Pair,
 };
 use crate::export::export;
+use crate::grid::grid_term;
 use crate::net::TrainableNet;
 use crate::shipped::{
     decode_normal_image, decode_outputs, normal_chord, normal_params, shading_params, shown,
@@ -285,8 +286,23 @@ impl Trainer {
                 p.truth.crop(margin, margin, size, size)
             })
             .collect();
-        let truth = TrueTexels::new(&truths.iter().collect::<Vec<_>>(), &self.device)?;
-        self.against_truth(&truth, &params, lights)
+        let truth_refs: Vec<&Material> = truths.iter().collect();
+        let truth = TrueTexels::new(&truth_refs, &self.device)?;
+        let (loss, numbers) = self.against_truth(&truth, &params, lights)?;
+        if self.config.grid_weight == 0.0 {
+            return Ok((loss, numbers));
+        }
+        // The truth's features, made as the LR crops' are.
+        let (true_features, _) = lr_features(&truth_refs, &self.device)?;
+        let grid = grid_term(&hr, &true_features, self.config.scale)?;
+        let loss = (loss + (grid * self.config.grid_weight)?)?;
+        Ok((
+            loss.clone(),
+            StepLoss {
+                loss: loss.to_scalar::<f32>()? as f64,
+                ..numbers
+            },
+        ))
     }
 
     /// The network's normal maps, decoded and back-projected as `matup upscale` ships them,

@@ -366,6 +366,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         tiled_share: 0.0,
         zoom_out_share: 0.0,
         context: 0,
+        grid_weight: 0.0,
         anchor_weight: 0.0,
         checkpoint_every: 2,
         validate_every: 3,
@@ -373,6 +374,37 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         val_lights: 4,
         seed: 3,
     }
+}
+
+#[test]
+fn the_grid_term_adds_to_the_loss_in_proportion_to_its_weight_and_only_for_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny_run(dir.path(), 2);
+    let loss = |grid_weight: f64| {
+        let c = LearnConfig {
+            grid_weight,
+            ..config.clone()
+        };
+        let trainer = matup_learn::train::Trainer::new(&c, &Device::Cpu).unwrap();
+        trainer.loss(0).unwrap().1
+    };
+    let (none, one, two) = (loss(0.0), loss(1.0), loss(2.0));
+    // The same step's renders and normals; SPAN's maps of a brick crop draw some grid.
+    assert_eq!((one.render, one.normal), (none.render, none.normal));
+    let term = one.loss - none.loss;
+    assert!(term > 1e-4, "{term}");
+    assert!((two.loss - none.loss - 2.0 * term).abs() < 1e-5 * none.loss.max(1.0));
+    // A network of renders makes no maps whose grid it could charge.
+    let path = dir.path().join("renders_grid.toml");
+    let renders = LearnConfig {
+        target: Target::Renders,
+        normal_weight: 0.0,
+        grid_weight: 1.0,
+        ..config
+    };
+    std::fs::write(&path, toml::to_string(&renders).unwrap()).unwrap();
+    let error = LearnConfig::load(&path).unwrap_err().to_string();
+    assert!(error.contains("grid_weight"), "{error}");
 }
 
 #[test]
