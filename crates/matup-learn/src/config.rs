@@ -85,9 +85,9 @@ pub struct LearnConfig {
     /// and with a 32² LR crop most of the loss lies within its reach; 0: the crop alone.
     #[serde(default)]
     pub context: usize,
-    /// Weight of the grid term beside the renders (maps only): what the steps across the
-    /// output's `scale`-texel block edges exceed the truth's block-edge ratio by
-    /// ([`crate::grid::grid_term`]); 0: none.
+    /// Weight of the grid term beside the renders (maps only): how far the steps across the
+    /// output's `scale`-texel block edges lie from the truth's block-edge ratio to the steps
+    /// inside its blocks, either way, over the batch ([`crate::grid::grid_term`]); 0: none.
     #[serde(default)]
     pub grid_weight: f64,
     /// Pull toward the base model's weights: after each step every weight `w` moves by
