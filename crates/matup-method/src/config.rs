@@ -266,7 +266,7 @@ impl FromStr for ResidualBase {
 impl fmt::Display for ResidualBase {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            ResidualBase::Kernel(k) => Interpolation(*k).fmt(f),
+            ResidualBase::Kernel(k) => k.fmt(f),
             ResidualBase::Upsampler => f.write_str("upsampler"),
         }
     }

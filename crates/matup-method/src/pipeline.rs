@@ -12,7 +12,7 @@ use crate::bands::{
     ENSEMBLE_BYTES_PER_BAND_TEXEL, ROUTE_BYTES_PER_NATIVE_TEXEL,
 };
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
-use crate::config::{choose_upsampler, Chain, Config, Interpolation, ResidualBase};
+use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
 use crate::context::{Context, RunOptions};
 use crate::fit::{infer_material, learn_level, TrainedFilter};
 use crate::height::{band_margin, detail_scale, rebuild_height};
@@ -542,10 +542,7 @@ fn level_route(ctx: &Context, scale: usize) -> String {
             if (passes.upsampled).includes(MapKind::BaseColor, ctx.upsampler.as_ref(), scale) {
                 String::new()
             } else {
-                format!(
-                    " on the normal map, {} on the others",
-                    Interpolation(LEFT_OUT)
-                )
+                format!(" on the normal map, {LEFT_OUT} on the others")
             },
             if filter.back_project {
                 ", back-projected"
@@ -556,7 +553,7 @@ fn level_route(ctx: &Context, scale: usize) -> String {
         ),
         ResidualBase::Kernel(kernel) => format!(
             "×{scale}: {} maps{}",
-            Interpolation(kernel),
+            kernel,
             if trains {
                 format!(" and a filter fitted to renders upsampled by {upsampler}")
             } else {
