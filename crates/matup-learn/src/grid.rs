@@ -28,10 +28,9 @@ fn edge_and_inside_steps(maps: &Tensor, scale: usize) -> candle_core::Result<(Te
     let sum = |t: &Tensor| t.sum((1, 2, 3));
     let edge_sum = (sum(&across.broadcast_mul(&mask_x)?)? + sum(&down.broadcast_mul(&mask_y)?)?)?;
     let all_sum = (sum(&across)? + sum(&down)?)?;
-    let count = |mask: &Tensor, rows: usize| -> candle_core::Result<f64> {
-        Ok(mask.sum_all()?.to_scalar::<f32>()? as f64 * (c * rows) as f64)
-    };
-    let edges = count(&mask_x, h)? + count(&mask_y, w)?;
+    // Block edges per line of n texels: the multiples of the scale in 1..n.
+    let edges_per_line = |n: usize| ((n - 1) / scale) as f64;
+    let edges = (c * h) as f64 * edges_per_line(w) + (c * w) as f64 * edges_per_line(h);
     let all = (c * h * (w - 1) + c * (h - 1) * w) as f64;
     let edge_mean = (&edge_sum / edges.max(1.0))?;
     let inside_mean = ((all_sum - edge_sum)? / (all - edges).max(1.0))?;
