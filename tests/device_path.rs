@@ -8,14 +8,19 @@
 
 mod common;
 
+use std::path::Path;
+
+use image::DynamicImage;
+use matup::apps::folder::upscale_to_folder;
 use matup::candle_core::{Device, Tensor};
 use matup::config::Config;
+use matup::core::color::linear_to_srgb;
 use matup::core::device_maps::upload;
 use matup::core::resample::{upsample, Border, Kernel};
 use matup::core::upsample::{RgbUpsampler, UpsamplerRegistration};
 use matup::material::{MapKind, Material};
 use matup::progress::Silent;
-use matup::{Map, NormalConvention, Result, RunOptions};
+use matup::{FileFormat, Map, NormalConvention, Result, RunOptions, SaveOptions};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// A ×4-only upsampler as a network is (outputs in [0, 1]): Lanczos-3. `device` keeps its
@@ -156,6 +161,154 @@ fn the_device_path_gives_the_host_paths_maps() {
                 let levels = common::max_abs_diff(&stored(a), &stored(b));
                 assert!(levels <= 1.0, "{what}, {kind}: {levels} levels");
             }
+        }
+    }
+}
+
+/// `m` (no height) as a Unity HDRP folder in `dir`: an RGBA base map whose alpha varies, an
+/// OpenGL normal map, and a 16-bit mask map (metallic, occlusion, detail mask, smoothness =
+/// 1 − roughness). So one file holds maps made on the device beside ones carried on the host,
+/// stored every way a file stores a map (sRGB, normal colours in OpenGL's green, inverted).
+fn write_hdrp_folder(m: &Material, dir: &Path) {
+    let (w, h) = (m.width(), m.height_px());
+    let to8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    let to16 = |v: f32| (v.clamp(0.0, 1.0) * 65535.0).round() as u16;
+    let base: Vec<u8> = (0..w * h)
+        .flat_map(|i| {
+            let [r, g, b] = m.base_color.texel(i).map(|v| to8(linear_to_srgb(v)));
+            [r, g, b, to8((i % w) as f32 / w as f32)]
+        })
+        .collect();
+    let normal: Vec<u8> = (0..w * h)
+        .flat_map(|i| {
+            let [x, y, z] = m.normal.texel(i);
+            [
+                to8((x + 1.0) / 2.0),
+                to8((1.0 - y) / 2.0),
+                to8((z + 1.0) / 2.0),
+            ]
+        })
+        .collect();
+    let mask: Vec<u16> = (0..w * h)
+        .flat_map(|i| {
+            let r = m.roughness.data()[i];
+            [m.metallic.data()[i], 1.0 - 0.5 * r, 1.0, 1.0 - r].map(to16)
+        })
+        .collect();
+    let (w, h) = (w as u32, h as u32);
+    image::RgbaImage::from_raw(w, h, base)
+        .unwrap()
+        .save(dir.join("Rock_BaseMap.png"))
+        .unwrap();
+    image::RgbImage::from_raw(w, h, normal)
+        .unwrap()
+        .save(dir.join("Rock_Normal.png"))
+        .unwrap();
+    image::ImageBuffer::<image::Rgba<u16>, _>::from_raw(w, h, mask)
+        .unwrap()
+        .save(dir.join("Rock_MaskMap.png"))
+        .unwrap();
+}
+
+/// Every sample of a PNG file, in levels of its depth.
+fn samples(path: &Path) -> Vec<f32> {
+    let image = image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    match image {
+        DynamicImage::ImageRgb8(_) | DynamicImage::ImageRgba8(_) | DynamicImage::ImageLuma8(_) => {
+            image.as_bytes().iter().map(|&v| v as f32).collect()
+        }
+        DynamicImage::ImageRgba16(i) => i.into_raw().into_iter().map(|v| v as f32).collect(),
+        other => panic!("{}: {:?}", path.display(), other.color()),
+    }
+}
+
+#[test]
+fn maps_made_on_the_device_are_written_from_samples_made_there() {
+    let whole = matup::load_material(
+        Some(&common::test_material("polyhaven_coast_sand_rocks_02")),
+        &Default::default(),
+    )
+    .unwrap();
+    let lr = whole.box_downsample(whole.width() / 64);
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in");
+    std::fs::create_dir(&input).unwrap();
+    write_hdrp_folder(&lr, &input);
+    let material = matup::load_material(Some(&input), &Default::default()).unwrap();
+    assert!(material.height.is_none() && material.carried.alpha.len() == 1);
+
+    // The bands the pipeline hands on keep the four rendered maps on the device; with a
+    // height, the normals come back for its solve.
+    let config = |device: bool| Config {
+        upsampler: format!("test-lanczos-x4:{}", if device { "device" } else { "host" }),
+        tileable: Some(false),
+        ..Config::default()
+    };
+    for (m, held) in [(&material, 4), (&lr, 3)] {
+        let mut kinds = Vec::new();
+        matup::upscale_streamed(
+            m,
+            &config(true),
+            &RunOptions::default(),
+            &Silent,
+            &mut |_, band| {
+                kinds.push(band.kinds_on_device().count());
+                Ok(())
+            },
+        )
+        .unwrap();
+        assert_eq!(kinds, [held], "height: {}", m.height.is_some());
+    }
+
+    for format in [None, Some(FileFormat::ExrFloat)] {
+        let out = |device: bool| {
+            let out = dir.path().join(format!("out-{format:?}-{device}"));
+            let save = SaveOptions {
+                format,
+                ..SaveOptions::default()
+            };
+            upscale_to_folder(
+                &material,
+                &config(device),
+                &out,
+                &save,
+                false,
+                None,
+                None,
+                &Silent,
+            )
+            .unwrap();
+            out
+        };
+        let (host, device) = (out(false), out(true));
+        if format.is_some() {
+            // Float files store the values themselves: read back, the maps agree.
+            let [a, b] = [&host, &device]
+                .map(|d| matup::load_material(Some(d), &Default::default()).unwrap());
+            assert_eq!(
+                a.maps().count(),
+                7,
+                "four maps, alpha, occlusion and the detail mask"
+            );
+            for (a, b) in a.maps().zip(b.maps()) {
+                let worst = common::max_abs_diff(a, b);
+                println!("EXR: {worst:.1e}");
+                assert!(worst <= 1e-5, "EXR: {worst}");
+            }
+            continue;
+        }
+        for name in ["Rock_BaseMap", "Rock_Normal", "Rock_MaskMap"] {
+            let file = format!("{name}.png");
+            let (a, b) = (samples(&host.join(&file)), samples(&device.join(&file)));
+            assert_eq!(a.len(), b.len(), "{file}");
+            let worst = (a.iter().zip(&b)).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+            let differ = (a.iter().zip(&b)).filter(|(x, y)| x != y).count();
+            println!(
+                "{file}: {differ} of {} samples differ, by {worst} at most",
+                a.len()
+            );
+            assert!(worst <= 1.0, "{file}: {worst} levels");
+            assert!(differ * 100 <= a.len(), "{file}: {differ} samples differ");
         }
     }
 }

@@ -63,8 +63,8 @@ pub fn upscale_to_folder(
     let mut maps = MaterialWriter::new(out, size, material.origin.as_ref(), save)?;
     let mut centre = PreviewWindow::new(size);
     let mut report = upscale_streamed(material, config, &options, progress, &mut |first, band| {
-        centre.add(first, band);
-        maps.write_rows(band)
+        centre.add(first, band)?;
+        maps.write_band(band)
     })?;
     report.settings_fingerprint = fingerprint;
 

@@ -6,7 +6,10 @@
 
 use candle_core::{DType, Device, Tensor};
 
+use crate::io::Samples;
+use crate::layout::Stored;
 use crate::map::{Dihedral, Map};
+use crate::material::SampleDepth;
 use crate::resample::{
     neighbourhood_ranges, shrink_matrix, upsample_matrix, Border, Kernel, Shrink,
 };
@@ -182,6 +185,33 @@ pub fn block_sums(t: &Tensor, scale: usize) -> candle_core::Result<Tensor> {
         .sum(2)
 }
 
+/// The samples a file of `depth` stores for the values `t` of component `component` (any
+/// shape, row by row), made on `t`'s device as the host's writer makes them: encoded as
+/// `stored` says, then, in integer files, scaled, clamped and rounded. Only the file's
+/// samples cross back.
+pub fn stored_samples(
+    t: &Tensor,
+    stored: Stored,
+    component: usize,
+    depth: SampleDepth,
+) -> candle_core::Result<Samples> {
+    let values = stored.encode_tensor(component, t)?.flatten_all()?;
+    let levels = |top: f64| values.clamp(0f32, 1f32)?.affine(top, 0.0)?.round();
+    Ok(match depth {
+        SampleDepth::U8 => Samples::U8(levels(255.0)?.to_dtype(DType::U8)?.to_vec1()?),
+        // Candle has no 16-bit integer type: the levels cross back as 32-bit ones.
+        SampleDepth::U16 => Samples::U16(
+            (levels(65535.0)?
+                .to_dtype(DType::U32)?
+                .to_vec1::<u32>()?
+                .into_iter())
+            .map(|v| v as u16)
+            .collect(),
+        ),
+        SampleDepth::F32 => Samples::F32(values.to_dtype(DType::F32)?.to_vec1()?),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -233,6 +263,41 @@ mod tests {
             .map_values(|v| v / 9.0);
         assert!(worst(&boxed, &box_downsample(&map, 3)) < 1e-6);
         assert!(worst(&boxed, &area_resize(&map, 3, 2)) < 1e-6);
+    }
+
+    #[test]
+    fn a_devices_samples_are_the_host_writers() {
+        use crate::color::to_u8;
+        use crate::material::NormalConvention;
+        // Past both ends, and on the halves where rounding decides.
+        let values: Vec<f32> = (0..=600).map(|i| i as f32 / 500.0 - 0.1).collect();
+        let t = Tensor::new(values.as_slice(), &Device::Cpu).unwrap();
+        for stored in [
+            Stored::Linear,
+            Stored::Srgb,
+            Stored::Normal(NormalConvention::OpenGl),
+            Stored::Inverted,
+        ] {
+            let encoded: Vec<f32> = values.iter().map(|&v| stored.encode(1, v)).collect();
+            let u8s = stored_samples(&t, stored, 1, SampleDepth::U8).unwrap();
+            let want: Vec<u8> = encoded.iter().map(|&v| to_u8(v)).collect();
+            assert_eq!(u8s, Samples::U8(want), "{stored:?}");
+            let Samples::U16(u16s) = stored_samples(&t, stored, 1, SampleDepth::U16).unwrap()
+            else {
+                panic!("16-bit samples asked for");
+            };
+            for (got, v) in u16s.iter().zip(&encoded) {
+                let want = (v.clamp(0.0, 1.0) * 65535.0).round();
+                assert!((*got as f32 - want).abs() <= 1.0, "{stored:?} {v}: {got}");
+            }
+            let Samples::F32(floats) = stored_samples(&t, stored, 1, SampleDepth::F32).unwrap()
+            else {
+                panic!("float samples asked for");
+            };
+            for (got, v) in floats.iter().zip(&encoded) {
+                assert!((got - v).abs() < 1e-6, "{stored:?} {v}: {got}");
+            }
+        }
     }
 
     #[test]

@@ -237,7 +237,29 @@ serde_plain::derive_fromstr_from_deserialize!(BlockQuality, |e| -> Error {
     Error::Invalid(format!("block quality: {e}; use fast, normal, high or max"))
 });
 
+/// The type of a file's samples as matup hands them to its encoder: integers of 8 or 16 bits
+/// (values in [0, 1] scaled, rounded), or floats (EXR, float TIFF, and DDS, whose encoder
+/// takes values and makes its mips and blocks from them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleDepth {
+    U8,
+    U16,
+    F32,
+}
+
 impl FileFormat {
+    /// The type of the samples the file's encoder takes.
+    pub fn sample_depth(self) -> SampleDepth {
+        match self {
+            FileFormat::Png8 | FileFormat::Jpeg | FileFormat::Tiff8 | FileFormat::Tga => {
+                SampleDepth::U8
+            }
+            FileFormat::Png16 | FileFormat::Tiff16 => SampleDepth::U16,
+            FileFormat::ExrHalf | FileFormat::ExrFloat | FileFormat::TiffFloat => SampleDepth::F32,
+            FileFormat::Dds(_) => SampleDepth::F32,
+        }
+    }
+
     pub fn extension(self) -> &'static str {
         match self {
             FileFormat::Png8 | FileFormat::Png16 => "png",

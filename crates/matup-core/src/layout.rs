@@ -12,7 +12,9 @@ use std::fmt;
 use std::path::PathBuf;
 use std::str::FromStr;
 
-use crate::color::{linear_to_srgb, srgb_to_linear};
+use candle_core::Tensor;
+
+use crate::color::{linear_to_srgb, linear_to_srgb_tensor, srgb_to_linear};
 use crate::kinds::{FileFormat, MapKind, NormalConvention};
 use crate::{Error, Result};
 
@@ -55,6 +57,27 @@ impl Stored {
             Stored::Normal(convention) => 0.5 * (flip(convention, component, v) + 1.0),
             Stored::Inverted => 1.0 - v,
             Stored::Turns => (v / TAU).rem_euclid(1.0),
+        }
+    }
+
+    /// [`Stored::encode`] of every value of `t`, on its device.
+    pub fn encode_tensor(self, component: usize, t: &Tensor) -> candle_core::Result<Tensor> {
+        match self {
+            Stored::Linear => Ok(t.clone()),
+            Stored::Srgb => linear_to_srgb_tensor(t),
+            Stored::Normal(convention) => {
+                let sign = if flip(convention, component, 1.0) < 0.0 {
+                    -0.5
+                } else {
+                    0.5
+                };
+                t.affine(sign, 0.5)
+            }
+            Stored::Inverted => t.affine(-1.0, 1.0),
+            Stored::Turns => {
+                let turns = (t / TAU as f64)?;
+                &turns - turns.floor()?
+            }
         }
     }
 
@@ -387,6 +410,32 @@ mod tests {
         assert!(Stored::Normal(DirectX).encode(1, 0.8) > 0.5);
         assert_eq!(Stored::Normal(OpenGl).encode(0, 0.8), 0.9);
         assert_eq!(Stored::Inverted.decode(0, 0.25), 0.75);
+    }
+
+    #[test]
+    fn stored_values_encode_alike_on_a_device() {
+        use candle_core::Device;
+        let values: Vec<f32> = (0..=40).map(|i| i as f32 / 40.0 * 1.2 - 0.1).collect();
+        let t = Tensor::new(values.as_slice(), &Device::Cpu).unwrap();
+        for stored in [
+            Stored::Linear,
+            Stored::Srgb,
+            Stored::Normal(NormalConvention::DirectX),
+            Stored::Normal(NormalConvention::OpenGl),
+            Stored::Inverted,
+            Stored::Turns,
+        ] {
+            for component in 0..3 {
+                let on_device = stored.encode_tensor(component, &t).unwrap();
+                for (v, got) in values.iter().zip(on_device.to_vec1::<f32>().unwrap()) {
+                    let want = stored.encode(component, *v);
+                    assert!(
+                        (got - want).abs() < 1e-6,
+                        "{stored:?} {component} {v}: {got}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

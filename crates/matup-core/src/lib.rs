@@ -20,6 +20,7 @@ pub mod lights;
 pub mod loss;
 pub mod map;
 pub mod material;
+pub mod output_band;
 pub mod plugin;
 pub mod progress;
 pub mod render;

@@ -14,7 +14,8 @@ pub const MIN_ALPHA: f32 = 2e-3;
 pub const DISPLACEMENT: f32 = 0.01;
 
 pub use crate::kinds::{
-    BlockQuality, DdsCodec, DdsFormat, FileFormat, MapKind, NormalConvention, DDS_CODECS,
+    BlockQuality, DdsCodec, DdsFormat, FileFormat, MapKind, NormalConvention, SampleDepth,
+    DDS_CODECS,
 };
 
 /// Where a loaded material came from, so it can be saved the way it was given.

@@ -251,17 +251,6 @@ fn feature_range(feature: usize) -> (f32, f32) {
     }
 }
 
-/// Features `[7, H, W]` of one material → shading parameters `[H·W, 10]`, constant features
-/// held (`fixed`), as inference decodes the residual base.
-pub fn shading_params(
-    features: &Tensor,
-    fixed: &[Option<f32>; FEATURES],
-) -> candle_core::Result<Tensor> {
-    let texel_major = features.flatten_from(1)?.t()?;
-    let zeros = texel_major.zeros_like()?;
-    Ok(decode_tensors(&zeros, &texel_major, fixed)?.0)
-}
-
 /// Display-space renders `[T, L, 3]` of shading parameters `[T, 10]`.
 pub fn shown(
     model: &dyn TensorShading,

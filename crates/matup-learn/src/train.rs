@@ -37,9 +37,9 @@ use crate::export::export;
 use crate::grid::grid_term;
 use crate::net::TrainableNet;
 use crate::shipped::{
-    decode_normal_image, decode_outputs, normal_chord, normal_params, shading_params, shown,
-    BackProjection, Route,
+    decode_normal_image, decode_outputs, normal_chord, normal_params, shown, BackProjection, Route,
 };
+use matup_method::filter::decode::shading_params;
 
 /// Adam (Kingma & Ba 2015) over the network's tensors, its moments checkpointed with them;
 /// with an anchor, each step also pulls the weights toward where they started

@@ -17,10 +17,11 @@ use matup_core::{
 use matup_learn::config::Target;
 use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
-use matup_learn::shipped::{decode_outputs, shading_params, shown, BackProjection, Route};
+use matup_learn::shipped::{decode_outputs, shown, BackProjection, Route};
 use matup_learn::train::{centre, one_pass_defaults, shipped_maps};
 use matup_learn::{train, LearnConfig};
 use matup_method::config::{FilterConfig, ResidualBase};
+use matup_method::filter::decode::shading_params;
 use matup_method::residual::residual_base;
 use matup_shading as _;
 use matup_upsamplers::onnx::{EngineChoice, OnnxUpsampler};

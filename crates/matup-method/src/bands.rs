@@ -8,6 +8,7 @@
 
 use matup_core::map::Map;
 use matup_core::material::Material;
+use matup_core::output_band::OutputBand;
 use matup_core::resample::Border;
 use matup_core::{Error, Result};
 
@@ -26,8 +27,10 @@ pub const ENSEMBLE_BYTES_PER_BAND_TEXEL: u64 = 12;
 /// GPU bytes per output texel of a band whose residual base is made on the GPU
 /// (`residual::residual_base_on_device`): a map's passes as the network leaves them (2 × 3
 /// f32) and their sum, the 7 features, and the back-projection's, settling's and chroma
-/// clamp's full-size temporaries, several alive at once. Counted from the stages' tensors, not
-/// yet measured on a GPU; a band is planned within a quarter of the GPU's free memory.
+/// clamp's full-size temporaries, several alive at once. Decoding the features into maps there
+/// (`fit::decoded_maps_on_device`) comes after and holds less (about 250 bytes at its peak).
+/// Counted from the stages' tensors, not yet measured on a GPU; a band is planned within a
+/// quarter of the GPU's free memory.
 pub const DEVICE_BYTES_PER_BAND_TEXEL: u64 = 320;
 
 /// Heap bytes per texel of an upsampler's native scale where it serves a smaller one
@@ -69,12 +72,9 @@ impl Band {
 
     /// Cuts `out`, made from [`Band::read`]'s rows at `scale`, down to the rows this band
     /// keeps, in place.
-    pub fn keep(&self, out: &mut Material, scale: usize) {
+    pub fn keep(&self, out: &mut OutputBand, scale: usize) -> Result<()> {
         let skip = (self.first as isize - self.read_first) as usize * scale;
-        let rows = self.rows * scale;
-        for map in out.maps_mut() {
-            map.keep_rows(skip, rows);
-        }
+        out.keep_rows(skip, self.rows * scale)
     }
 }
 
@@ -291,9 +291,11 @@ mod tests {
         );
         // Upsampled ×2 (row y of the read rows → rows 2y, 2y + 1), the kept rows are the
         // band's own.
-        let mut material = Material::uniform(1, [0.0; 3], 0.5, 0.0);
-        material = material.map_maps(|_| Map::from_fn(6, 16, 1, |_, y, _| y as f32));
-        band.keep(&mut material, 2);
+        let material = Material::uniform(1, [0.0; 3], 0.5, 0.0);
+        let mut out =
+            OutputBand::from(material.map_maps(|_| Map::from_fn(6, 16, 1, |_, y, _| y as f32)));
+        band.keep(&mut out, 2).unwrap();
+        let material = out.to_material().unwrap();
         assert_eq!(material.roughness.height(), 8);
         assert_eq!(material.roughness.get(0, 0, 0), 4.0);
         assert_eq!(material.roughness.get(0, 7, 5), 11.0);

@@ -12,15 +12,16 @@ use rayon::prelude::*;
 use crate::config::{Config, ResidualBase};
 use crate::context::Context;
 use crate::features::{constant_features, features};
-use crate::filter::decode::decode;
+use crate::filter::decode::{decode, shading_params};
 use crate::filter::{Filter, FEATURES, FEATURE_NAMES};
 use crate::report::{timed, LevelReport};
 use crate::residual::residual_base;
 use crate::targets::{oracle_targets, upsampled_targets, DetailBase, LrRenders, Targets};
 use crate::train::{train, Checkpoint, Examples, Shading, TrainStats};
+use matup_core::candle_core::Tensor;
 use matup_core::lights::Light;
 use matup_core::map::Map;
-use matup_core::material::Material;
+use matup_core::material::{MapKind, Material};
 use matup_core::progress::Progress;
 use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{upsample, Border, Kernel};
@@ -363,14 +364,42 @@ pub(crate) fn infer_material(
             );
         progress.advance((end - start) as u64, None);
     }
-    hr.anisotropy = lr
-        .anisotropy
-        .as_ref()
-        .map(|m| upsample(m, scale, Kernel::Bilinear, border));
-    hr.anisotropy_angle = lr
-        .anisotropy_angle
-        .as_ref()
-        .map(|m| upsample(m, scale, Kernel::Bilinear, border));
+    upsample_anisotropy(lr, &mut hr, scale, border);
     hr.restore_invariants();
     Ok(hr)
+}
+
+/// [`infer_material`] without a filter, on the device of the residual base `features`
+/// (`[7, h, w]`): the four maps the features decode to, `[channels, h, w]` each, left there.
+/// The anisotropy maps are the caller's ([`upsample_anisotropy`]).
+pub(crate) fn decoded_maps_on_device(
+    features: &Tensor,
+    fixed: [Option<f32>; FEATURES],
+) -> Result<Vec<(MapKind, Tensor)>> {
+    let (_, h, w) = features.dims3()?;
+    // [10, h·w]: colour, metallic, normal, alpha, anisotropy's two.
+    let params = shading_params(features, &fixed)?.t()?.contiguous()?;
+    let map = |first: usize, channels: usize| {
+        params.narrow(0, first, channels)?.reshape((channels, h, w))
+    };
+    // The invariants the host restores (`Material::restore_invariants`): the decoded values
+    // are in range; the normals are made unit (never zero: z is at least √10⁻³).
+    let normal = map(4, 3)?;
+    let normal = normal.broadcast_div(&normal.sqr()?.sum_keepdim(0)?.sqrt()?)?;
+    Ok(vec![
+        (MapKind::BaseColor, map(0, 3)?),
+        (MapKind::Normal, normal),
+        (MapKind::Roughness, map(7, 1)?.sqrt()?),
+        (MapKind::Metallic, map(3, 1)?),
+    ])
+}
+
+/// `hr`'s anisotropy maps: `lr`'s upsampled bilinearly (not learned).
+pub(crate) fn upsample_anisotropy(lr: &Material, hr: &mut Material, scale: usize, border: Border) {
+    let up = |m: &Option<Map>| {
+        m.as_ref()
+            .map(|m| upsample(m, scale, Kernel::Bilinear, border))
+    };
+    hr.anisotropy = up(&lr.anisotropy);
+    hr.anisotropy_angle = up(&lr.anisotropy_angle);
 }

@@ -14,15 +14,20 @@ use crate::bands::{
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
 use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
 use crate::context::{Context, RunOptions};
-use crate::fit::{infer_material, learn_level, TrainedFilter};
+use crate::fit::{
+    decoded_maps_on_device, infer_material, learn_level, upsample_anisotropy, TrainedFilter,
+};
 use crate::height::{band_margin, detail_scale, rebuild_height};
 use crate::per_map::LEFT_OUT;
 use crate::report::{peak_memory_mib, timed, LevelReport, RunReport};
 use crate::residual::{self, project_onto_input, upsampled_base};
 use crate::select::choose_settings;
 use crate::train::TrainStats;
+use matup_core::candle_core::Tensor;
+use matup_core::device_maps;
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
+use matup_core::output_band::OutputBand;
 use matup_core::progress::{Progress, Silent};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
@@ -45,7 +50,7 @@ pub fn upscale(
 ) -> Result<(Material, RunReport)> {
     let mut assembler = Assembler::new(output_size(material, config)?[1]);
     let report = upscale_streamed(material, config, options, progress, &mut |first, band| {
-        assembler.add(first, band);
+        assembler.add(first, &band.to_material()?);
         Ok(())
     })?;
     let mut result = assembler.finish().expect("a run makes at least one band");
@@ -63,13 +68,14 @@ pub fn output_size(material: &Material, config: &Config) -> Result<[usize; 2]> {
 /// [`upscale`], handing the output to `sink` in bands of whole rows, top to bottom, as they
 /// are finished: `sink(first_row, band)`, the band holding every map of the output's rows
 /// from `first_row` on. Within [`RunOptions::memory_limit`] the last level works a band at a
-/// time (levels before it are held whole: they are the next level's input).
+/// time (levels before it are held whole: they are the next level's input). Where the run
+/// works on a GPU, the band's maps are still there: the sink brings back what it needs.
 pub fn upscale_streamed(
     material: &Material,
     config: &Config,
     options: &RunOptions,
     progress: &dyn Progress,
-    sink: &mut dyn FnMut(usize, &Material) -> Result<()>,
+    sink: &mut dyn FnMut(usize, &OutputBand) -> Result<()>,
 ) -> Result<RunReport> {
     config.validate()?;
     let input = [material.width(), material.height_px()];
@@ -99,11 +105,11 @@ pub fn upscale_streamed(
         let mut assembler = Assembler::new(input[1] * reach.scale);
         let mut report =
             upscale_streamed(material, config, options, progress, &mut |first, band| {
-                assembler.add(first, band);
+                assembler.add(first, &band.to_material()?);
                 Ok(())
             })?;
         let whole = assembler.finish().expect("a run makes at least one band");
-        sink(0, &whole.area_resize(size[0], size[1]))?;
+        sink(0, &whole.area_resize(size[0], size[1]).into())?;
         report.config.size = asked_size;
         report.route = reach.describe();
         report.output_size = size;
@@ -225,9 +231,9 @@ pub fn upscale_streamed(
         let last = level + 1 == scales.len();
         // Levels before the last are the next one's input: assembled whole.
         let mut assembler = (!last).then(|| Assembler::new(current.height_px() * scale));
-        let mut emit = |first: usize, band: &Material| match assembler.as_mut() {
+        let mut emit = |first: usize, band: &OutputBand| match assembler.as_mut() {
             Some(a) => {
-                a.add(first, band);
+                a.add(first, &band.to_material()?);
                 Ok(())
             }
             None => sink(first, band),
@@ -296,7 +302,7 @@ fn run_level(
     single_filter: &mut Option<TrainedFilter>,
     timings: &mut Vec<(String, f64)>,
     skipped: &mut Vec<String>,
-    emit: &mut dyn FnMut(usize, &Material) -> Result<()>,
+    emit: &mut dyn FnMut(usize, &OutputBand) -> Result<()>,
 ) -> Result<LevelReport> {
     let config = ctx.config;
     let tag = |stage: &str| format!("level {}: {stage}", level + 1);
@@ -417,12 +423,12 @@ fn run_level(
         let read = (!whole).then(|| band.read_material(lr));
         let lr_band = read.as_ref().unwrap_or(lr);
         let base = match trained_base.take() {
-            Some(base) if whole => base,
+            Some(base) if whole => Base::Host(base),
             _ => {
                 inner.stage(&tag("residual base"), 1);
                 // On a device its stages run there, one after another: timed as one.
                 let base = match &on_device {
-                    Some(device) => timed(timings, tag("residual base"), || {
+                    Some(device) => Base::Device(timed(timings, tag("residual base"), || {
                         residual::residual_base_on_device(
                             lr_band,
                             &config.filter,
@@ -431,28 +437,52 @@ fn run_level(
                             scale,
                             ctx.border,
                         )
-                    })?,
-                    None => host_residual_base(lr_band, scale, ctx, timings, &tag)?,
+                    })?),
+                    None => Base::Host(Arc::new(host_residual_base(
+                        lr_band, scale, ctx, timings, &tag,
+                    )?)),
                 };
                 inner.advance(1, None);
-                Arc::new(base)
+                base
             }
         };
-        let mut hr = timed(timings, tag("infer"), || {
-            infer_material(
-                lr_band,
-                filter.filter.as_ref(),
-                filter.fixed,
-                &base,
-                scale,
-                ctx.border,
-                inner,
-            )
-        })?;
-        drop(base);
+        // Without a learned filter, a base on a device is decoded into maps there, which stay
+        // there until the sink takes them; a filter runs on the host.
+        let (mut hr, mut held) = match base {
+            Base::Device(features) if filter.filter.is_none() => {
+                let maps = timed(timings, tag("infer"), || {
+                    decoded_maps_on_device(&features, filter.fixed)
+                })?;
+                let mut rest = Material::uniform(0, [0.0; 3], 0.0, 0.0);
+                upsample_anisotropy(lr_band, &mut rest, scale, ctx.border);
+                (rest, maps)
+            }
+            base => {
+                let base = match base {
+                    Base::Host(base) => base,
+                    Base::Device(features) => Arc::new(device_maps::download(&features)?),
+                };
+                let hr = timed(timings, tag("infer"), || {
+                    infer_material(
+                        lr_band,
+                        filter.filter.as_ref(),
+                        filter.fixed,
+                        &base,
+                        scale,
+                        ctx.border,
+                        inner,
+                    )
+                })?;
+                (hr, Vec::new())
+            }
+        };
         if let (Some(lr_height), Some(k)) = (&lr_band.height, detail_scale) {
             inner.stage(&tag("height"), 1);
             hr.height = Some(timed(timings, tag("height"), || {
+                // The height's solve runs on the host: it reads the normals from there.
+                if let Some(i) = held.iter().position(|(k, _)| *k == MapKind::Normal) {
+                    hr.normal = device_maps::download(&held.remove(i).1)?;
+                }
                 let band = (!whole).then_some(report.output_size);
                 let mut height = rebuild_height(lr_height, &hr.normal, k, scale, tileable, band);
                 if config.filter.back_project {
@@ -470,10 +500,11 @@ fn run_level(
                 upscale_carried(&lr_band.carried, &carried_plan, how)
             })?;
         }
+        let mut out = OutputBand::with_maps_on_device(hr, held)?;
         if !whole {
-            band.keep(&mut hr, scale);
+            band.keep(&mut out, scale)?;
         }
-        emit(band.first * scale, &hr)?;
+        emit(band.first * scale, &out)?;
         if !whole {
             ctx.progress.advance(1, None);
         }
@@ -482,6 +513,12 @@ fn run_level(
         *single_filter = Some(t);
     }
     Ok(report)
+}
+
+/// A band's residual base: on the host, or on the device where it was made.
+enum Base {
+    Host(Arc<Map>),
+    Device(Tensor),
 }
 
 /// The residual base on the host, in its two stages timed apart: the upsampler's and the

@@ -7,6 +7,7 @@ use crate::config::Config;
 use matup_core::lights::Light;
 use matup_core::map::Map;
 use matup_core::material::Material;
+use matup_core::output_band::OutputBand;
 use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{Border, Kernel};
 use matup_core::shading::shading_model;
@@ -71,15 +72,17 @@ impl PreviewWindow {
         }
     }
 
-    /// Keeps what of `band`, the output's rows from `first` on, lies in the square.
-    pub fn add(&mut self, first: usize, band: &Material) {
+    /// Keeps what of `band`, the output's rows from `first` on, lies in the square (brought
+    /// back from a device, where its maps are there).
+    pub fn add(&mut self, first: usize, band: &OutputBand) -> Result<()> {
         let (x0, y0) = self.origin;
         let top = first.max(y0);
-        let bottom = (first + band.height_px()).min(y0 + self.side);
+        let bottom = (first + band.rows()).min(y0 + self.side);
         if top < bottom {
-            let piece = band.map_maps(|m| m.crop(x0, top - first, self.side, bottom - top));
+            let piece = band.crop(x0, top - first, self.side, bottom - top)?;
             self.rows.add(top - y0, &piece);
         }
+        Ok(())
     }
 
     /// The square (`None` before any band).
@@ -207,7 +210,8 @@ mod tests {
         let mut window = PreviewWindow::new([1100, 900]);
         for first in (0..900).step_by(130) {
             let rows = 130.min(900 - first);
-            window.add(first, &output.map_maps(|m| m.rows(first, rows)));
+            let band = OutputBand::from(output.map_maps(|m| m.rows(first, rows)));
+            window.add(first, &band).unwrap();
         }
         let kept = window.finish().unwrap();
         assert!(kept == centre(&output, 512));

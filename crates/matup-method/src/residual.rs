@@ -36,7 +36,8 @@ pub fn residual_base(
     border: Border,
 ) -> Result<Map> {
     if let Some(device) = device_for(config, upsampler) {
-        return residual_base_on_device(lr, config, upsampler, &device, scale, border);
+        let base = residual_base_on_device(lr, config, upsampler, &device, scale, border)?;
+        return Ok(device_maps::download(&base)?);
     }
     let mut base = upsampled_base(lr, config, upsampler, scale, border)?;
     project_onto_input(&mut base, lr, config, scale, border);
@@ -88,7 +89,7 @@ pub fn device_for(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> Option
 
 /// [`residual_base`] on `device`, where [`device_for`] names one: each map upsampled, decoded
 /// and averaged over the self-ensemble there ([`upscale_one_map_on_device`]), packed into the
-/// features, back-projected and chroma-clamped there. Only the finished features come back.
+/// features, back-projected and chroma-clamped there, where the features stay (`[7, h, w]`).
 pub fn residual_base_on_device(
     lr: &Material,
     config: &FilterConfig,
@@ -96,7 +97,7 @@ pub fn residual_base_on_device(
     device: &Device,
     scale: usize,
     border: Border,
-) -> Result<Map> {
+) -> Result<Tensor> {
     let up = |kind: MapKind| {
         let map = lr.map(kind).expect("every feature map is present");
         upscale_one_map_on_device(
@@ -117,8 +118,7 @@ pub fn residual_base_on_device(
     );
     let alpha = up(MapKind::Roughness)?.sqr()?;
     let base = Tensor::cat(&[&colour, &metallic, &normal.narrow(0, 0, 2)?, &alpha], 0)?;
-    let base = project_on_device(base, lr, config, scale, border)?;
-    Ok(device_maps::download(&base)?)
+    Ok(project_on_device(base, lr, config, scale, border)?)
 }
 
 /// [`project_onto_input`] of the features `base` on their device.

@@ -22,7 +22,7 @@ use tempfile::NamedTempFile;
 use crate::color::to_u8;
 use crate::layout::Stored;
 use crate::map::Map;
-use crate::material::{BlockQuality, FileFormat};
+use crate::material::{BlockQuality, FileFormat, SampleDepth};
 use crate::{Error, Result};
 
 /// Writes one image file (grey or RGB, either with alpha as its last channel; values in the
@@ -64,11 +64,60 @@ enum Encoder {
     },
 }
 
-/// Interleaved samples at a file's bit depth.
-enum Samples {
+/// Samples at a file's [`SampleDepth`]: interleaved where gathered for an encoder, one
+/// channel's where handed to [`ImageWriter::write_channels`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum Samples {
     U8(Vec<u8>),
     U16(Vec<u16>),
     F32(Vec<f32>),
+}
+
+impl Samples {
+    pub fn len(&self) -> usize {
+        match self {
+            Samples::U8(s) => s.len(),
+            Samples::U16(s) => s.len(),
+            Samples::F32(s) => s.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn depth(&self) -> SampleDepth {
+        match self {
+            Samples::U8(_) => SampleDepth::U8,
+            Samples::U16(_) => SampleDepth::U16,
+            Samples::F32(_) => SampleDepth::F32,
+        }
+    }
+}
+
+/// One channel's rows for [`ImageWriter::write_channels`].
+pub enum ChannelRows<'a> {
+    /// Values, to be stored as the writer's `encode` says.
+    Values(&'a [f32]),
+    /// Samples already stored at the file's depth.
+    Stored(&'a Samples),
+}
+
+impl ChannelRows<'_> {
+    fn len(&self) -> usize {
+        match self {
+            ChannelRows::Values(p) => p.len(),
+            ChannelRows::Stored(s) => s.len(),
+        }
+    }
+
+    /// The depth of stored samples (`None`: values).
+    fn depth(&self) -> Option<SampleDepth> {
+        match self {
+            ChannelRows::Values(_) => None,
+            ChannelRows::Stored(s) => Some(s.depth()),
+        }
+    }
 }
 
 /// The temporary file as the PNG encoder's output, keeping the first I/O error: the encoder
@@ -223,18 +272,30 @@ impl ImageWriter {
         planes: &[&[f32]],
         encode: impl Fn(usize, f32) -> f32 + Sync,
     ) -> Result<()> {
-        let rows = planes.first().map_or(0, |p| p.len()) / self.width.max(1);
-        if planes.len() != self.channels
-            || planes.iter().any(|p| p.len() != rows * self.width)
+        let channels: Vec<ChannelRows> = planes.iter().map(|p| ChannelRows::Values(p)).collect();
+        self.write_channels(&channels, encode)
+    }
+
+    /// [`ImageWriter::write_planes`] where some channels come as samples already stored at
+    /// the file's [`SampleDepth`] (encoded where the maps are: a GPU's memory), taken as they
+    /// are; `encode` stores the others.
+    pub fn write_channels(
+        &mut self,
+        channels: &[ChannelRows],
+        encode: impl Fn(usize, f32) -> f32 + Sync,
+    ) -> Result<()> {
+        let lengths: Vec<usize> = channels.iter().map(ChannelRows::len).collect();
+        let rows = lengths.first().map_or(0, |n| n / self.width.max(1));
+        if channels.len() != self.channels
+            || lengths.iter().any(|&n| n != rows * self.width)
             || self.rows_written + rows > self.height
         {
             return Err(Error::file(
                 &self.path,
                 format!(
-                    "rows that do not fit the file ({} planes of {:?} values for {} channels \
-                     of {}×{}, {} rows written)",
-                    planes.len(),
-                    planes.iter().map(|p| p.len()).collect::<Vec<_>>(),
+                    "rows that do not fit the file ({} planes of {lengths:?} values for {} \
+                     channels of {}×{}, {} rows written)",
+                    channels.len(),
                     self.channels,
                     self.width,
                     self.height,
@@ -242,8 +303,32 @@ impl ImageWriter {
                 ),
             ));
         }
+        let depth = self.format.sample_depth();
+        if let Some(other) = (channels.iter()).find_map(|c| c.depth().filter(|&d| d != depth)) {
+            return Err(Error::file(
+                &self.path,
+                format!("samples of {other:?} for a file of {depth:?} samples"),
+            ));
+        }
         self.rows_written += rows;
         let w = self.width;
+        // Each sample at the file's depth: stored ones as they come, values encoded.
+        let u8_at = |c: usize, i: usize| match &channels[c] {
+            ChannelRows::Values(p) => to_u8(encode(c, p[i])),
+            ChannelRows::Stored(Samples::U8(s)) => s[i],
+            ChannelRows::Stored(_) => unreachable!("depths checked"),
+        };
+        let u16_at = |c: usize, i: usize| match &channels[c] {
+            ChannelRows::Values(p) => to_u16(encode(c, p[i])),
+            ChannelRows::Stored(Samples::U16(s)) => s[i],
+            ChannelRows::Stored(_) => unreachable!("depths checked"),
+        };
+        let f32_at = |c: usize, i: usize| match &channels[c] {
+            ChannelRows::Values(p) => encode(c, p[i]),
+            ChannelRows::Stored(Samples::F32(s)) => s[i],
+            ChannelRows::Stored(_) => unreachable!("depths checked"),
+        };
+        let n = channels.len();
         match &mut self.encoder {
             Encoder::Png {
                 stream,
@@ -251,10 +336,9 @@ impl ImageWriter {
                 ..
             } => {
                 let bytes: Vec<u8> = if *sixteen_bits {
-                    interleaved(planes, w, |c, v| to_u16(encode(c, v)).to_be_bytes())
-                        .into_flattened()
+                    interleaved(n, rows, w, |c, i| u16_at(c, i).to_be_bytes()).into_flattened()
                 } else {
-                    interleaved(planes, w, |c, v| to_u8(encode(c, v)))
+                    interleaved(n, rows, w, u8_at)
                 };
                 let stream = stream.as_mut().expect("open until finished");
                 stream
@@ -263,22 +347,18 @@ impl ImageWriter {
             }
             Encoder::Gathered(samples) => {
                 match samples {
-                    Samples::U8(s) => {
-                        s.append(&mut interleaved(planes, w, |c, v| to_u8(encode(c, v))))
-                    }
-                    Samples::U16(s) => {
-                        s.append(&mut interleaved(planes, w, |c, v| to_u16(encode(c, v))))
-                    }
-                    Samples::F32(s) => s.append(&mut interleaved(planes, w, &encode)),
+                    Samples::U8(s) => s.append(&mut interleaved(n, rows, w, u8_at)),
+                    Samples::U16(s) => s.append(&mut interleaved(n, rows, w, u16_at)),
+                    Samples::F32(s) => s.append(&mut interleaved(n, rows, w, f32_at)),
                 }
                 Ok(())
             }
             Encoder::Exr { bands, .. } => {
-                let data: Vec<f32> = (planes.iter().enumerate())
-                    .flat_map(|(c, p)| p.iter().map(move |&v| (c, v)))
-                    .map(|(c, v)| encode(c, v))
+                let data: Vec<f32> = (0..n)
+                    .flat_map(|c| (0..rows * w).map(move |i| (c, i)))
+                    .map(|(c, i)| f32_at(c, i))
                     .collect();
-                let band = Map::from_planar(w, rows, planes.len(), data);
+                let band = Map::from_planar(w, rows, n, data);
                 let sent = bands.as_ref().expect("open until finished").send(band);
                 // The writer thread stopped early: its error comes with `finish`.
                 if sent.is_err() {
@@ -567,19 +647,18 @@ pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
 /// The samples of `planes` (rows `width` wide) converted (`convert(channel, value)`) and
 /// interleaved texel by texel (as files store them), a row a task on rayon's threads.
 fn interleaved<T: Copy + Default + Send>(
-    planes: &[&[f32]],
+    channels: usize,
+    rows: usize,
     width: usize,
-    convert: impl Fn(usize, f32) -> T + Sync,
+    sample: impl Fn(usize, usize) -> T + Sync,
 ) -> Vec<T> {
-    let channels = planes.len();
-    let n = planes.first().map_or(0, |p| p.len());
-    let mut out = vec![T::default(); n * channels];
+    let mut out = vec![T::default(); rows * width * channels];
     out.par_chunks_mut((width * channels).max(1))
         .enumerate()
         .for_each(|(y, row)| {
             for (x, texel) in row.chunks_exact_mut(channels).enumerate() {
-                for (c, sample) in texel.iter_mut().enumerate() {
-                    *sample = convert(c, planes[c][y * width + x]);
+                for (c, value) in texel.iter_mut().enumerate() {
+                    *value = sample(c, y * width + x);
                 }
             }
         });

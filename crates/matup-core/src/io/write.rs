@@ -4,13 +4,16 @@
 
 use std::path::{Path, PathBuf};
 
+use candle_core::Tensor;
 use rayon::prelude::*;
 
 use super::read::file_stem;
-use super::stream::{ImageWriter, WriteHints};
+use super::stream::{ChannelRows, ImageWriter, Samples, WriteHints};
 use super::{Names, SaveOptions};
+use crate::device_maps::stored_samples;
 use crate::layout::{Channel, Holds, Stored};
 use crate::material::{FileFormat, MapKind, Material, MaterialOrigin};
+use crate::output_band::OutputBand;
 use crate::{Error, Result};
 
 /// Writes a material's maps a band of rows at a time, top to bottom, as [`super::save_material`]
@@ -65,25 +68,60 @@ impl MaterialWriter {
 
     /// Appends `band`'s rows (every map, as wide as the material) below those written so far.
     pub fn write_rows(&mut self, band: &Material) -> Result<()> {
+        self.write(band, &[])
+    }
+
+    /// [`MaterialWriter::write_rows`] of a band whose maps may be held on a device: those are
+    /// encoded into the files' samples there, and only the samples come back.
+    pub fn write_band(&mut self, band: &OutputBand) -> Result<()> {
+        let (material, on_device) = band.parts();
+        self.write(material, on_device)
+    }
+
+    /// The rows of `band`, but the maps of `on_device`, which are held there (`band`'s maps
+    /// of their kinds are placeholders that give their channels).
+    fn write(&mut self, band: &Material, on_device: &[(MapKind, Tensor)]) -> Result<()> {
         if self.files.is_empty() {
             self.open(band)?;
         }
+        let held = |kind: MapKind| on_device.iter().find(|(k, _)| *k == kind).map(|(_, t)| t);
+        let lacks =
+            || Error::Invalid("a band of the output lacks one of the material's maps".into());
         // The files are independent: each encoded and compressed on its own thread (a 4K²
         // PNG's compression is single-threaded and takes seconds).
         self.files.par_iter_mut().try_for_each(|file| {
-            let planes = (file.channels.iter())
-                .map(|c| plane(band, c.holds))
-                .collect::<Option<Vec<&[f32]>>>()
-                .ok_or_else(|| {
-                    Error::Invalid("a band of the output lacks one of the material's maps".into())
-                })?;
+            let depth = file.file.format().sample_depth();
+            // Each channel of a map on the device as the file's samples, made there.
+            let stored: Vec<Option<Samples>> = (file.channels.iter())
+                .map(|c| match c.holds {
+                    Holds::Map(kind, component) => held(kind)
+                        .map(|t| {
+                            let plane = t.narrow(0, component.min(t.dim(0)? - 1), 1)?;
+                            stored_samples(&plane, c.stored, component, depth)
+                        })
+                        .transpose(),
+                    _ => Ok(None),
+                })
+                .collect::<candle_core::Result<_>>()?;
+            let rows = (file.channels.iter().zip(&stored))
+                .map(|(c, stored)| match stored {
+                    Some(samples) => Some(ChannelRows::Stored(samples)),
+                    None => plane(band, c.holds).map(ChannelRows::Values),
+                })
+                .collect::<Option<Vec<ChannelRows>>>()
+                .ok_or_else(lacks)?;
             if let (Some((kind, value)), true) = (file.stand_in, file.all_stand_in) {
-                let map = band.map(kind).expect("a planned map");
-                file.all_stand_in = (0..map.channels())
-                    .all(|c| (map.plane(c).iter()).all(|&v| (v - value[c]).abs() <= 1e-5));
+                file.all_stand_in = match held(kind) {
+                    Some(t) => all_within(t, value)?,
+                    None => {
+                        let map = band.map(kind).expect("a planned map");
+                        (0..map.channels())
+                            .all(|c| (map.plane(c).iter()).all(|&v| (v - value[c]).abs() <= 1e-5))
+                    }
+                };
             }
             let channels = &file.channels;
-            file.file.write_planes(&planes, |c, v| {
+            file.file.write_channels(&rows, |c, v| {
                 channels[c].stored.encode(component(channels[c]), v)
             })
         })
@@ -290,6 +328,14 @@ impl MaterialWriter {
         }
         Ok(())
     }
+}
+
+/// Whether every channel `c` of `t`, `[channels, rows, width]`, is within 10⁻⁵ of
+/// `value[c]`, decided on `t`'s device.
+fn all_within(t: &Tensor, value: &[f32]) -> candle_core::Result<bool> {
+    let value = Tensor::from_slice(&value[..t.dim(0)?], (t.dim(0)?, 1, 1), t.device())?;
+    let off = t.broadcast_sub(&value)?.abs()?.max_all()?;
+    Ok(off.to_scalar::<f32>()? <= 1e-5)
 }
 
 /// The component of its map a channel holds (0 for alpha and carried data).

@@ -136,6 +136,17 @@ pub fn decode_tensors(
     Ok((params, features))
 }
 
+/// Features `[7, H, W]` of one material → shading parameters `[H·W, 10]`, constant features
+/// held (`fixed`), as inference decodes the residual base (no filter: no residuals).
+pub fn shading_params(
+    features: &Tensor,
+    fixed: &[Option<f32>; FEATURES],
+) -> candle_core::Result<Tensor> {
+    let texel_major = features.flatten_from(1)?.t()?;
+    let zeros = texel_major.zeros_like()?;
+    Ok(decode_tensors(&zeros, &texel_major, fixed)?.0)
+}
+
 impl Decoded {
     /// The decoded texel as the 7 features, in [`FEATURES`] order (normal x and y after the
     /// rebuild).
