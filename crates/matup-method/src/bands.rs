@@ -28,7 +28,7 @@ pub const ENSEMBLE_BYTES_PER_BAND_TEXEL: u64 = 12;
 /// (`residual::residual_base_on_device`): a map's passes as the network leaves them (2 × 3
 /// f32) and their sum, the 7 features, and the back-projection's, settling's and chroma
 /// clamp's full-size temporaries, several alive at once. Decoding the features into maps there
-/// (`fit::decoded_maps_on_device`) comes after and holds less (about 250 bytes at its peak).
+/// (`fit::decoded_maps_on_device`) comes after and holds less (about 200 bytes at its peak).
 /// Counted from the stages' tensors, not yet measured on a GPU; a band is planned within a
 /// quarter of the GPU's free memory.
 pub const DEVICE_BYTES_PER_BAND_TEXEL: u64 = 320;
