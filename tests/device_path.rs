@@ -260,27 +260,56 @@ fn maps_made_on_the_device_are_written_from_samples_made_there() {
         assert_eq!(kinds, [held], "height: {}", m.height.is_some());
     }
 
-    for format in [None, Some(FileFormat::ExrFloat)] {
+    // (what the folder holds, its side, the format asked for, the device's memory limit in
+    // MiB: bands).
+    let cases = [
+        ("HDRP", 64, None, None),
+        ("HDRP", 128, None, Some(16)),
+        ("HDRP", 64, Some(FileFormat::ExrFloat), None),
+        // No mask map: roughness and metallic stand in, and are written only if they change.
+        ("no mask map", 64, None, None),
+    ];
+    for (case, (folder, side, format, limit_mib)) in cases.into_iter().enumerate() {
+        let what = format!("{folder} at {side}², {format:?}, limit {limit_mib:?} MiB");
+        let input = dir.path().join(format!("in-{case}"));
+        std::fs::create_dir(&input).unwrap();
+        write_hdrp_folder(&whole.box_downsample(whole.width() / side), &input);
+        if folder == "no mask map" {
+            std::fs::remove_file(input.join("Rock_MaskMap.png")).unwrap();
+        }
+        let material = matup::load_material(Some(&input), &Default::default()).unwrap();
         let out = |device: bool| {
-            let out = dir.path().join(format!("out-{format:?}-{device}"));
+            let out = dir.path().join(format!("out-{case}-{device}"));
             let save = SaveOptions {
                 format,
                 ..SaveOptions::default()
             };
-            upscale_to_folder(
+            let limit = limit_mib.filter(|_| device).map(|m: u64| m << 20);
+            let run = upscale_to_folder(
                 &material,
                 &config(device),
                 &out,
                 &save,
                 false,
-                None,
+                limit,
                 None,
                 &Silent,
             )
             .unwrap();
+            let bands = run.report.levels[0].bands;
+            assert_eq!(bands > 1, limit.is_some(), "{what}: {bands} bands");
             out
         };
         let (host, device) = (out(false), out(true));
+        let names = |d: &Path| {
+            let mut names: Vec<String> = (std::fs::read_dir(d).unwrap())
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .filter(|n| n != "preview.png" && n != "run.json")
+                .collect();
+            names.sort();
+            names
+        };
+        assert_eq!(names(&host), names(&device), "{what}: the same files");
         if format.is_some() {
             // Float files store the values themselves: read back, the maps agree.
             let [a, b] = [&host, &device]
@@ -292,23 +321,25 @@ fn maps_made_on_the_device_are_written_from_samples_made_there() {
             );
             for (a, b) in a.maps().zip(b.maps()) {
                 let worst = common::max_abs_diff(a, b);
-                println!("EXR: {worst:.1e}");
-                assert!(worst <= 1e-5, "EXR: {worst}");
+                println!("{what}: {worst:.1e}");
+                assert!(worst <= 1e-5, "{what}: {worst}");
             }
             continue;
         }
-        for name in ["Rock_BaseMap", "Rock_Normal", "Rock_MaskMap"] {
-            let file = format!("{name}.png");
+        for file in names(&host) {
             let (a, b) = (samples(&host.join(&file)), samples(&device.join(&file)));
-            assert_eq!(a.len(), b.len(), "{file}");
+            assert_eq!(a.len(), b.len(), "{what}, {file}");
             let worst = (a.iter().zip(&b)).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
             let differ = (a.iter().zip(&b)).filter(|(x, y)| x != y).count();
             println!(
-                "{file}: {differ} of {} samples differ, by {worst} at most",
+                "{what}, {file}: {differ} of {} samples differ, by {worst} at most",
                 a.len()
             );
-            assert!(worst <= 1.0, "{file}: {worst} levels");
-            assert!(differ * 100 <= a.len(), "{file}: {differ} samples differ");
+            assert!(worst <= 1.0, "{what}, {file}: {worst} levels");
+            assert!(
+                differ * 100 <= a.len(),
+                "{what}, {file}: {differ} samples differ"
+            );
         }
     }
 }
