@@ -4,6 +4,8 @@
 //! ([`crate::io::MaterialWriter::write_band`]), a preview its window, a library caller the
 //! whole material ([`OutputBand::to_material`]).
 
+use std::borrow::Cow;
+
 use candle_core::Tensor;
 
 use crate::device_maps::download;
@@ -81,9 +83,12 @@ impl OutputBand {
         (&self.material, &self.on_device)
     }
 
-    /// The whole band on the host.
-    pub fn to_material(&self) -> Result<Material> {
-        self.crop(0, 0, self.size[0], self.size[1])
+    /// The whole band on the host (borrowed where it is all there).
+    pub fn to_material(&self) -> Result<Cow<'_, Material>> {
+        Ok(match self.on_device.is_empty() {
+            true => Cow::Borrowed(&self.material),
+            false => Cow::Owned(self.crop(0, 0, self.size[0], self.size[1])?),
+        })
     }
 
     /// The band's `width × rows` texels from column `x0` and row `y0`, on the host.
@@ -147,7 +152,7 @@ mod tests {
         // Only the placeholders are on the host: the device's maps are not held twice.
         assert_eq!(band.parts().0.base_color.texels(), 0);
         assert_eq!(band.parts().0.base_color.channels(), 3);
-        assert_eq!(band.to_material().unwrap(), whole);
+        assert_eq!(*band.to_material().unwrap(), whole);
         assert_eq!(
             band.crop(1, 2, 3, 2).unwrap(),
             whole.map_maps(|m| m.crop(1, 2, 3, 2))
@@ -156,6 +161,6 @@ mod tests {
         let mut kept = whole.clone();
         kept.maps_mut().for_each(|m| m.keep_rows(1, 4));
         assert_eq!(band.rows(), 4);
-        assert_eq!(band.to_material().unwrap(), kept);
+        assert_eq!(*band.to_material().unwrap(), kept);
     }
 }

@@ -50,7 +50,7 @@ pub fn upscale(
 ) -> Result<(Material, RunReport)> {
     let mut assembler = Assembler::new(output_size(material, config)?[1]);
     let report = upscale_streamed(material, config, options, progress, &mut |first, band| {
-        assembler.add(first, &band.to_material()?);
+        assembler.add(first, &*band.to_material()?);
         Ok(())
     })?;
     let mut result = assembler.finish().expect("a run makes at least one band");
@@ -105,7 +105,7 @@ pub fn upscale_streamed(
         let mut assembler = Assembler::new(input[1] * reach.scale);
         let mut report =
             upscale_streamed(material, config, options, progress, &mut |first, band| {
-                assembler.add(first, &band.to_material()?);
+                assembler.add(first, &*band.to_material()?);
                 Ok(())
             })?;
         let whole = assembler.finish().expect("a run makes at least one band");
@@ -233,7 +233,7 @@ pub fn upscale_streamed(
         let mut assembler = (!last).then(|| Assembler::new(current.height_px() * scale));
         let mut emit = |first: usize, band: &OutputBand| match assembler.as_mut() {
             Some(a) => {
-                a.add(first, &band.to_material()?);
+                a.add(first, &*band.to_material()?);
                 Ok(())
             }
             None => sink(first, band),
