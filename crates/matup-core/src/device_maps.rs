@@ -288,7 +288,7 @@ mod tests {
             };
             for (got, v) in u16s.iter().zip(&encoded) {
                 let want = (v.clamp(0.0, 1.0) * 65535.0).round();
-                assert!((*got as f32 - want).abs() <= 1.0, "{stored:?} {v}: {got}");
+                assert_eq!(*got as f32, want, "{stored:?} {v}");
             }
             let Samples::F32(floats) = stored_samples(&t, stored, 1, SampleDepth::F32).unwrap()
             else {

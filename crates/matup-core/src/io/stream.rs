@@ -644,8 +644,9 @@ pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The samples of `planes` (rows `width` wide) converted (`convert(channel, value)`) and
-/// interleaved texel by texel (as files store them), a row a task on rayon's threads.
+/// `rows` rows `width` wide of `channels` channels, each sample `sample(channel, index in
+/// its plane)`, interleaved texel by texel (as files store them), a row a task on rayon's
+/// threads.
 fn interleaved<T: Copy + Default + Send>(
     channels: usize,
     rows: usize,
