@@ -453,6 +453,8 @@ fn run_level(
                 let maps = timed(timings, tag("infer"), || {
                     decoded_maps_on_device(&features, filter.fixed)
                 })?;
+                // The band's maps on the host: none of the four held, which `OutputBand`
+                // stands in for; the anisotropy, height and carried maps join them here.
                 let mut rest = Material::uniform(0, [0.0; 3], 0.0, 0.0);
                 upsample_anisotropy(lr_band, &mut rest, scale, ctx.border);
                 (rest, maps)
