@@ -36,6 +36,12 @@ pub struct LearnArgs {
     /// writes OUTPUT/blend-ALPHA-NAME.onnx.
     #[arg(long, value_name = "MODEL", requires = "blend")]
     pub blend_with: Option<PathBuf>,
+    /// With --blend: add ALPHA · (OUTPUT/best.onnx − CONTROL) to the start instead, CONTROL
+    /// the export of a control run (same start, seed and steps, without the term under
+    /// study), keeping the term's change without the drift tuning brings alone;
+    /// writes OUTPUT/blend-ALPHA[-NAME]-minus-RUN.onnx.
+    #[arg(long, value_name = "CONTROL", requires = "blend")]
+    pub blend_minus: Option<PathBuf>,
 }
 
 pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
@@ -44,8 +50,13 @@ pub fn run(args: &LearnArgs) -> anyhow::Result<()> {
         config.iterations = n;
     }
     if let Some(alpha) = args.blend {
-        let path =
-            matup_learn::export::blend(&config, &args.output, alpha, args.blend_with.as_deref())?;
+        let path = matup_learn::export::blend(
+            &config,
+            &args.output,
+            alpha,
+            args.blend_with.as_deref(),
+            args.blend_minus.as_deref(),
+        )?;
         eprintln!("wrote {}", path.display());
         return Ok(());
     }

@@ -61,12 +61,20 @@ fn file_name(path: &Path) -> String {
 /// `DIR/blend-ALPHA.onnx` (`DIR/blend-ALPHA-NAME.onnx` with `from` = `NAME.onnx`) with its
 /// sidecar (the start's). Fine-tuned networks often keep most of their gain on data like their
 /// training set and lose less on data unlike it when pulled part of the way back to where they
-/// started. Returns the path written.
+/// started.
+///
+/// With `minus`, a control run's export of the same start, seed and steps: every weight
+/// `start + alpha · (best − minus)` (task arithmetic, Ilharco et al. 2023). The control took
+/// the same crops without what the run adds (a loss term), so the difference keeps that term's
+/// change and leaves out the drift that tuning on those crops brings alone. Written as
+/// `DIR/blend-ALPHA[-NAME]-minus-RUN.onnx`, RUN the control's folder. Without `minus` the
+/// reference is the start itself, which is the interpolation above. Returns the path written.
 pub fn blend(
     config: &LearnConfig,
     dir: &Path,
     alpha: f64,
     from: Option<&Path>,
+    minus: Option<&Path>,
 ) -> Result<std::path::PathBuf> {
     if !(0.0..=1.0).contains(&alpha) {
         return Err(Error::Invalid(format!(
@@ -81,33 +89,59 @@ pub fn blend(
     let start_model = from.unwrap_or(&config.base_model);
     let start = TrainableNet::load(start_model, &device)?;
     let tuned = TrainableNet::load(&best, &device)?;
-    let (start_vars, tuned_vars) = (start.vars(), tuned.vars());
-    let other_graph = || {
+    let reference = match minus {
+        Some(control) => Some(TrainableNet::load(control, &device)?),
+        None => None,
+    };
+    let start_vars = start.vars();
+    let tuned_vars = tuned.vars();
+    let reference_vars = reference
+        .as_ref()
+        .map_or_else(|| start.vars(), |r| r.vars());
+    let other_graph = |path: &Path| {
         Error::file(
-            &best,
+            path,
             format!("a different graph from {}", start_model.display()),
         )
     };
-    if start_vars.len() != tuned_vars.len() {
-        return Err(other_graph());
+    if tuned_vars.len() != start_vars.len() {
+        return Err(other_graph(&best));
     }
-    for (b, t) in start_vars.iter().zip(&tuned_vars) {
-        let mix = || b.set(&((b.as_tensor() * (1.0 - alpha))? + (t.as_tensor() * alpha)?)?);
-        mix().map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
+    if reference_vars.len() != start_vars.len() {
+        return Err(other_graph(minus.unwrap_or(start_model)));
     }
-    let name = match from {
-        None => format!("blend-{alpha:.2}.onnx"),
-        Some(model) => format!(
-            "blend-{alpha:.2}-{}.onnx",
-            model.file_stem().unwrap_or_default().to_string_lossy()
+    // Every change is computed from the loaded weights before `s` is set, so a reference that
+    // is the start itself reads its weights as loaded.
+    let changes = tuned_vars
+        .iter()
+        .zip(&reference_vars)
+        .map(|(t, r)| (t.as_tensor() - r.as_tensor())? * alpha)
+        .collect::<candle_core::Result<Vec<_>>>()
+        .map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
+    for (s, change) in start_vars.iter().zip(&changes) {
+        let add = || s.set(&(s.as_tensor() + change)?);
+        add().map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
+    }
+    let mut name = format!("blend-{alpha:.2}");
+    if let Some(model) = from {
+        name += &format!("-{}", file_stem(model));
+    }
+    if let Some(control) = minus {
+        name += &format!("-minus-{}", run_name(control));
+    }
+    let path = dir.join(name + ".onnx");
+    let reference_text = match minus {
+        None => format!("(1 − {alpha}) · its own + {alpha} · {}'s", best.display()),
+        Some(control) => format!(
+            "its own + {alpha} · ({}'s − {}'s)",
+            best.display(),
+            control.display()
         ),
     };
-    let path = dir.join(name);
     let description = format!(
-        "{} with every weight (1 − {alpha}) · its own + {alpha} · {}'s (fine-tuned by `matup \
-         learn` from {} on {} materials, box-filtered ×{}, {} render loss)",
+        "{} with every weight {reference_text} (fine-tuned by `matup learn` from {} on {} \
+         materials, box-filtered ×{}, {} render loss)",
         file_name(start_model),
-        best.display(),
         base_name(config),
         config.train.len(),
         config.scale,
@@ -115,6 +149,24 @@ pub fn blend(
     );
     export_described(&start, &path, start_model, &description)?;
     Ok(path)
+}
+
+fn file_stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// A run's export is named by its run folder (`runs/NAME/best.onnx` → `NAME`); any other
+/// network by its file stem.
+fn run_name(path: &Path) -> String {
+    let stem = file_stem(path);
+    match path.parent().and_then(|p| p.file_name()) {
+        Some(run) if stem == "best" || stem == "last" => {
+            format!("{}-{stem}", run.to_string_lossy())
+        }
+        _ => stem,
+    }
 }
 
 /// [`export`] with the sidecar's description given; `base_model` is the network the weights

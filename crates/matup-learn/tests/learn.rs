@@ -533,7 +533,8 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
     assert!(whole.join("best.onnx").is_file() && whole.join("best.toml").is_file());
 
     // Blends: at 0 the stock network, at 1 the best export, at 0.5 every weight halfway.
-    let blend = |alpha: f64| matup_learn::export::blend(&config, &whole, alpha, None).unwrap();
+    let blend =
+        |alpha: f64| matup_learn::export::blend(&config, &whole, alpha, None, None).unwrap();
     let best = whole.join("best.onnx");
     // Not assert_eq: a failure would print every value.
     assert!(
@@ -563,13 +564,34 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
     assert!(whole.join("blend-0.50.toml").is_file());
     // From another network of the same graph (here the halfway blend): halfway from there.
     let half = whole.join("blend-0.50.onnx");
-    let from_half = matup_learn::export::blend(&config, &whole, 0.5, Some(&half)).unwrap();
+    let from_half = matup_learn::export::blend(&config, &whole, 0.5, Some(&half), None).unwrap();
     assert_eq!(from_half, whole.join("blend-0.50-blend-0.50.onnx"));
     for ((s, b), q) in stock_w.iter().zip(&best_w).zip(&weights(&from_half)) {
         let three_quarters: Vec<f32> = s.iter().zip(b).map(|(s, b)| 0.25 * s + 0.75 * b).collect();
         assert!(max_difference(q, &three_quarters) <= 1e-6);
     }
-    assert!(matup_learn::export::blend(&config, &whole, 1.5, None).is_err());
+    // Minus a control (here the halfway blend): the start plus alpha · (best − control), which
+    // from stock with the halfway blend as control is stock + alpha/2 · (best − stock).
+    let minus_half = matup_learn::export::blend(&config, &whole, 0.5, None, Some(&half)).unwrap();
+    assert_eq!(minus_half, whole.join("blend-0.50-minus-blend-0.50.onnx"));
+    for ((s, b), q) in stock_w.iter().zip(&best_w).zip(&weights(&minus_half)) {
+        let quarter: Vec<f32> = s.iter().zip(b).map(|(s, b)| 0.75 * s + 0.25 * b).collect();
+        assert!(max_difference(q, &quarter) <= 1e-6);
+    }
+    // A control that is the best export itself leaves the start as it is.
+    let minus_best = matup_learn::export::blend(&config, &whole, 1.0, None, Some(&best)).unwrap();
+    assert_eq!(
+        minus_best,
+        whole.join(format!(
+            "blend-1.00-minus-{}-best.onnx",
+            whole.file_name().unwrap().to_string_lossy()
+        ))
+    );
+    assert!(
+        executor(&minus_best).data() == stock.data(),
+        "best minus best is not the start"
+    );
+    assert!(matup_learn::export::blend(&config, &whole, 1.5, None, None).is_err());
 
     let val = std::fs::read_to_string(whole.join("val.csv")).unwrap();
     // Validations at steps 0, 3, 6 and 8, each a material row and a mean row.
