@@ -1,7 +1,9 @@
 //! How strongly upscaled base colours show the input's texel grid: the block-edge ratio
 //! (`matup_eval::metrics::block_edge_ratio`: steps across the input texels' edges over steps
 //! inside them) of matup's defaults, the same without back-projection, and plain resamplers
-//! per map, for each material box-filtered ÷SCALE from its whole and upscaled ×SCALE. With
+//! per map, for each material box-filtered ÷SCALE from its whole and upscaled ×SCALE. The
+//! last matup column brings the chroma clamp's colours back by back-projection
+//! (`filter.clamp_back_project`). With
 //! `--upsampler SPEC` every column but the plain resamplers' runs that upsampler (another
 //! network) instead of the defaults' own.
 //!
@@ -36,10 +38,13 @@ fn main() -> matup::Result<()> {
     };
     let plain = ["bicubic", "lanczos3", "bilinear"];
     println!(
-        "| material (÷{scale} → ×{scale}) | truth | defaults | no chroma clamp | not back-projected | neither | {} |",
+        "| material (÷{scale} → ×{scale}) | truth | defaults | no chroma clamp | not back-projected | neither | {} | clamp back-projected |",
         plain.join(" | ")
     );
-    println!("|---|---|---|---|---|---|{}", "---|".repeat(plain.len()));
+    println!(
+        "|---|---|---|---|---|---|{}---|",
+        "---|".repeat(plain.len())
+    );
     for folder in folders {
         let truth = load_material(Some(std::path::Path::new(folder)), &Default::default())?;
         let lr = truth.box_downsample(scale);
@@ -65,6 +70,9 @@ fn main() -> matup::Result<()> {
             .file_name()
             .unwrap()
             .to_string_lossy();
+        let mut clamp_back_projected = defaults(true, true);
+        clamp_back_projected.filter.clamp_back_project = true;
+        cells.push(ratio(&run(&clamp_back_projected)?.0));
         println!("| {name} | {} |", cells.join(" | "));
     }
     Ok(())

@@ -94,11 +94,23 @@ fn material(side: usize) -> Material {
 }
 
 fn run(lr: &Material, device: bool, scale: usize, tileable: bool, limit: Option<u64>) -> Material {
+    run_with(lr, device, scale, tileable, limit, Config::default())
+}
+
+/// [`run`] from settings `base` (its upsampler, scale and tiling replaced).
+fn run_with(
+    lr: &Material,
+    device: bool,
+    scale: usize,
+    tileable: bool,
+    limit: Option<u64>,
+    base: Config,
+) -> Material {
     let config = Config {
         upsampler: format!("test-lanczos-x4:{}", if device { "device" } else { "host" }),
         scale,
         tileable: Some(tileable),
-        ..Config::default()
+        ..base
     };
     let options = RunOptions {
         memory_limit: limit,
@@ -163,6 +175,34 @@ fn the_device_path_gives_the_host_paths_maps() {
             }
         }
     }
+}
+
+/// With the chroma clamp's colours brought back by back-projection
+/// (`filter.clamp_back_project`), the device's path gives the host's maps, and bands give the
+/// whole run's: their context covers the extra rounds.
+#[test]
+fn the_clamp_brought_back_smoothly_is_the_same_on_the_device_and_in_bands() {
+    let lr = material(128);
+    let mut smooth = Config::default();
+    smooth.filter.clamp_back_project = true;
+    let limit = Some(24 << 20);
+    let base_colour = |device, limit, config: &Config| {
+        run_with(&lr, device, 4, true, limit, config.clone()).base_color
+    };
+    let whole = base_colour(false, None, &smooth);
+    let settled = base_colour(false, None, &Config::default());
+    let banded = base_colour(false, limit, &smooth);
+    let banded_on_device = base_colour(true, limit, &smooth);
+    assert_eq!(HOST_CALLS_ON_DEVICE.load(Ordering::SeqCst), 0);
+    let changed = common::max_abs_diff(&whole, &settled);
+    let bands = common::max_abs_diff(&whole, &banded);
+    let device = common::max_abs_diff(&banded, &banded_on_device);
+    println!(
+        "brought back smoothly: {changed:.1e} from settled, bands {bands:.1e}, device {device:.1e}"
+    );
+    assert!(changed > 1e-4, "the clamp changed nothing here: {changed}");
+    assert!(bands <= 1e-5, "{bands}");
+    assert!(device <= 1e-6, "{device}");
 }
 
 /// `m` (no height) as a Unity HDRP folder in `dir`: an RGBA base map whose alpha varies, an

@@ -6,9 +6,11 @@
 mod common;
 
 use matup::config::Config;
+use matup::eval::metrics::{block_edge_ratio, false_colour};
 use matup::material::Material;
 use matup::progress::Silent;
-use matup::{Map, RunOptions};
+use matup::resample::{box_downsample, Border};
+use matup::{Map, MapKind, RunOptions};
 
 /// The material moved by `d` texels on both axes, wrapping around.
 fn rolled(m: &Material, d: usize) -> Material {
@@ -96,5 +98,51 @@ fn a_tileable_grid_comes_back_seamless_at_every_scale() {
             println!("  mirrored {mirrored_seam:.3}");
             assert!(mirrored_seam > 0.02, "×{scale}: {mirrored_seam}");
         }
+    }
+}
+
+/// The chroma clamp's colours brought back to their input by back-projection
+/// (`filter.clamp_back_project`) instead of block by block: fewer steps on the input's texel
+/// edges, each block's mean still its input texel's, no false colour, the other maps as they
+/// were.
+#[test]
+fn the_clamp_brought_back_smoothly_draws_less_grid() {
+    let whole = matup::load_material(
+        Some(&common::test_material("ambientcg_PavingStones092")),
+        &Default::default(),
+    )
+    .unwrap();
+    let lr = whole.box_downsample(4);
+    let run = |smooth: bool| {
+        let mut config = Config {
+            scale: 4,
+            tileable: Some(true),
+            seed: 1,
+            ..Config::default()
+        };
+        config.filter.clamp_back_project = smooth;
+        matup::upscale(&lr, &config, &RunOptions::default(), &Silent)
+            .unwrap()
+            .0
+    };
+    let (blocks, smooth) = (run(false), run(true));
+    let ratio = |m: &Material| block_edge_ratio(&m.base_color, 4);
+    println!(
+        "block-edge ratio: blocks settled {:.3}, brought back smoothly {:.3}",
+        ratio(&blocks),
+        ratio(&smooth)
+    );
+    assert!(ratio(&smooth) < ratio(&blocks) - 0.05);
+    for out in [&blocks, &smooth] {
+        let means = box_downsample(&out.base_color, 4);
+        let off = common::max_abs_diff(&means, &lr.base_color);
+        assert!(off <= 2e-4, "a block's mean is {off} off its input texel");
+        let fc = false_colour(&lr.base_color, &out.base_color, None, Border::Wrap).unwrap();
+        assert_eq!(fc.false_colour_texels, 0.0);
+    }
+    assert!(common::max_abs_diff(&blocks.base_color, &smooth.base_color) > 1e-3);
+    for kind in [MapKind::Normal, MapKind::Roughness, MapKind::Metallic] {
+        let (a, b) = (blocks.map(kind).unwrap(), smooth.map(kind).unwrap());
+        assert_eq!(common::max_abs_diff(a, b), 0.0, "{kind:?}");
     }
 }

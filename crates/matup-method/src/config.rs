@@ -403,6 +403,10 @@ pub struct FilterConfig {
     /// Clamp each texel's base-colour chroma into that of its LR texel's 3×3 neighbourhood
     /// (its luma kept), after back-projection: no hue the input lacks around it.
     pub clamp_chroma: bool,
+    /// With `clamp_chroma` and `back_project`: bring the clamped colours back to their input
+    /// by back-projection (a smooth spread) between the later clamps, instead of settling each
+    /// block alone, which moves whole blocks apart and draws the input's texel grid.
+    pub clamp_back_project: bool,
 }
 
 impl FilterConfig {
@@ -485,6 +489,10 @@ impl Default for FilterConfig {
             // Measured (docs/experiments/2026-11-25-false-colour.md): no false colour left on
             // the shared and val sets, render PSNR +0.004 / +0.008 dB, FLIP lower.
             clamp_chroma: true,
+            // Measured (docs/experiments/2026-11-26-seamless-by-default.md): ×16 block edges
+            // 0.1–0.4 lower, render PSNR within ±0.01 dB, but Road006 −0.009 dB; off until
+            // it ships with a network that draws no grid of its own.
+            clamp_back_project: false,
         }
     }
 }

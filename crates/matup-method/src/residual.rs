@@ -26,6 +26,10 @@ use matup_core::Result;
 /// spread does not invert the box filter in one round), so three leave little.
 const BACK_PROJECTIONS: usize = 3;
 
+/// The chroma clamps that follow the first, each after the colours are brought back to their
+/// input ([`project_onto_input`]).
+const LATER_CLAMPS: usize = 2;
+
 /// The residual base of `lr` upsampled by `scale`, as the 7 filter features, back-projected
 /// onto the LR features when the configuration says so.
 pub fn residual_base(
@@ -64,13 +68,22 @@ pub fn project_onto_input(
         // The base colour is the features' first three channels.
         clamp_chroma_to_input(base, &lr_features, scale, border);
         if config.back_project {
-            // The clamp moves colours off their input, and settling them moves a few hues out
-            // of their range: each twice more, the later moves far smaller, ending settled.
+            // The clamp moves colours off their input, and bringing them back moves a few hues
+            // out of their range: each twice more, the later moves far smaller, ending settled.
             // So no hue and no mean is left off on the sample and the exporters' test
             // materials (tests/colour.rs, tests/exporters.rs), where one round of each left
             // a few of one or the other (docs/experiments/2026-11-26-files-back-exactly.md).
-            for _ in 0..2 {
-                settle_blocks(base, &lr_features, scale, 0..3, stored_range);
+            // With `clamp_back_project` the colours are brought back by back-projection, a
+            // smooth spread, where settling each block alone moves whole blocks apart and
+            // draws the input's texel grid, most at ×16
+            // (docs/experiments/2026-11-26-seamless-by-default.md). The last bringing back
+            // settles the blocks either way: back-projection ending there moves hues again.
+            for _ in 0..LATER_CLAMPS {
+                if config.clamp_back_project {
+                    back_project_channels(base, &lr_features, scale, border, 0..3, stored_range);
+                } else {
+                    settle_blocks(base, &lr_features, scale, 0..3, stored_range);
+                }
                 clamp_chroma_to_input(base, &lr_features, scale, border);
             }
             settle_blocks(base, &lr_features, scale, 0..3, stored_range);
@@ -166,11 +179,15 @@ fn project_on_device(
         let bounds = chroma_bounds_on_device(&lr_features, scale, border, &device)?;
         let mut colour = clamp_chroma_on_device(&base.narrow(0, 0, 3)?, &bounds)?;
         if config.back_project {
-            // As `project_onto_input` settles and clamps them, and why.
+            // As `project_onto_input` brings them back and clamps them, and why.
             let lr_colour = lr_on_device.narrow(0, 0, 3)?;
             let range = ranges(0..3)?;
-            for _ in 0..2 {
-                colour = settle_blocks_on_device(&colour, &lr_colour, scale, &range)?;
+            for _ in 0..LATER_CLAMPS {
+                colour = if config.clamp_back_project {
+                    back_project_on_device(&colour, &lr_colour, scale, border, &range)?
+                } else {
+                    settle_blocks_on_device(&colour, &lr_colour, scale, &range)?
+                };
                 colour = clamp_chroma_on_device(&colour, &bounds)?;
             }
             colour = settle_blocks_on_device(&colour, &lr_colour, scale, &range)?;
@@ -238,12 +255,12 @@ pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
         ResidualBase::Kernel(kernel) => kernel.radius().ceil() as usize,
         ResidualBase::Upsampler => upsampler.context(),
     };
-    upsampled
-        + if config.back_project {
-            2 * BACK_PROJECTIONS
-        } else {
-            0
-        }
+    let projections = match config.back_project {
+        false => 0,
+        true if config.clamp_chroma && config.clamp_back_project => 1 + LATER_CLAMPS,
+        true => 1,
+    };
+    upsampled + 2 * BACK_PROJECTIONS * projections
 }
 
 /// Iterative back-projection (Irani & Peleg 1991): corrects output-size features `hr` so that
@@ -266,15 +283,28 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
 }
 
 /// [`back_project`] for any map, channel `c`'s values kept in `range(c)`.
-///
-/// One pass over `hr` a round: the correction is spread a few rows at a time (never held at
-/// the output size), and each corrected block of rows is box-summed there for the next round's
-/// mismatch. The values are those of `box_downsample` and `upsample` done apart.
 pub fn back_project_within(
     hr: &mut Map,
     lr: &Map,
     scale: usize,
     border: Border,
+    range: impl Fn(usize) -> (f32, f32) + Sync,
+) {
+    back_project_channels(hr, lr, scale, border, 0..hr.channels(), range);
+}
+
+/// [`back_project_within`] of `channels` alone (of `hr` and `lr` alike); the others are left
+/// as they are.
+///
+/// One pass over `hr` a round: the correction is spread a few rows at a time (never held at
+/// the output size), and each corrected block of rows is box-summed there for the next round's
+/// mismatch. The values are those of `box_downsample` and `upsample` done apart.
+pub fn back_project_channels(
+    hr: &mut Map,
+    lr: &Map,
+    scale: usize,
+    border: Border,
+    channels: std::ops::Range<usize>,
     range: impl Fn(usize) -> (f32, f32) + Sync,
 ) {
     let (w, h) = (lr.width(), lr.height());
@@ -286,7 +316,7 @@ pub fn back_project_within(
     let mut seen = box_downsample(hr, scale);
     for round in 0..BACK_PROJECTIONS {
         let last = round + 1 == BACK_PROJECTIONS;
-        for c in 0..hr.channels() {
+        for c in channels.clone() {
             let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
                 .map(|(l, s)| l - s)
                 .collect();
@@ -324,7 +354,7 @@ pub fn back_project_within(
                 });
         }
     }
-    settle_blocks(hr, lr, scale, 0..hr.channels(), range);
+    settle_blocks(hr, lr, scale, channels, range);
 }
 
 /// A block whose mean misses its LR texel by more than this after back-projection's rounds is
