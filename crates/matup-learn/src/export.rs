@@ -89,15 +89,12 @@ pub fn blend(
     let start_model = from.unwrap_or(&config.base_model);
     let start = TrainableNet::load(start_model, &device)?;
     let tuned = TrainableNet::load(&best, &device)?;
-    let reference = match minus {
-        Some(control) => Some(TrainableNet::load(control, &device)?),
+    let control = match minus {
+        Some(path) => Some((path, TrainableNet::load(path, &device)?)),
         None => None,
     };
-    let start_vars = start.vars();
-    let tuned_vars = tuned.vars();
-    let reference_vars = reference
-        .as_ref()
-        .map_or_else(|| start.vars(), |r| r.vars());
+    let (start_vars, tuned_vars) = (start.vars(), tuned.vars());
+    let control_vars = control.as_ref().map(|(_, net)| net.vars());
     let other_graph = |path: &Path| {
         Error::file(
             path,
@@ -107,20 +104,20 @@ pub fn blend(
     if tuned_vars.len() != start_vars.len() {
         return Err(other_graph(&best));
     }
-    if reference_vars.len() != start_vars.len() {
-        return Err(other_graph(minus.unwrap_or(start_model)));
+    if let (Some((path, _)), Some(vars)) = (&control, &control_vars) {
+        if vars.len() != start_vars.len() {
+            return Err(other_graph(path));
+        }
     }
-    // Every change is computed from the loaded weights before `s` is set, so a reference that
-    // is the start itself reads its weights as loaded.
-    let changes = tuned_vars
-        .iter()
-        .zip(&reference_vars)
-        .map(|(t, r)| (t.as_tensor() - r.as_tensor())? * alpha)
-        .collect::<candle_core::Result<Vec<_>>>()
-        .map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
-    for (s, change) in start_vars.iter().zip(&changes) {
-        let add = || s.set(&(s.as_tensor() + change)?);
-        add().map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
+    for (i, (s, t)) in start_vars.iter().zip(&tuned_vars).enumerate() {
+        let weight = || match &control_vars {
+            // (1 − α) · start + α · best, the form the shipped network was blended in
+            // (runs/README.md): rebuilding it gives the same file, bit for bit.
+            None => (s.as_tensor() * (1.0 - alpha))? + (t.as_tensor() * alpha)?,
+            Some(c) => s.as_tensor() + ((t.as_tensor() - c[i].as_tensor())? * alpha)?,
+        };
+        let set = || s.set(&weight()?);
+        set().map_err(|e| Error::file(&best, format!("a weight of another shape: {e}")))?;
     }
     let mut name = format!("blend-{alpha:.2}");
     if let Some(model) = from {
@@ -157,8 +154,8 @@ fn file_stem(path: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// A run's export is named by its run folder (`runs/NAME/best.onnx` → `NAME`); any other
-/// network by its file stem.
+/// A run's export is named by its run folder and stem (`runs/NAME/best.onnx` → `NAME-best`);
+/// any other network by its file stem.
 fn run_name(path: &Path) -> String {
     let stem = file_stem(path);
     match path.parent().and_then(|p| p.file_name()) {
