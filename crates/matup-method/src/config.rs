@@ -489,8 +489,8 @@ impl Default for FilterConfig {
             // Measured (docs/experiments/2026-11-25-false-colour.md): no false colour left on
             // the shared and val sets, render PSNR +0.004 / +0.008 dB, FLIP lower.
             clamp_chroma: true,
-            // Measured (docs/experiments/2026-11-26-seamless-by-default.md): ×16 block edges
-            // 0.1–0.4 lower, render PSNR within ±0.01 dB, but Road006 −0.009 dB; off until
+            // Measured (docs/experiments/2026-11-26-seamless-by-default.md): ×16 block-edge ratios
+            // up to 0.24 lower, render PSNR within ±0.01 dB, but Road006 −0.009 dB; off until
             // it ships with a network that draws no grid of its own.
             clamp_back_project: false,
         }
