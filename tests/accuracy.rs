@@ -18,7 +18,7 @@ use matup::{
 
 /// A whole test material box-filtered down to `size`² (a tileable input stays tileable).
 fn lr_material(name: &str, size: usize) -> Material {
-    let m = matup::load_material(Some(&common::test_material(name)), &Default::default()).unwrap();
+    let m = common::load_test_material(name);
     m.box_downsample(m.width() / size)
 }
 
@@ -274,12 +274,7 @@ fn selection_among_upsamplers_runs_the_one_that_validates_best() {
         env!("CARGO_MANIFEST_DIR")
     );
     // The top-left quarter of the 256² copy: the 1024² set's 512² crop box-filtered ×4.
-    let m = matup::load_material(
-        Some(&common::test_material("ambientcg_Tiles036")),
-        &Default::default(),
-    )
-    .unwrap()
-    .crop(0, 0, 128, 128);
+    let m = common::load_test_material("ambientcg_Tiles036").crop(0, 0, 128, 128);
     let config = Config {
         upsampler: tuned.clone(),
         select: Selection::Upsampler,
@@ -358,8 +353,7 @@ fn selection_among_upsamplers_runs_the_one_that_validates_best() {
 #[test]
 fn a_crop_of_a_tileable_material_is_not_called_tileable() {
     for name in ["polyhaven_denim_fabric", "polyhaven_wood_cabinet_worn_long"] {
-        let m =
-            matup::load_material(Some(&common::test_material(name)), &Default::default()).unwrap();
+        let m = common::load_test_material(name);
         // The 256² copies: the whole set at 128², and its top-left quarter (a 512² crop of
         // the 1024² set, box-filtered to 128²).
         let (whole, whole_ratio) = detect_tileable(&m.box_downsample(2));
@@ -375,8 +369,7 @@ fn every_whole_material_is_upscaled_as_tileable() {
     // Mirroring a tileable input seams its output, so the defaults wrap every whole material,
     // grids whose joints lie on the border included, at every size users feed.
     for name in common::test_material_names() {
-        let m =
-            matup::load_material(Some(&common::test_material(&name)), &Default::default()).unwrap();
+        let m = common::load_test_material(&name);
         for factor in [1, 2, 4] {
             let (tileable, evidence) = decide_tileable(&m.box_downsample(factor));
             let side = m.width() / factor;
@@ -392,11 +385,7 @@ fn every_whole_material_is_upscaled_as_tileable() {
 
 /// Rock035, a corpus validation set (never trained on), whole at 256².
 fn rock035() -> Material {
-    matup::load_material(
-        Some(&common::test_material("ambientcg_Rock035")),
-        &Default::default(),
-    )
-    .unwrap()
+    common::load_test_material("ambientcg_Rock035")
 }
 
 #[test]

@@ -85,11 +85,7 @@ matup::core::inventory::submit! {
 
 /// A real material at `side`², with an occlusion map and a base-colour alpha carried along.
 fn material(side: usize) -> Material {
-    let whole = matup::load_material(
-        Some(&common::test_material("polyhaven_coast_sand_rocks_02")),
-        &Default::default(),
-    )
-    .unwrap();
+    let whole = common::load_test_material("polyhaven_coast_sand_rocks_02");
     common::with_occlusion_and_alpha(whole.box_downsample(whole.width() / side))
 }
 
@@ -264,11 +260,7 @@ fn samples(path: &Path) -> Vec<f32> {
 
 #[test]
 fn maps_made_on_the_device_are_written_from_samples_made_there() {
-    let whole = matup::load_material(
-        Some(&common::test_material("polyhaven_coast_sand_rocks_02")),
-        &Default::default(),
-    )
-    .unwrap();
+    let whole = common::load_test_material("polyhaven_coast_sand_rocks_02");
     let lr = whole.box_downsample(whole.width() / 64);
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in");

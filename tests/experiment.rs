@@ -11,11 +11,7 @@ use matup::progress::Silent;
 use matup::{shading_model, LightSetSpec, PluginSpec};
 
 fn denim(size: usize) -> Material {
-    let m = matup::load_material(
-        Some(&common::test_material("polyhaven_denim_fabric")),
-        &Default::default(),
-    )
-    .unwrap();
+    let m = common::load_test_material("polyhaven_denim_fabric");
     m.crop(0, 0, size, size)
 }
 

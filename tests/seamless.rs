@@ -27,11 +27,7 @@ fn rolled(m: &Material, d: usize) -> Material {
 /// A real grid material (its joints lie on the border) at `side`², with an occlusion map and
 /// a base-colour alpha carried along.
 fn tiles(side: usize) -> Material {
-    let whole = matup::load_material(
-        Some(&common::test_material("ambientcg_Tiles036")),
-        &Default::default(),
-    )
-    .unwrap();
+    let whole = common::load_test_material("ambientcg_Tiles036");
     common::with_occlusion_and_alpha(whole.box_downsample(whole.width() / side))
 }
 
@@ -107,11 +103,7 @@ fn a_tileable_grid_comes_back_seamless_at_every_scale() {
 /// were.
 #[test]
 fn the_clamp_brought_back_smoothly_draws_less_grid() {
-    let whole = matup::load_material(
-        Some(&common::test_material("ambientcg_PavingStones092")),
-        &Default::default(),
-    )
-    .unwrap();
+    let whole = common::load_test_material("ambientcg_PavingStones092");
     let lr = whole.box_downsample(4);
     let run = |smooth: bool| {
         let mut config = Config {

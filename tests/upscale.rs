@@ -20,7 +20,7 @@ use matup::{
 
 /// A whole test material box-filtered down to `size`² (a tileable input stays tileable).
 fn lr_material(name: &str, size: usize) -> Material {
-    let m = matup::load_material(Some(&common::test_material(name)), &Default::default()).unwrap();
+    let m = common::load_test_material(name);
     m.box_downsample(m.width() / size)
 }
 
@@ -474,11 +474,7 @@ fn as_stored(kind: MapKind, map: &Map) -> Map {
 
 #[test]
 fn bands_equal_the_whole_image() {
-    let truth = matup::load_material(
-        Some(&common::test_material("polyhaven_coast_sand_rocks_02")),
-        &Default::default(),
-    )
-    .unwrap();
+    let truth = common::load_test_material("polyhaven_coast_sand_rocks_02");
     // 128² → 512² in one level, 32² → 512² in two (the second in bands); ×2 and ×3 through
     // the network's ×4 (its intermediate counted in the plan), with limits that make 3 or more
     // bands of each.
@@ -539,11 +535,7 @@ fn bands_equal_the_whole_image() {
 /// and not.
 #[test]
 fn the_gpu_path_in_bands_gives_the_cpu_paths_maps() {
-    let truth = matup::load_material(
-        Some(&common::test_material("polyhaven_coast_sand_rocks_02")),
-        &Default::default(),
-    )
-    .unwrap();
+    let truth = common::load_test_material("polyhaven_coast_sand_rocks_02");
     // 128² → 512².
     let lr = truth.box_downsample(2);
     for tileable in [false, true] {

@@ -21,6 +21,11 @@ pub fn test_material(name: &str) -> PathBuf {
     path
 }
 
+/// [`test_material`] `name` loaded as matup reads a folder.
+pub fn load_test_material(name: &str) -> Material {
+    matup::load_material(Some(&test_material(name)), &Default::default()).unwrap()
+}
+
 /// The names of every material in `tests/data/materials`, sorted.
 pub fn test_material_names() -> Vec<String> {
     let folder = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/materials");
