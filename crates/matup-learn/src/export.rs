@@ -89,12 +89,10 @@ pub fn blend(
     let start_model = from.unwrap_or(&config.base_model);
     let start = TrainableNet::load(start_model, &device)?;
     let tuned = TrainableNet::load(&best, &device)?;
-    let control = match minus {
-        Some(path) => Some((path, TrainableNet::load(path, &device)?)),
-        None => None,
-    };
+    let control_vars = minus
+        .map(|path| TrainableNet::load(path, &device).map(|net| net.vars()))
+        .transpose()?;
     let (start_vars, tuned_vars) = (start.vars(), tuned.vars());
-    let control_vars = control.as_ref().map(|(_, net)| net.vars());
     let other_graph = |path: &Path| {
         Error::file(
             path,
@@ -104,7 +102,7 @@ pub fn blend(
     if tuned_vars.len() != start_vars.len() {
         return Err(other_graph(&best));
     }
-    if let (Some((path, _)), Some(vars)) = (&control, &control_vars) {
+    if let (Some(path), Some(vars)) = (minus, &control_vars) {
         if vars.len() != start_vars.len() {
             return Err(other_graph(path));
         }
