@@ -269,6 +269,12 @@ pub fn for_each_upsampled_row(
 /// Averages `factor × factor` blocks (a box filter): how a lower-resolution capture, or an
 /// anti-aliased render, sees the image. Width and height must be multiples of `factor`.
 pub fn box_downsample(map: &Map, factor: usize) -> Map {
+    box_downsample_channels(map, factor, 0..map.channels())
+}
+
+/// [`box_downsample`] of the planes in `channels` alone; the others come back zero (for
+/// callers that correct a few planes of a many-planed map).
+pub fn box_downsample_channels(map: &Map, factor: usize, channels: std::ops::Range<usize>) -> Map {
     assert!(
         map.width() % factor == 0 && map.height() % factor == 0,
         "box_downsample: {}×{} is not a multiple of {factor}",
@@ -278,18 +284,21 @@ pub fn box_downsample(map: &Map, factor: usize) -> Map {
     let (ow, oh) = (map.width() / factor, map.height() / factor);
     let norm = 1.0 / (factor * factor) as f32;
     let mut out = vec![0f32; map.channels() * oh * ow];
-    out.par_chunks_mut(ow).enumerate().for_each(|(r, row)| {
-        let (c, y) = (r / oh, r % oh);
-        for (x, v) in row.iter_mut().enumerate() {
-            let mut sum = 0.0;
-            for dy in 0..factor {
-                for dx in 0..factor {
-                    sum += map.get(c, y * factor + dy, x * factor + dx);
+    out[channels.start * oh * ow..channels.end * oh * ow]
+        .par_chunks_mut(ow)
+        .enumerate()
+        .for_each(|(r, row)| {
+            let (c, y) = (channels.start + r / oh, r % oh);
+            for (x, v) in row.iter_mut().enumerate() {
+                let mut sum = 0.0;
+                for dy in 0..factor {
+                    for dx in 0..factor {
+                        sum += map.get(c, y * factor + dy, x * factor + dx);
+                    }
                 }
+                *v = sum * norm;
             }
-            *v = sum * norm;
-        }
-    });
+        });
     Map::from_planar(ow, oh, map.channels(), out)
 }
 
@@ -634,6 +643,14 @@ mod tests {
         let map = Map::from_fn(4, 2, 1, |_, y, x| (y * 4 + x) as f32);
         let down = box_downsample(&map, 2);
         assert_eq!(down.data(), &[2.5, 4.5]);
+    }
+
+    #[test]
+    fn box_downsample_of_some_channels_leaves_the_others_zero() {
+        let map = Map::from_fn(4, 2, 3, |c, y, x| (c * 8 + y * 4 + x) as f32);
+        let down = box_downsample_channels(&map, 2, 1..2);
+        assert_eq!(down.data(), &[0.0, 0.0, 10.5, 12.5, 0.0, 0.0]);
+        assert_eq!(down.plane(1), box_downsample(&map, 2).plane(1));
     }
 
     #[test]

@@ -17,7 +17,7 @@ use matup_core::device_maps::{self, Separable};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::{
-    box_downsample, for_each_upsampled_row, rows_per_task, upsample, Border, Kernel,
+    box_downsample_channels, for_each_upsampled_row, rows_per_task, upsample, Border, Kernel,
 };
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
@@ -313,7 +313,7 @@ pub fn back_project_channels(
     let norm = 1.0 / (scale * scale) as f32;
     let rows = rows_per_task(ow * scale);
     // What a capture at the LR size sees of `hr`, kept up to date round by round.
-    let mut seen = box_downsample(hr, scale);
+    let mut seen = box_downsample_channels(hr, scale, channels.clone());
     for round in 0..BACK_PROJECTIONS {
         let last = round + 1 == BACK_PROJECTIONS;
         for c in channels.clone() {
@@ -498,6 +498,7 @@ fn feature_maps(lr: &Material) -> Material {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use matup_core::resample::box_downsample;
 
     /// Features with variation in every channel, valid ranges.
     fn lr_features(size: usize) -> Map {
