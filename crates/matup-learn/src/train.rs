@@ -538,8 +538,8 @@ fn load_checkpoint(
     Ok(Some(info))
 }
 
-/// Keeps the first `rows` data rows of a CSV log (what a checkpoint had seen), so that a
-/// resumed run's log reads as an uninterrupted one's.
+/// Keeps the header of a CSV log and the rows `keep` picks (what a checkpoint had seen), so
+/// that a resumed run's log reads as an uninterrupted one's.
 fn truncate_log(path: &Path, keep: impl Fn(&str) -> bool) -> Result<()> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Ok(());
@@ -844,8 +844,11 @@ pub fn train(
     if let Some(i) = resumed_from {
         progress.note(&format!("resuming {} at step {i}", dir.display()));
     }
-    truncate_log(&files.train_log(), |l| iteration_of(l) <= iteration)?;
-    truncate_log(&files.val_log(), |l| iteration_of(l) <= iteration)?;
+    // A resumed run keeps the rows its checkpoint had seen; a new one (into a folder holding
+    // an earlier run's logs, as when a run is recreated) keeps none.
+    let seen = |line: &str| resumed_from.is_some_and(|i| iteration_of(line) <= i);
+    truncate_log(&files.train_log(), seen)?;
+    truncate_log(&files.val_log(), seen)?;
 
     let set = if config.validate_every > 0 {
         validation_set(config)?

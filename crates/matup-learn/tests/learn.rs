@@ -493,6 +493,17 @@ fn a_tiny_run_lowers_its_loss_resumes_exactly_and_exports_what_matup_runs() {
     assert_eq!(second.resumed_from, Some(4));
     assert_eq!(losses(&whole), losses(&parts));
     assert_eq!(checkpoint_tensors(&whole), checkpoint_tensors(&parts));
+    // Recreated into a folder that keeps an earlier run's logs but no checkpoint: the logs
+    // are the new run's alone.
+    let again = dir.path().join("again");
+    std::fs::create_dir_all(&again).unwrap();
+    for log in ["train.csv", "val.csv"] {
+        std::fs::copy(whole.join(log), again.join(log)).unwrap();
+    }
+    train(&config, &again, &device, &matup_core::progress::Silent).unwrap();
+    assert_eq!(losses(&whole), losses(&again));
+    let val_rows = |run: &Path| std::fs::read_to_string(run.join("val.csv")).unwrap();
+    assert_eq!(val_rows(&whole), val_rows(&again));
 
     // The steps' losses (their crops, symmetries and lights) are lower with the trained
     // weights than with the stock network.
