@@ -3,16 +3,18 @@
 # upscaled ×SCALE with the defaults, and each output map's wrap-around seam compared, at the
 # phase of the input's texel grid, with the true material's at the same size. Prints one row
 # per material: the worst map's seam over max(1, the truth's), and each map's pair.
-# `--upsampler SPEC` runs the defaults with another upsampler (another network).
-#   scripts/whole-seams.sh [--down D] [--scale S] [--upsampler SPEC] MATERIAL_FOLDER...
+# `--upsampler SPEC` runs the defaults with another upsampler (another network), `--config FILE`
+# with the settings of a TOML configuration.
+#   scripts/whole-seams.sh [--down D] [--scale S] [--upsampler SPEC] [--config FILE] MATERIAL_FOLDER...
 #   (÷8, ×4; needs jq)
 set -euo pipefail
-down=8 scale=4 upsampler=auto
+down=8 scale=4 upsampler=auto config=()
 while [ $# -gt 0 ]; do
     case $1 in
     --down) down=$2; shift 2 ;;
     --scale) scale=$2; shift 2 ;;
     --upsampler) upsampler=$2; shift 2 ;;
+    --config) config=(--config "$2"); shift 2 ;;
     *) break ;;
     esac
 done
@@ -31,7 +33,7 @@ for m in "$@"; do
         "$matup" downsample "$m" -o "$truth" --factor $((down / scale)) >/dev/null 2>&1
     fi
     "$matup" upscale "$work/$name.lr" -o "$work/$name.out" --scale "$scale" \
-        --upsampler "$upsampler" --quiet >/dev/null
+        --upsampler "$upsampler" "${config[@]}" --quiet >/dev/null
     "$matup" eval --reference "$truth" --candidate "$work/$name.out" --scale "$scale" \
         --lights 1 --json >"$work/$name.json"
     jq -r --arg name "$name" '
