@@ -276,7 +276,7 @@ fn handle_material(
         return Outcome::AlreadyDone;
     }
     if let Some(f) = read_failure(output, fingerprint) {
-        if f.failed_at >= unix_seconds(batch_began) {
+        if f.failed_since(batch_began) {
             claim.release();
             return Outcome::FailedElsewhere(f.error);
         }
@@ -427,12 +427,22 @@ const FAILURE_FILE: &str = "error.json";
 struct Failure {
     error: String,
     settings_fingerprint: Option<String>,
-    /// Seconds since the Unix epoch.
-    failed_at: u64,
+    /// Seconds since the Unix epoch, to the microsecond: a rerun that begins within the second
+    /// its run failed in must still read the failure as its run's, not one of its own batch's.
+    /// (Whole seconds, as earlier records hold, read as they are.)
+    failed_at: f64,
 }
 
-fn unix_seconds(t: SystemTime) -> u64 {
-    t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs())
+impl Failure {
+    /// Whether another worker of the batch that began at `began` recorded it.
+    fn failed_since(&self, began: SystemTime) -> bool {
+        self.failed_at >= unix_seconds(began)
+    }
+}
+
+fn unix_seconds(t: SystemTime) -> f64 {
+    t.duration_since(UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// The failure recorded in `folder` for these settings.
@@ -501,4 +511,35 @@ pub fn settings_fingerprint(folder: &Path, options: &BatchOptions) -> Result<Str
     }
     let digest = h.finalize();
     Ok(digest[..8].iter().map(|b| format!("{b:02x}")).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn a_failure_in_the_second_a_rerun_begins_is_the_earlier_runs() {
+        let at = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
+        let failure = |failed_at| Failure {
+            error: "bad".into(),
+            settings_fingerprint: Some("f".into()),
+            failed_at,
+        };
+        let recorded = failure(unix_seconds(at(1_700_000_000_300)));
+        assert!(!recorded.failed_since(at(1_700_000_000_600)));
+        assert!(recorded.failed_since(at(1_700_000_000_100)));
+        // Through its file, and a record of whole seconds as earlier versions wrote.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(FAILURE_FILE);
+        std::fs::write(&path, serde_json::to_vec(&recorded).unwrap()).unwrap();
+        let read = read_failure(dir.path(), "f").unwrap();
+        assert!(!read.failed_since(at(1_700_000_000_600)));
+        let whole = r#"{"error": "bad", "settings_fingerprint": "f", "failed_at": 1700000000}"#;
+        std::fs::write(&path, whole).unwrap();
+        assert_eq!(
+            read_failure(dir.path(), "f").unwrap().failed_at,
+            1_700_000_000.0
+        );
+    }
 }
