@@ -8,20 +8,11 @@
 #   (×16 by default; needs jq)
 set -euo pipefail
 scale=16 upsampler=auto config=()
-while [ $# -gt 0 ]; do
-    case $1 in
-    --scale) scale=$2; shift 2 ;;
-    --upsampler) upsampler=$2; shift 2 ;;
-    --config) config=(--config "$2"); shift 2 ;;
-    *) break ;;
-    esac
-done
-matup=${MATUP:-target/release/matup}
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+source "$(dirname "$0")/measure-options.sh"
+read_measure_options "$@"
 echo "| material (÷$scale → ×$scale) | base colour's block-edge ratio |"
 echo "|---|---|"
-for m in "$@"; do
+for m in "${materials[@]}"; do
     name=$(basename "$m")
     "$matup" downsample "$m" -o "$work/$name.lr" --factor "$scale" >/dev/null 2>&1
     "$matup" upscale "$work/$name.lr" -o "$work/$name.out" --scale "$scale" --tileable \

@@ -9,21 +9,11 @@
 #   (÷8, ×4; needs jq)
 set -euo pipefail
 down=8 scale=4 upsampler=auto config=()
-while [ $# -gt 0 ]; do
-    case $1 in
-    --down) down=$2; shift 2 ;;
-    --scale) scale=$2; shift 2 ;;
-    --upsampler) upsampler=$2; shift 2 ;;
-    --config) config=(--config "$2"); shift 2 ;;
-    *) break ;;
-    esac
-done
-matup=${MATUP:-target/release/matup}
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+source "$(dirname "$0")/measure-options.sh"
+read_measure_options "$@"
 echo "| material | worst map: seam / max(1, truth's) | each map: output (truth) |"
 echo "|---|---|---|"
-for m in "$@"; do
+for m in "${materials[@]}"; do
     name=$(basename "$m")
     "$matup" downsample "$m" -o "$work/$name.lr" --factor "$down" >/dev/null 2>&1
     # The truth at the output's size.
