@@ -12,7 +12,7 @@ use std::path::{Component, Path, PathBuf};
 use base64::Engine;
 use serde_json::Value;
 
-use matup_core::io::{write_atomic, MaterialPaths, Names};
+use matup_core::io::{encoded_size, write_atomic, MaterialPaths, Names};
 use matup_core::progress::Progress;
 use matup_core::{layout::Packing, SaveOptions};
 use matup_core::{load_material, Error, LoadOptions, NormalConvention, Result};
@@ -213,22 +213,51 @@ fn same_folder(a: &Path, b: &Path) -> bool {
 /// An image of the model: its bytes, format and size.
 struct Image {
     bytes: Vec<u8>,
-    jpeg: bool,
+    encoding: Encoding,
     size: (u32, u32),
     /// Where it is stored, for messages: its URI or bufferView.
     name: String,
 }
 
+/// The image formats a glTF model holds that matup writes back: the core PNG and JPEG, and
+/// WebP (`EXT_texture_webp`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Encoding {
+    Png,
+    Jpeg,
+    Webp,
+}
+
+impl Encoding {
+    /// The format of an image's bytes, from their signature.
+    fn of(bytes: &[u8]) -> Option<Encoding> {
+        if bytes.starts_with(b"\x89PNG") {
+            Some(Encoding::Png)
+        } else if bytes.starts_with(&[0xFF, 0xD8]) {
+            Some(Encoding::Jpeg)
+        } else if bytes.starts_with(b"RIFF") && bytes.get(8..12) == Some(b"WEBP") {
+            Some(Encoding::Webp)
+        } else {
+            None
+        }
+    }
+}
+
 impl Image {
     fn file_name(&self, index: usize) -> String {
-        format!("image-{index}.{}", if self.jpeg { "jpg" } else { "png" })
+        let extension = match self.encoding {
+            Encoding::Png => "png",
+            Encoding::Jpeg => "jpg",
+            Encoding::Webp => "webp",
+        };
+        format!("image-{index}.{extension}")
     }
 
     fn mime(&self) -> &'static str {
-        if self.jpeg {
-            "image/jpeg"
-        } else {
-            "image/png"
+        match self.encoding {
+            Encoding::Png => "image/png",
+            Encoding::Jpeg => "image/jpeg",
+            Encoding::Webp => "image/webp",
         }
     }
 }
@@ -341,20 +370,17 @@ impl Model {
                 ),
                 (None, None) => return Err(self.bad(format!("image {i} has no URI or bufferView"))),
             };
-            let jpeg = bytes.starts_with(&[0xFF, 0xD8]);
-            if !jpeg && !bytes.starts_with(b"\x89PNG") {
-                return Err(self.bad(format!(
-                    "{name} is neither PNG nor JPEG: matup upscales glTF's core image formats"
-                )));
-            }
-            let size = image::ImageReader::new(std::io::Cursor::new(&bytes))
-                .with_guessed_format()
-                .ok()
-                .and_then(|r| r.into_dimensions().ok())
+            let encoding = Encoding::of(&bytes).ok_or_else(|| {
+                self.bad(format!(
+                    "{name} is neither PNG, JPEG nor WebP: matup upscales glTF's core image \
+                     formats and EXT_texture_webp's"
+                ))
+            })?;
+            let size = encoded_size(&bytes)
                 .ok_or_else(|| self.bad(format!("{name} is not a readable image")))?;
             images.push(Image {
                 bytes,
-                jpeg,
+                encoding,
                 size,
                 name,
             });
@@ -373,22 +399,39 @@ impl Model {
             .ok_or_else(|| self.bad(format!("bufferView {index} runs past its buffer")))
     }
 
-    /// The image a texture shows, one of `images`.
-    fn texture_image(&self, texture: usize, images: usize) -> Result<usize> {
+    /// The image a texture shows, one of `images`: the WebP image of `EXT_texture_webp` where
+    /// it names one, else the core `source`. With `fallback`, the core `source` of a texture
+    /// that names a WebP image too (for viewers without WebP), if it has one.
+    fn texture_image(
+        &self,
+        texture: usize,
+        images: usize,
+        fallback: bool,
+    ) -> Result<Option<usize>> {
         let t = (self.array("textures").get(texture))
             .ok_or_else(|| self.bad(format!("texture {texture} does not exist")))?;
-        let source = t["source"].as_u64().ok_or_else(|| {
-            self.bad(format!(
-                "texture {texture} has no PNG or JPEG source (only an extension's image): \
-                 matup upscales glTF's core image formats"
-            ))
-        })? as usize;
+        let webp = t["extensions"]["EXT_texture_webp"]["source"].as_u64();
+        let core = t["source"].as_u64();
+        let source = if fallback {
+            webp.and(core)
+        } else {
+            webp.or(core)
+        };
+        let Some(source) = source.map(|s| s as usize) else {
+            if fallback {
+                return Ok(None);
+            }
+            return Err(self.bad(format!(
+                "texture {texture} has no PNG, JPEG or WebP source (only another extension's \
+                 image): matup upscales glTF's core image formats and EXT_texture_webp's"
+            )));
+        };
         if source >= images {
             return Err(self.bad(format!(
                 "texture {texture} shows image {source}, which does not exist"
             )));
         }
-        Ok(source)
+        Ok(Some(source))
     }
 
     /// Each material's images by role, split by size, each image in the first group that
@@ -398,48 +441,59 @@ impl Model {
         let mut groups = Vec::new();
         let mut notes = Vec::new();
         for (m, material) in self.array("materials").iter().enumerate() {
-            let name = material["name"]
+            let material_name = material["name"]
                 .as_str()
                 .map_or(format!("material-{m}"), |n| format!("{m}-{}", sanitised(n)));
-            let mut uses: Vec<(usize, Role)> = Vec::new();
-            for (texture, role) in material_textures(material) {
-                let image = self.texture_image(texture, images.len())?;
-                if let Some((owner, first)) = taken.get(&image) {
-                    if *first != role {
-                        notes.push(format!(
-                            "{}: used as {} by {name}, upscaled as {} with {owner}",
-                            images[image].name,
-                            role.words(),
-                            first.words()
-                        ));
-                    }
-                    continue;
-                }
-                match uses.iter_mut().find(|(i, _)| *i == image) {
-                    // occlusionTexture in the metallicRoughness image: an ORM file.
-                    Some((_, r @ Role::MetallicRoughness { .. }))
-                        if role == (Role::Carried { data: true }) =>
-                    {
-                        *r = Role::MetallicRoughness { occlusion: true }
-                    }
-                    Some((_, first)) => {
+            // The images the material shows, then the fallbacks of its WebP textures: the same
+            // maps in another file, so a run of their own.
+            for fallback in [false, true] {
+                let name = if fallback {
+                    format!("{material_name}-fallback")
+                } else {
+                    material_name.clone()
+                };
+                let mut uses: Vec<(usize, Role)> = Vec::new();
+                for (texture, role) in material_textures(material) {
+                    let Some(image) = self.texture_image(texture, images.len(), fallback)? else {
+                        continue;
+                    };
+                    if let Some((owner, first)) = taken.get(&image) {
                         if *first != role {
                             notes.push(format!(
-                                "{}: used as {} and as {} by {name}, upscaled as {}",
+                                "{}: used as {} by {name}, upscaled as {} with {owner}",
                                 images[image].name,
-                                first.words(),
                                 role.words(),
                                 first.words()
                             ));
                         }
+                        continue;
                     }
-                    None => uses.push((image, role)),
+                    match uses.iter_mut().find(|(i, _)| *i == image) {
+                        // occlusionTexture in the metallicRoughness image: an ORM file.
+                        Some((_, r @ Role::MetallicRoughness { .. }))
+                            if role == (Role::Carried { data: true }) =>
+                        {
+                            *r = Role::MetallicRoughness { occlusion: true }
+                        }
+                        Some((_, first)) => {
+                            if *first != role {
+                                notes.push(format!(
+                                    "{}: used as {} and as {} by {name}, upscaled as {}",
+                                    images[image].name,
+                                    first.words(),
+                                    role.words(),
+                                    first.words()
+                                ));
+                            }
+                        }
+                        None => uses.push((image, role)),
+                    }
                 }
+                for &(image, role) in &uses {
+                    taken.insert(image, (name.clone(), role));
+                }
+                groups.extend(by_size(&name, uses, images));
             }
-            for &(image, role) in &uses {
-                taken.insert(image, (name.clone(), role));
-            }
-            groups.extend(by_size(&name, uses, images));
         }
         let unused: Vec<(usize, Role)> = (0..images.len())
             .filter(|i| !taken.contains_key(i))
@@ -689,7 +743,7 @@ mod tests {
         (sizes.iter().enumerate())
             .map(|(i, &s)| Image {
                 bytes: Vec::new(),
-                jpeg: false,
+                encoding: Encoding::Png,
                 size: (s, s),
                 name: format!("image {i}"),
             })
@@ -770,6 +824,47 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(error.contains("texture 9 does not exist"), "{error}");
+    }
+
+    #[test]
+    fn webp_textures_and_their_fallbacks_are_upscaled_in_runs_of_their_own() {
+        // EXT_texture_webp as gltf-transform writes it: WebP images, each texture's core
+        // `source` a PNG fallback; the normal has WebP only.
+        let json = serde_json::json!({
+            "asset": {"version": "2.0"},
+            "extensionsUsed": ["EXT_texture_webp"],
+            "textures": [
+                {"source": 0, "extensions": {"EXT_texture_webp": {"source": 2}}},
+                {"extensions": {"EXT_texture_webp": {"source": 3}}},
+                {"source": 1, "extensions": {"EXT_texture_webp": {"source": 4}}}
+            ],
+            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0},
+                                                    "metallicRoughnessTexture": {"index": 2}},
+                           "normalTexture": {"index": 1}}]
+        });
+        let groups = model(json).groups(&images(&[64; 5])).unwrap();
+        let uses: Vec<(&str, Vec<(usize, Role)>)> = (groups.groups.iter())
+            .map(|g| (g.label.as_str(), g.uses.clone()))
+            .collect();
+        let metallic_roughness = Role::MetallicRoughness { occlusion: false };
+        assert_eq!(
+            uses,
+            [
+                (
+                    "material-0",
+                    vec![
+                        (2, Role::BaseColor),
+                        (4, metallic_roughness),
+                        (3, Role::Normal)
+                    ]
+                ),
+                (
+                    "material-0-fallback",
+                    vec![(0, Role::BaseColor), (1, metallic_roughness)]
+                ),
+            ]
+        );
+        assert!(groups.notes.is_empty(), "{:?}", groups.notes);
     }
 
     #[test]

@@ -126,6 +126,10 @@ pub enum FileFormat {
     TiffFloat,
     /// 8-bit TGA (game engines' format).
     Tga,
+    /// Lossy WebP (the web's format; glTF's `EXT_texture_webp`), 8-bit, alpha kept losslessly.
+    WebpLossy,
+    /// Lossless WebP, 8-bit.
+    WebpLossless,
     /// DirectDraw Surface: block-compressed (BC1–BC7) or uncompressed, with or without mips.
     Dds(DdsFormat),
 }
@@ -251,9 +255,12 @@ impl FileFormat {
     /// The type of the samples the file's encoder takes.
     pub fn sample_depth(self) -> SampleDepth {
         match self {
-            FileFormat::Png8 | FileFormat::Jpeg | FileFormat::Tiff8 | FileFormat::Tga => {
-                SampleDepth::U8
-            }
+            FileFormat::Png8
+            | FileFormat::Jpeg
+            | FileFormat::Tiff8
+            | FileFormat::Tga
+            | FileFormat::WebpLossy
+            | FileFormat::WebpLossless => SampleDepth::U8,
             FileFormat::Png16 | FileFormat::Tiff16 => SampleDepth::U16,
             FileFormat::ExrHalf | FileFormat::ExrFloat | FileFormat::TiffFloat => SampleDepth::F32,
             FileFormat::Dds(_) => SampleDepth::F32,
@@ -267,6 +274,7 @@ impl FileFormat {
             FileFormat::ExrHalf | FileFormat::ExrFloat => "exr",
             FileFormat::Tiff8 | FileFormat::Tiff16 | FileFormat::TiffFloat => "tif",
             FileFormat::Tga => "tga",
+            FileFormat::WebpLossy | FileFormat::WebpLossless => "webp",
             FileFormat::Dds(_) => "dds",
         }
     }
@@ -294,6 +302,8 @@ impl FromStr for FileFormat {
             "tiff16" => Ok(FileFormat::Tiff16),
             "tiff-float" | "tiff32" => Ok(FileFormat::TiffFloat),
             "tga" => Ok(FileFormat::Tga),
+            "webp" => Ok(FileFormat::WebpLossy),
+            "webp-lossless" => Ok(FileFormat::WebpLossless),
             // A chosen DDS format has the DX10 header and a full mip chain, as engines load.
             "dds" => Ok(FileFormat::Dds(DdsFormat {
                 codec: None,
@@ -310,8 +320,8 @@ impl FromStr for FileFormat {
                 })),
                 None => Err(Error::Invalid(format!(
                     "unknown format '{s}'; use png, png16, jpg, exr-half, exr-float, tiff, \
-                     tiff16, tiff-float, tga, dds (BC7, BC5 for normals, BC4 for one channel) \
-                     or dds-FORMAT ({})",
+                     tiff16, tiff-float, tga, webp, webp-lossless, dds (BC7, BC5 for normals, \
+                     BC4 for one channel) or dds-FORMAT ({})",
                     DDS_CODECS.map(|row| row.0).join(", ")
                 ))),
             },
@@ -331,6 +341,8 @@ impl fmt::Display for FileFormat {
             FileFormat::Tiff16 => "tiff16",
             FileFormat::TiffFloat => "tiff-float",
             FileFormat::Tga => "tga",
+            FileFormat::WebpLossy => "webp",
+            FileFormat::WebpLossless => "webp-lossless",
             FileFormat::Dds(DdsFormat { codec: None, .. }) => "dds",
             FileFormat::Dds(DdsFormat { codec: Some(c), .. }) => {
                 return write!(f, "dds-{}", c.name())

@@ -1,5 +1,5 @@
 //! Reading and writing single image files (PNG 8/16-bit, JPEG, EXR half/float, TIFF 8/16-bit
-//! and float, TGA, DDS): formats live at this edge; everything inside is a planar f32 [`Map`].
+//! and float, TGA, WebP, DDS): formats live at this edge; everything inside is a planar f32 [`Map`].
 
 use std::io::Cursor;
 use std::path::Path;
@@ -21,7 +21,22 @@ pub(crate) struct ImageFile {
 }
 
 /// The file extensions matup reads.
-pub const IMAGE_EXTENSIONS: [&str; 8] = ["png", "jpg", "jpeg", "exr", "tif", "tiff", "tga", "dds"];
+pub const IMAGE_EXTENSIONS: [&str; 9] = [
+    "png", "jpg", "jpeg", "exr", "tif", "tiff", "tga", "webp", "dds",
+];
+
+/// The width and height of an encoded PNG, JPEG, TGA or WebP image, from its header.
+pub fn encoded_size(bytes: &[u8]) -> Option<(u32, u32)> {
+    if bytes.starts_with(b"RIFF") {
+        let features = webp::BitstreamFeatures::new(bytes)?;
+        return Some((features.width(), features.height()));
+    }
+    ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .ok()?
+        .into_dimensions()
+        .ok()
+}
 
 /// Whether `path` names a file of a format matup reads (by its extension, any case).
 pub fn is_image_file(path: &Path) -> bool {
@@ -49,6 +64,8 @@ pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
         read_tiff(path, max_texels)
     } else if has_extension(path, &["dds"]) {
         read_dds(path, max_texels)
+    } else if has_extension(path, &["webp"]) {
+        read_webp(path, max_texels)
     } else {
         read_with_image_crate(path, max_texels)
     }
@@ -109,7 +126,9 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
         other => {
             return Err(Error::file(
                 path,
-                format!("unsupported image format {other:?}; use PNG, JPEG, EXR, TIFF, TGA or DDS"),
+                format!(
+                    "unsupported image format {other:?}; use PNG, JPEG, EXR, TIFF, TGA, WebP or DDS"
+                ),
             ))
         }
     };
@@ -133,6 +152,35 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
     };
     let map = Map::from_fn(w, h, channels, |c, y, x| {
         interleaved[(y * w + x) * channels + c]
+    });
+    Ok(ImageFile { map, format })
+}
+
+/// WebP, read by libwebp as it is written ([`super::stream`]): the bitstream says whether the
+/// image is lossless, so that it comes back the same way. Animations are refused.
+fn read_webp(path: &Path, max_texels: u64) -> Result<ImageFile> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let features = webp::BitstreamFeatures::new(&bytes)
+        .ok_or_else(|| Error::file(path, "not a readable WebP file"))?;
+    if features.has_animation() {
+        return Err(Error::file(
+            path,
+            "an animated WebP; matup reads still images",
+        ));
+    }
+    let (w, h) = (features.width() as usize, features.height() as usize);
+    check_size(path, w, h, max_texels)?;
+    let format = match features.format() {
+        Some(webp::BitstreamFormat::Lossless) => FileFormat::WebpLossless,
+        _ => FileFormat::WebpLossy,
+    };
+    let image = webp::Decoder::new(&bytes)
+        .decode()
+        .ok_or_else(|| Error::file(path, "cannot decode the WebP image"))?;
+    let channels = if image.is_alpha() { 4 } else { 3 };
+    let samples: &[u8] = &image;
+    let map = Map::from_fn(w, h, channels, |c, y, x| {
+        samples[(y * w + x) * channels + c] as f32 / 255.0
     });
     Ok(ImageFile { map, format })
 }

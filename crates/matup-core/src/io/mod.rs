@@ -13,7 +13,7 @@ use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
 pub use discover::{discover, Discovered, FileRole, Role};
-pub use image_file::{is_image_file, write_atomic, IMAGE_EXTENSIONS};
+pub use image_file::{encoded_size, is_image_file, write_atomic, IMAGE_EXTENSIONS};
 pub use stream::{ChannelRows, ImageWriter, Samples, WriteHints};
 pub use write::{check_output_folder, retag, MaterialWriter};
 

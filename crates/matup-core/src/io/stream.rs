@@ -173,6 +173,16 @@ impl ImageWriter {
                 format!("{channels} channels: files hold grey or RGB, with or without alpha"),
             ));
         }
+        let webp = matches!(format, FileFormat::WebpLossy | FileFormat::WebpLossless);
+        if webp && width.max(height) > WEBP_MAX_SIDE {
+            return Err(Error::file(
+                path,
+                format!(
+                    "{width}×{height}: WebP holds at most {WEBP_MAX_SIDE} texels a side; write \
+                     this map as PNG, TIFF or EXR (--format)"
+                ),
+            ));
+        }
         if format == FileFormat::Jpeg && channels % 2 == 0 {
             return Err(Error::file(
                 path,
@@ -219,7 +229,11 @@ impl ImageWriter {
                     error,
                 }
             }
-            FileFormat::Jpeg | FileFormat::Tga | FileFormat::Tiff8 => {
+            FileFormat::Jpeg
+            | FileFormat::Tga
+            | FileFormat::Tiff8
+            | FileFormat::WebpLossy
+            | FileFormat::WebpLossless => {
                 Encoder::Gathered(Samples::U8(Vec::with_capacity(width * height * channels)))
             }
             FileFormat::Tiff16 => {
@@ -521,7 +535,7 @@ fn write_exr(
     .map_err(|e| e.to_string())
 }
 
-/// Encodes a whole image of gathered samples: JPEG (quality 95) or TGA from 8-bit samples,
+/// Encodes a whole image of gathered samples: JPEG (quality 95), TGA or WebP from 8-bit samples,
 /// TIFF (LZW, as image editors write it) at its depth, DDS from floats. The `tiff` crate writes
 /// no grey + alpha, so such a TIFF is written RGBA with the grey in all three colour channels.
 fn encode_whole(
@@ -578,9 +592,56 @@ fn encode_whole(
             }
             .map_err(|e| e.to_string());
         }
+        (FileFormat::WebpLossy | FileFormat::WebpLossless, Samples::U8(raw)) => {
+            let lossless = format == FileFormat::WebpLossless;
+            return write_webp(out, w, h, channels, raw, lossless);
+        }
         _ => unreachable!("ImageWriter::create gathers each format at its own depth"),
     };
     written.map_err(|e| e.to_string())
+}
+
+/// The widest and tallest image a WebP file holds.
+pub const WEBP_MAX_SIDE: usize = 16383;
+
+/// Lossy WebP's quality: as high as JPEG's 95, so that a map loses about as much either way.
+const WEBP_QUALITY: f32 = 95.0;
+
+/// A whole WebP, lossy or lossless, grey written as RGB (WebP holds no grey). libwebp (the
+/// `webp` crate) writes it: the image crate encodes lossless WebP only, and a lossy input comes
+/// back lossy. Colours under fully transparent texels are kept (`exact`), as every other format
+/// keeps them, instead of libwebp's default of replacing them to save bytes.
+fn write_webp(
+    out: &mut BufWriter<File>,
+    width: u32,
+    height: u32,
+    channels: usize,
+    samples: Vec<u8>,
+    lossless: bool,
+) -> std::result::Result<(), String> {
+    let (samples, layout) = match channels {
+        1 => (
+            samples.iter().flat_map(|&v| [v, v, v]).collect(),
+            webp::PixelLayout::Rgb,
+        ),
+        2 => (as_rgba(2, samples), webp::PixelLayout::Rgba),
+        3 => (samples, webp::PixelLayout::Rgb),
+        _ => (samples, webp::PixelLayout::Rgba),
+    };
+    let mut config =
+        webp::WebPConfig::new().map_err(|()| "libwebp has no default configuration")?;
+    config.lossless = lossless.into();
+    // Lossless, `quality` is how hard libwebp compresses; its default.
+    config.quality = if lossless { 75.0 } else { WEBP_QUALITY };
+    config.exact = 1;
+    // Lossy WebP keeps colour at half the resolution; libwebp's sharper conversion to it keeps
+    // a normal map's 4×4 means within 3.6 levels of its input, against 6.2 without
+    // (tests/game_assets.rs).
+    config.use_sharp_yuv = 1;
+    let encoded = webp::Encoder::new(&samples, layout, width, height)
+        .encode_advanced(&config)
+        .map_err(|e| format!("the WebP encoder failed: {e:?}"))?;
+    out.write_all(&encoded).map_err(|e| e.to_string())
 }
 
 /// A whole TIFF of colour type `C` (LZW, as image editors write it).
@@ -691,6 +752,13 @@ mod tests {
         })
     }
 
+    /// An image whose channels vary smoothly and together, as a photographed map's do.
+    fn smooth_image(channels: usize) -> Map {
+        Map::from_fn(37, 23, channels, |c, y, x| {
+            0.5 + 0.4 * (0.2 * x as f32 + 0.3 * y as f32 + 0.4 * c as f32).sin()
+        })
+    }
+
     fn write_in_bands(path: &Path, map: &Map, format: FileFormat, bands: &[usize]) {
         let mut writer =
             ImageWriter::create(path, map.width(), map.height(), map.channels(), format).unwrap();
@@ -715,10 +783,18 @@ mod tests {
             FileFormat::Tiff16,
             FileFormat::TiffFloat,
             FileFormat::Tga,
+            FileFormat::WebpLossy,
+            FileFormat::WebpLossless,
         ] {
             // Grey, grey + alpha, RGB, RGBA.
             for channels in 1..=4 {
-                let map = image(channels);
+                // Lossy WebP keeps colour at half the resolution (4:2:0), so its image has the
+                // smooth colour of real maps, not a stripe pattern of each channel's own.
+                let map = if format == FileFormat::WebpLossy {
+                    smooth_image(channels)
+                } else {
+                    image(channels)
+                };
                 let name = |how: &str| {
                     dir.path()
                         .join(format!("{how}{channels}.{}", format.extension()))
@@ -736,16 +812,30 @@ mod tests {
                 let bands = read_image(&name("bands"), u64::MAX).unwrap().map;
                 let mut whole = read_image(&name("whole"), u64::MAX).unwrap().map;
                 assert!(bands == whole, "{format} ×{channels}");
-                if whole.channels() == 4 && channels == 2 {
-                    // TIFF: grey + alpha is written as RGBA, the grey in R, G and B.
-                    assert!(whole.plane(0) == whole.plane(1) && whole.plane(1) == whole.plane(2));
-                    whole = whole.select_channels(&[0, 3]);
+                if whole.channels() == channels + 2 {
+                    // TIFF and WebP write grey + alpha as RGBA, WebP grey as RGB: the grey in R,
+                    // G and B, within the level by which the reader still takes them as one
+                    // grey (lossy WebP's colour conversion).
+                    let apart = (1..3)
+                        .flat_map(|c| whole.plane(c).iter().zip(whole.plane(0)))
+                        .map(|(a, b)| (a - b).abs())
+                        .fold(0.0, f32::max);
+                    let allowed = if format == FileFormat::WebpLossy {
+                        1.0 / 255.0
+                    } else {
+                        0.0
+                    };
+                    assert!(apart <= allowed + 1e-7, "{format} ×{channels}: {apart}");
+                    whole = whole.select_channels(if channels == 1 { &[0] } else { &[0, 3] });
                 }
                 // And what was written, to the format's precision (JPEG is lossy).
                 let tolerance = match format {
-                    FileFormat::Png8 | FileFormat::Tiff8 | FileFormat::Tga => 0.5 / 255.0,
+                    FileFormat::Png8
+                    | FileFormat::Tiff8
+                    | FileFormat::Tga
+                    | FileFormat::WebpLossless => 0.5 / 255.0,
                     FileFormat::Png16 | FileFormat::Tiff16 => 0.5 / 65535.0,
-                    FileFormat::Jpeg => 0.1,
+                    FileFormat::Jpeg | FileFormat::WebpLossy => 0.1,
                     FileFormat::ExrHalf => 1e-3,
                     FileFormat::ExrFloat | FileFormat::TiffFloat => 0.0,
                     FileFormat::Dds(_) => unreachable!("DDS files are tested in dds_file"),
@@ -755,9 +845,23 @@ mod tests {
                 let worst = (whole.data().iter().zip(map.data()))
                     .map(|(a, b)| (a - b).abs())
                     .fold(0.0, f32::max);
+                println!("{format} ×{channels}: {worst}");
                 assert!(worst <= tolerance + 1e-6, "{format} ×{channels}: {worst}");
             }
         }
+    }
+
+    #[test]
+    fn a_webp_wider_than_the_format_holds_is_refused_before_any_row() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("wide.webp");
+        let wide = ImageWriter::create(&path, WEBP_MAX_SIDE + 1, 4, 3, FileFormat::WebpLossy);
+        let error = wide.err().expect("refused").to_string();
+        assert!(
+            error.contains("16384×4") && error.contains("at most 16383"),
+            "{error}"
+        );
+        assert!(ImageWriter::create(&path, WEBP_MAX_SIDE, 4, 3, FileFormat::WebpLossless).is_ok());
     }
 
     #[test]
