@@ -443,6 +443,20 @@ fn check_textures(
     off
 }
 
+/// `matup upscale MODEL -o OUT` with the defaults.
+fn upscale_model_with_defaults(model: &Path, out: &Path) -> matup::apps::model::ModelRun {
+    matup::apps::model::upscale_model(
+        model,
+        &Config::default(),
+        out,
+        &SaveOptions::default(),
+        &LoadOptions::default(),
+        None,
+        &Silent,
+    )
+    .unwrap()
+}
+
 #[test]
 fn a_gltf_model_comes_back_as_the_same_model_with_every_texture_upscaled_in_its_role() {
     let dir = tempfile::tempdir().unwrap();
@@ -466,16 +480,7 @@ fn a_gltf_model_comes_back_as_the_same_model_with_every_texture_upscaled_in_its_
     .unwrap();
 
     let out = dir.path().join("out");
-    let run = matup::apps::model::upscale_model(
-        &input.join("quad.gltf"),
-        &Config::default(),
-        &out,
-        &SaveOptions::default(),
-        &LoadOptions::default(),
-        None,
-        &Silent,
-    )
-    .unwrap();
+    let run = upscale_model_with_defaults(&input.join("quad.gltf"), &out);
     assert_eq!(run.runs.len(), 1, "one material, one run");
     let written: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("quad.gltf")).unwrap()).unwrap();
@@ -529,16 +534,7 @@ fn a_glb_model_comes_back_with_its_geometry_bytes_and_new_embedded_textures() {
     std::fs::write(&model, glb).unwrap();
 
     let out = dir.path().join("out");
-    matup::apps::model::upscale_model(
-        &model,
-        &Config::default(),
-        &out,
-        &SaveOptions::default(),
-        &LoadOptions::default(),
-        None,
-        &Silent,
-    )
-    .unwrap();
+    upscale_model_with_defaults(&model, &out);
     let bytes = std::fs::read(out.join("quad.glb")).unwrap();
     let written = gltf::binary::Glb::from_slice(&bytes).unwrap();
     let written_json: serde_json::Value = serde_json::from_slice(&written.json).unwrap();
@@ -629,16 +625,7 @@ fn a_web_model_keeps_its_webp_textures_webp_and_its_fallbacks_in_their_own_forma
     std::fs::write(input.join("quad.gltf"), serde_json::to_vec(&json).unwrap()).unwrap();
 
     let out = dir.path().join("out");
-    let run = matup::apps::model::upscale_model(
-        &input.join("quad.gltf"),
-        &Config::default(),
-        &out,
-        &SaveOptions::default(),
-        &LoadOptions::default(),
-        None,
-        &Silent,
-    )
-    .unwrap();
+    let run = upscale_model_with_defaults(&input.join("quad.gltf"), &out);
     let labels: Vec<&str> = run.runs.iter().map(|(label, _)| label.as_str()).collect();
     assert_eq!(labels, ["0-Bricks", "0-Bricks-fallback"]);
     let written: serde_json::Value =
