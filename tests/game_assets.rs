@@ -13,7 +13,7 @@ use image::ImageEncoder;
 use matup::apps::folder::upscale_to_folder;
 use matup::config::Config;
 use matup::progress::Silent;
-use matup::{load_material, shading_model, LightSetSpec, LoadOptions, SaveOptions};
+use matup::{load_material, save_material, shading_model, LightSetSpec, LoadOptions, SaveOptions};
 
 const SIZE: usize = 64;
 
@@ -644,6 +644,48 @@ fn a_web_model_keeps_its_webp_textures_webp_and_its_fallbacks_in_their_own_forma
     // The metallicRoughness WebP is lossless; all five are held to the lossy allowance.
     let off = check_textures(&webp_textures, &|i| read(webp_textures[i].0), true);
     assert!(off.is_empty(), "{off:#?}");
+}
+
+#[test]
+fn an_output_larger_than_webp_holds_is_refused_before_any_work() {
+    // ×16 of 1024² is 16384², one texel past WebP's sides.
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in");
+    let material = matup::Material::uniform(1024, [0.5, 0.4, 0.3], 0.5, 0.0);
+    let webp = SaveOptions {
+        format: Some("webp-lossless".parse().unwrap()),
+        ..SaveOptions::default()
+    };
+    save_material(&material, &input, &webp).unwrap();
+    let lr = load_material(Some(&input), &LoadOptions::default()).unwrap();
+    let config = Config {
+        scale: 16,
+        ..Config::default()
+    };
+    let out = dir.path().join("out");
+    let error = upscale_to_folder(
+        &lr,
+        &config,
+        &out,
+        &SaveOptions::default(),
+        false,
+        None,
+        None,
+        &Silent,
+    )
+    .err()
+    .expect("refused")
+    .to_string();
+    assert!(
+        error.contains("baseColor.webp")
+            && error.contains("16384×16384")
+            && error.contains("at most 16383"),
+        "{error}"
+    );
+    assert!(
+        !out.exists() || std::fs::read_dir(&out).unwrap().count() == 0,
+        "nothing written"
+    );
 }
 
 #[test]

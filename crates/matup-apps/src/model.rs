@@ -2,9 +2,10 @@
 //! say what each texture holds, so nothing is guessed: base colour, `metallicRoughness`
 //! (roughness in G, metallic in B, R kept, or occlusion where `occlusionTexture` shares the
 //! image), OpenGL normals, occlusion (R) and emission (colour); the textures of `KHR_materials_*`
-//! extensions are carried, colour or data as their specifications say. Each image is upscaled
-//! once, with the first material that uses it, and the model comes back as it was: every JSON
-//! field and extension kept, geometry bytes where they were, only the images new.
+//! extensions are carried, colour or data as their specifications say. Images are PNG, JPEG
+//! or WebP (`EXT_texture_webp`, whose PNG or JPEG fallbacks are upscaled too). Each image is
+//! upscaled once, with the first material that uses it, and the model comes back as it was:
+//! every JSON field and extension kept, geometry bytes where they were, only the images new.
 
 use std::collections::BTreeMap;
 use std::path::{Component, Path, PathBuf};

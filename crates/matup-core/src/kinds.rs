@@ -279,6 +279,16 @@ impl FileFormat {
         }
     }
 
+    /// The longest side the format holds, where it is shorter than any image matup makes
+    /// could be: WebP stores 14 bits of each side, JPEG and TGA 16.
+    pub fn max_side(self) -> Option<usize> {
+        match self {
+            FileFormat::WebpLossy | FileFormat::WebpLossless => Some(16383),
+            FileFormat::Jpeg | FileFormat::Tga => Some(65535),
+            _ => None,
+        }
+    }
+
     /// Whether values are stored linearly as floats (EXR, float TIFF) rather than
     /// display-encoded integers.
     pub fn is_float(self) -> bool {

@@ -1,5 +1,6 @@
 //! Reading and writing single image files (PNG 8/16-bit, JPEG, EXR half/float, TIFF 8/16-bit
-//! and float, TGA, WebP, DDS): formats live at this edge; everything inside is a planar f32 [`Map`].
+//! and float, TGA, WebP, DDS): formats live at this edge; everything inside is a planar f32
+//! [`Map`].
 
 use std::io::Cursor;
 use std::path::Path;

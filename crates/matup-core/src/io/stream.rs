@@ -173,16 +173,7 @@ impl ImageWriter {
                 format!("{channels} channels: files hold grey or RGB, with or without alpha"),
             ));
         }
-        let webp = matches!(format, FileFormat::WebpLossy | FileFormat::WebpLossless);
-        if webp && width.max(height) > WEBP_MAX_SIDE {
-            return Err(Error::file(
-                path,
-                format!(
-                    "{width}×{height}: WebP holds at most {WEBP_MAX_SIDE} texels a side; write \
-                     this map as PNG, TIFF or EXR (--format)"
-                ),
-            ));
-        }
+        check_side(path, format, width, height)?;
         if format == FileFormat::Jpeg && channels % 2 == 0 {
             return Err(Error::file(
                 path,
@@ -601,10 +592,8 @@ fn encode_whole(
     written.map_err(|e| e.to_string())
 }
 
-/// The widest and tallest image a WebP file holds.
-pub const WEBP_MAX_SIDE: usize = 16383;
-
-/// Lossy WebP's quality: as high as JPEG's 95, so that a map loses about as much either way.
+/// Lossy WebP's quality: JPEG's number. Its half-resolution colour still costs a normal map
+/// about twice JPEG's error (docs/experiments/2026-11-27-webp-encoding.md).
 const WEBP_QUALITY: f32 = 95.0;
 
 /// A whole WebP, lossy or lossless, grey written as RGB (WebP holds no grey). libwebp (the
@@ -636,7 +625,7 @@ fn write_webp(
     config.exact = 1;
     // Lossy WebP keeps colour at half the resolution; libwebp's sharper conversion to it keeps
     // a normal map's 4×4 means within 3.6 levels of its input, against 6.2 without
-    // (tests/game_assets.rs).
+    // (docs/experiments/2026-11-27-webp-encoding.md).
     config.use_sharp_yuv = 1;
     let encoded = webp::Encoder::new(&samples, layout, width, height)
         .encode_advanced(&config)
@@ -669,6 +658,25 @@ fn as_rgba<T: Copy>(channels: usize, samples: Vec<T>) -> Vec<T> {
     (samples.chunks_exact(2))
         .flat_map(|ga| [ga[0], ga[0], ga[0], ga[1]])
         .collect()
+}
+
+/// Refuses a `width`×`height` image in a format whose sides are shorter, naming `path`.
+pub(crate) fn check_side(
+    path: &Path,
+    format: FileFormat,
+    width: usize,
+    height: usize,
+) -> Result<()> {
+    match format.max_side() {
+        Some(most) if width.max(height) > most => Err(Error::file(
+            path,
+            format!(
+                "{width}×{height} is larger than {format} holds (at most {most} texels a side); \
+                 write it as PNG, TIFF or EXR (--format)"
+            ),
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// A temporary file in `path`'s folder (so the rename that completes it stays on one disk).
@@ -855,13 +863,13 @@ mod tests {
     fn a_webp_wider_than_the_format_holds_is_refused_before_any_row() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("wide.webp");
-        let wide = ImageWriter::create(&path, WEBP_MAX_SIDE + 1, 4, 3, FileFormat::WebpLossy);
+        let wide = ImageWriter::create(&path, 16384, 4, 3, FileFormat::WebpLossy);
         let error = wide.err().expect("refused").to_string();
         assert!(
             error.contains("16384×4") && error.contains("at most 16383"),
             "{error}"
         );
-        assert!(ImageWriter::create(&path, WEBP_MAX_SIDE, 4, 3, FileFormat::WebpLossless).is_ok());
+        assert!(ImageWriter::create(&path, 16383, 4, 3, FileFormat::WebpLossless).is_ok());
     }
 
     #[test]

@@ -56,6 +56,16 @@ impl MaterialWriter {
         options: &SaveOptions,
     ) -> Result<MaterialWriter> {
         check_output_folder(out_dir, origin)?;
+        // A size the files' formats cannot hold is refused before any work, not when the
+        // first band is written.
+        let files = origin.map_or(&[][..], |o| o.layout.as_slice());
+        for file in files {
+            let format = options.format.unwrap_or(file.format);
+            super::stream::check_side(&file.path, format, size[0], size[1])?;
+        }
+        if let Some(format) = options.format {
+            super::stream::check_side(out_dir, format, size[0], size[1])?;
+        }
         std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
         Ok(MaterialWriter {
             out_dir: out_dir.to_path_buf(),
