@@ -279,8 +279,8 @@ impl FileFormat {
         }
     }
 
-    /// The longest side the format holds, where it is shorter than any image matup makes
-    /// could be: WebP stores 14 bits of each side, JPEG and TGA 16.
+    /// The longest side the format can store, for the formats that limit it below sizes matup
+    /// makes: WebP stores each side in 14 bits, JPEG and TGA in 16.
     pub fn max_side(self) -> Option<usize> {
         match self {
             FileFormat::WebpLossy | FileFormat::WebpLossless => Some(16383),
