@@ -58,13 +58,14 @@ impl MaterialWriter {
         check_output_folder(out_dir, origin)?;
         // A size the files' formats cannot hold is refused before any work, not when the
         // first band is written.
-        let files = origin.map_or(&[][..], |o| o.layout.as_slice());
-        for file in files {
-            let format = options.format.unwrap_or(file.format);
-            super::stream::check_side(&file.path, format, size[0], size[1])?;
-        }
-        if let Some(format) = options.format {
-            super::stream::check_side(out_dir, format, size[0], size[1])?;
+        let [w, h] = size;
+        match options.format {
+            Some(format) => super::stream::check_side(out_dir, format, w, h)?,
+            None => {
+                for file in origin.map_or(&[][..], |o| o.layout.as_slice()) {
+                    super::stream::check_side(&file.path, file.format, w, h)?;
+                }
+            }
         }
         std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
         Ok(MaterialWriter {
