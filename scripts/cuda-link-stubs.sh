@@ -8,8 +8,11 @@
 # Usage: scripts/cuda-link-stubs.sh DIR   (DIR: where the link looks, e.g. $CUDA_HOME/lib)
 set -eu
 out=$1
+# cudarc's sources are where cargo unpacks them once the workspace's crates are fetched.
+cargo fetch --manifest-path "$(dirname "$0")/../Cargo.toml"
 cudarc=$(ls -d "${CARGO_HOME:-$HOME/.cargo}"/registry/src/*/cudarc-0.19.* | tail -n 1)
 stub() { # NAME SONAME BINDINGS
+    test -f "$3" || { echo "cuda-link-stubs: $3 not found" >&2; exit 1; }
     grep -o 'pub unsafe fn [A-Za-z0-9_]*(' "$3" | sed 's/pub unsafe fn //; s/(//' | sort -u |
         awk '{ print "void " $1 "(void) {}" }' >"$out/$1-stub.c"
     cc -shared -fPIC -Wl,-soname,"$2" -o "$out/lib$1.so" "$out/$1-stub.c"

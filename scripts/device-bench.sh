@@ -3,7 +3,8 @@
 # most 8): it builds nothing. It unpacks what scripts/device-pack.sh left in .device/, finds
 # the CUDA 13 and cuDNN 9 libraries of the machine's PyTorch, runs the main job on the GPU
 # (which also lets the driver compile candle's PTX once), then the device bench's rows and
-# the GPU's stages bench, and prints their tables. Copies of their output land in $OUT.
+# the GPU's stages bench, then the same network's time in another engine (PyTorch's cuDNN:
+# scripts/torch-network-time.py), and prints their tables. Copies of their output land in $OUT.
 # Run as: device run `bash scripts/device-bench.sh`, carrying .device.
 # Settings: ROWS (default main,1k,4k,library), CPU_ROWS (main,1k), VARIANTS (network options
 # tried on the 1K² row, `;` between them; default TF32, the one lower precision within reach).
@@ -12,9 +13,7 @@ cd "$(dirname "$0")/.."
 out=${OUT:-/tmp/device-out}
 mkdir -p "$out" /tmp/device
 echo "commit $(cat .device/commit)"
-xz -dc .device/matup.xz >/tmp/device/matup
-xz -dc .device/device-bench.xz >/tmp/device/device-bench
-xz -dc .device/gpu-stages.xz >/tmp/device/gpu-stages
+xz -dc .device/programs.tar.xz | tar -C /tmp/device -xf -
 chmod +x /tmp/device/matup /tmp/device/device-bench /tmp/device/gpu-stages
 read -r lib cudnn < <(python3 -c 'import glob, os, nvidia
 roots = list(nvidia.__path__)
@@ -34,4 +33,6 @@ MATUP_BIN=/tmp/device/matup MATUP_REPO=$PWD \
     MATUP_BENCH_GPU_VARIANTS=${VARIANTS:-precision=tf32} \
     /tmp/device/device-bench --bench 2>&1 | tee "$out/bench.txt"
 # The SR stage's parts: the network alone, the outputs' download, the host's blending.
-/tmp/device/gpu-stages --bench 2>&1 | tee "$out/gpu-stages.txt"
+/tmp/device/gpu-stages --bench 2>&1 | tee "$out/gpu-stages.txt" || echo "gpu-stages failed"
+# Another engine on the same network and GPU (onnxruntime's CUDA build is too large to carry).
+python3 scripts/torch-network-time.py 2>&1 | tee "$out/torch.txt" || true
