@@ -373,6 +373,7 @@ fn formats_round_trip_and_are_kept_on_save() {
         (FileFormat::Tiff16, 1e-4, "tif"),
         (FileFormat::TiffFloat, 1e-6, "tif"),
         (FileFormat::Tga, 0.5 / 255.0 * 1.2, "tga"),
+        (FileFormat::Bmp, 0.5 / 255.0 * 1.2, "bmp"),
     ];
     for (format, tolerance, extension) in cases {
         let dir = saved(&m, format, NormalConvention::DirectX);
@@ -417,7 +418,7 @@ fn formats_round_trip_and_are_kept_on_save() {
 }
 
 #[test]
-fn a_16_bit_tiff_and_a_tga_material_upscale_into_their_own_formats() {
+fn a_16_bit_tiff_a_tga_and_a_bmp_material_upscale_into_their_own_formats() {
     use matup::config::Config;
     use matup::progress::Silent;
     let m = sample();
@@ -429,6 +430,7 @@ fn a_16_bit_tiff_and_a_tga_material_upscale_into_their_own_formats() {
     for (format, extension, png) in [
         (FileFormat::Tiff16, "tif", FileFormat::Png16),
         (FileFormat::Tga, "tga", FileFormat::Png8),
+        (FileFormat::Bmp, "bmp", FileFormat::Png8),
     ] {
         let input = saved(&m, format, NormalConvention::DirectX);
         let lr = load(input.path()).unwrap();

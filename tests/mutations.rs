@@ -1,4 +1,4 @@
-//! Bad input, as users meet it: 2,200 damaged map files (truncated, bytes flipped, header fields
+//! Bad input, as users meet it: 2,400 damaged map files (truncated, bytes flipped, header fields
 //! changed, junk appended) in every format matup reads, and in the packed layouts of glTF,
 //! Unreal and Unity, go through the material loader and `matup upscale`'s folder-to-folder run. Each either loads and upscales, or is refused with
 //! an error that names the file; nothing panics, and the input folder is never touched.
@@ -17,13 +17,14 @@ use matup::progress::Silent;
 use matup::{load_material, save_material, LoadOptions, SaveOptions};
 use rand::{Rng, SeedableRng};
 
-const FORMATS: [FileFormat; 7] = [
+const FORMATS: [FileFormat; 8] = [
     FileFormat::Png8,
     FileFormat::Jpeg,
     FileFormat::WebpLossy,
     FileFormat::ExrHalf,
     FileFormat::Tiff16,
     FileFormat::Tga,
+    FileFormat::Bmp,
     // `--format dds`: BC7 colour, BC5 normals, BC4 grey, with mip chains.
     FileFormat::Dds(DdsFormat {
         codec: None,

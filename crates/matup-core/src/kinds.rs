@@ -126,6 +126,8 @@ pub enum FileFormat {
     TiffFloat,
     /// 8-bit TGA (game engines' format).
     Tga,
+    /// 8-bit BMP (older games' format).
+    Bmp,
     /// Lossy WebP (the web's format; glTF's `EXT_texture_webp`), 8-bit, alpha kept losslessly.
     WebpLossy,
     /// Lossless WebP, 8-bit.
@@ -259,6 +261,7 @@ impl FileFormat {
             | FileFormat::Jpeg
             | FileFormat::Tiff8
             | FileFormat::Tga
+            | FileFormat::Bmp
             | FileFormat::WebpLossy
             | FileFormat::WebpLossless => SampleDepth::U8,
             FileFormat::Png16 | FileFormat::Tiff16 => SampleDepth::U16,
@@ -274,16 +277,19 @@ impl FileFormat {
             FileFormat::ExrHalf | FileFormat::ExrFloat => "exr",
             FileFormat::Tiff8 | FileFormat::Tiff16 | FileFormat::TiffFloat => "tif",
             FileFormat::Tga => "tga",
+            FileFormat::Bmp => "bmp",
             FileFormat::WebpLossy | FileFormat::WebpLossless => "webp",
             FileFormat::Dds(_) => "dds",
         }
     }
 
     /// The longest side the format can store, for the formats that limit it below sizes matup
-    /// makes: WebP stores each side in 14 bits, JPEG and TGA in 16.
+    /// makes: WebP stores each side in 14 bits, JPEG and TGA in 16. BMP stores its file's size
+    /// in 32 bits, which 32767² texels of RGBA still fit.
     pub fn max_side(self) -> Option<usize> {
         match self {
             FileFormat::WebpLossy | FileFormat::WebpLossless => Some(16383),
+            FileFormat::Bmp => Some(32767),
             FileFormat::Jpeg | FileFormat::Tga => Some(65535),
             _ => None,
         }
@@ -312,6 +318,7 @@ impl FromStr for FileFormat {
             "tiff16" => Ok(FileFormat::Tiff16),
             "tiff-float" | "tiff32" => Ok(FileFormat::TiffFloat),
             "tga" => Ok(FileFormat::Tga),
+            "bmp" => Ok(FileFormat::Bmp),
             "webp" => Ok(FileFormat::WebpLossy),
             "webp-lossless" => Ok(FileFormat::WebpLossless),
             // A chosen DDS format has the DX10 header and a full mip chain, as engines load.
@@ -330,7 +337,7 @@ impl FromStr for FileFormat {
                 })),
                 None => Err(Error::Invalid(format!(
                     "unknown format '{s}'; use png, png16, jpg, exr-half, exr-float, tiff, \
-                     tiff16, tiff-float, tga, webp, webp-lossless, dds (BC7, BC5 for normals, \
+                     tiff16, tiff-float, tga, bmp, webp, webp-lossless, dds (BC7, BC5 for normals, \
                      BC4 for one channel) or dds-FORMAT ({})",
                     DDS_CODECS.map(|row| row.0).join(", ")
                 ))),
@@ -351,6 +358,7 @@ impl fmt::Display for FileFormat {
             FileFormat::Tiff16 => "tiff16",
             FileFormat::TiffFloat => "tiff-float",
             FileFormat::Tga => "tga",
+            FileFormat::Bmp => "bmp",
             FileFormat::WebpLossy => "webp",
             FileFormat::WebpLossless => "webp-lossless",
             FileFormat::Dds(DdsFormat { codec: None, .. }) => "dds",

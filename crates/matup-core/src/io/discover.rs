@@ -180,7 +180,7 @@ const DIRECTX_WORDS: &[&str] = &["dx", "directx", "normaldx", "nordx"];
 
 /// Image formats matup does not read: a file of one in a material folder is refused by name,
 /// never passed over.
-const UNREAD_IMAGE_EXTENSIONS: &[&str] = &["ktx", "ktx2", "psd", "bmp", "hdr", "gif", "avif"];
+const UNREAD_IMAGE_EXTENSIONS: &[&str] = &["ktx", "ktx2", "psd", "hdr", "gif", "avif"];
 
 /// Splits a file stem into lowercase words at separators and lower→upper case changes
 /// (`PavingStones092_1K-JPG_NormalGL` → paving, stones092, 1k, jpg, normal, gl).

@@ -1,5 +1,5 @@
 //! Reading and writing single image files (PNG 8/16-bit, JPEG, EXR half/float, TIFF 8/16-bit
-//! and float, TGA, WebP, DDS): formats live at this edge; everything inside is a planar f32
+//! and float, TGA, BMP, WebP, DDS): formats live at this edge; everything inside is a planar f32
 //! [`Map`].
 
 use std::io::Cursor;
@@ -22,11 +22,11 @@ pub(crate) struct ImageFile {
 }
 
 /// The file extensions matup reads.
-pub const IMAGE_EXTENSIONS: [&str; 9] = [
-    "png", "jpg", "jpeg", "exr", "tif", "tiff", "tga", "webp", "dds",
+pub const IMAGE_EXTENSIONS: [&str; 10] = [
+    "png", "jpg", "jpeg", "exr", "tif", "tiff", "tga", "bmp", "webp", "dds",
 ];
 
-/// The width and height of an encoded PNG, JPEG, TGA or WebP image, from its header.
+/// The width and height of an encoded PNG, JPEG, TGA, BMP or WebP image, from its header.
 pub fn encoded_size(bytes: &[u8]) -> Option<(u32, u32)> {
     if bytes.starts_with(b"RIFF") {
         let features = webp::BitstreamFeatures::new(bytes)?;
@@ -92,7 +92,7 @@ fn check_size(path: &Path, width: usize, height: usize, max_texels: u64) -> Resu
     Ok(())
 }
 
-/// PNG, JPEG and TGA.
+/// PNG, JPEG, TGA and BMP.
 fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
     let open = || -> Result<ImageReader<_>> {
         ImageReader::open(path)
@@ -112,6 +112,12 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
     let image = reader
         .decode()
         .map_err(|e| Error::file(path, format!("cannot decode: {e}")))?;
+    let image = match (kind, image) {
+        (Some(ImageFormat::Bmp), DynamicImage::ImageRgb8(rgb)) if has_grey_palette(path)? => {
+            bmp_palette_grey(rgb)
+        }
+        (_, image) => image,
+    };
     let sixteen = matches!(
         image,
         DynamicImage::ImageLuma16(_)
@@ -124,11 +130,12 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
         Some(ImageFormat::Png) if sixteen => FileFormat::Png16,
         Some(ImageFormat::Png) => FileFormat::Png8,
         Some(ImageFormat::Tga) => FileFormat::Tga,
+        Some(ImageFormat::Bmp) => FileFormat::Bmp,
         other => {
             return Err(Error::file(
                 path,
                 format!(
-                    "unsupported image format {other:?}; use PNG, JPEG, EXR, TIFF, TGA, WebP or DDS"
+                    "unsupported image format {other:?}; use PNG, JPEG, EXR, TIFF, TGA, BMP, WebP or DDS"
                 ),
             ))
         }
@@ -155,6 +162,32 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
         interleaved[(y * w + x) * channels + c]
     });
     Ok(ImageFile { map, format })
+}
+
+/// Whether a BMP file's colour table is all grey (R = G = B in every entry): an 8-bit grey
+/// map, which the image crate decodes through its palette to RGB.
+fn has_grey_palette(path: &Path) -> Result<bool> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let decoder = image::codecs::bmp::BmpDecoder::new(std::io::BufReader::new(file))
+        .map_err(|e| Error::file(path, format!("cannot decode: {e}")))?;
+    Ok(decoder
+        .get_palette()
+        .is_some_and(|palette| palette.iter().all(|&[r, g, b]| r == g && g == b)))
+}
+
+/// A grey-palette BMP's texels as the grey they are, so that the map comes back one channel
+/// and is written back as 8-bit grey, as it came. Kept RGB if any texel is not grey (a colour
+/// table that a 24-bit file carries but does not use).
+fn bmp_palette_grey(rgb: image::RgbImage) -> DynamicImage {
+    if rgb.pixels().all(|p| p[0] == p[1] && p[1] == p[2]) {
+        DynamicImage::ImageLuma8(image::GrayImage::from_fn(
+            rgb.width(),
+            rgb.height(),
+            |x, y| image::Luma([rgb.get_pixel(x, y)[0]]),
+        ))
+    } else {
+        DynamicImage::ImageRgb8(rgb)
+    }
 }
 
 /// WebP, read by libwebp as it is written ([`super::stream`]): the bitstream says whether the
@@ -407,4 +440,37 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let mut tmp = super::stream::temporary_beside(path)?;
     tmp.write_all(bytes).map_err(|e| Error::io(path, e))?;
     super::stream::persist(tmp, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A BMP as another program writes it: through the image crate's encoder.
+    fn bmp(path: &Path, image: DynamicImage) {
+        image.save_with_format(path, ImageFormat::Bmp).unwrap();
+    }
+
+    #[test]
+    fn a_grey_palette_bmp_reads_as_one_channel_and_a_24_bit_one_as_rgb() {
+        let dir = tempfile::tempdir().unwrap();
+        let grey = image::GrayImage::from_fn(7, 5, |x, y| image::Luma([(x * 40 + y * 3) as u8]));
+        // Written as an 8-bit file with a grey colour table.
+        bmp(
+            &dir.path().join("grey.bmp"),
+            DynamicImage::ImageLuma8(grey.clone()),
+        );
+        // The same greys as 24-bit RGB: no table, kept RGB as stored.
+        let rgb = DynamicImage::ImageLuma8(grey.clone()).to_rgb8();
+        bmp(&dir.path().join("rgb.bmp"), DynamicImage::ImageRgb8(rgb));
+
+        let read = read_image(&dir.path().join("grey.bmp"), u64::MAX).unwrap();
+        assert_eq!((read.format, read.map.channels()), (FileFormat::Bmp, 1));
+        let expected = grey.pixels().map(|p| p[0] as f32 / 255.0);
+        assert!(read.map.plane(0).iter().copied().eq(expected));
+
+        let read = read_image(&dir.path().join("rgb.bmp"), u64::MAX).unwrap();
+        assert_eq!((read.format, read.map.channels()), (FileFormat::Bmp, 3));
+        assert_eq!(read.map.plane(0), read.map.plane(2));
+    }
 }

@@ -1,8 +1,8 @@
 //! Image files written in bands of rows, top to bottom, so an output never has to be whole in
 //! memory: PNG through the `png` crate's stream writer, EXR block by block through `exr`'s
 //! block writer (on a thread of its own, because `exr` pulls the blocks from a closure while
-//! matup pushes bands). JPEG, TGA, TIFF and DDS have no row-wise encoder among the chosen crates
-//! (the `tiff` crate writes strips one by one, but compresses only whole images; a DDS mip
+//! matup pushes bands). JPEG, TGA, BMP, TIFF and DDS have no row-wise encoder among the chosen
+//! crates (the `tiff` crate writes strips one by one, but compresses only whole images; a DDS mip
 //! chain needs the whole top level): their samples are gathered at the file's bit depth (3 bytes a texel for 8-bit RGB) and encoded at
 //! the end. Every file goes to a temporary file beside its path, renamed over it once complete.
 
@@ -56,7 +56,7 @@ enum Encoder {
         sixteen_bits: bool,
         error: Arc<Mutex<Option<std::io::Error>>>,
     },
-    /// JPEG, TGA, TIFF or DDS: samples gathered for an encoder of whole images.
+    /// JPEG, TGA, BMP, TIFF or DDS: samples gathered for an encoder of whole images.
     Gathered(Samples),
     Exr {
         bands: Option<SyncSender<Map>>,
@@ -222,6 +222,7 @@ impl ImageWriter {
             }
             FileFormat::Jpeg
             | FileFormat::Tga
+            | FileFormat::Bmp
             | FileFormat::Tiff8
             | FileFormat::WebpLossy
             | FileFormat::WebpLossless => {
@@ -526,9 +527,10 @@ fn write_exr(
     .map_err(|e| e.to_string())
 }
 
-/// Encodes a whole image of gathered samples: JPEG (quality 95), TGA or WebP from 8-bit samples,
-/// TIFF (LZW, as image editors write it) at its depth, DDS from floats. The `tiff` crate writes
-/// no grey + alpha, so such a TIFF is written RGBA with the grey in all three colour channels.
+/// Encodes a whole image of gathered samples: JPEG (quality 95), TGA, BMP or WebP from 8-bit
+/// samples, TIFF (LZW, as image editors write it) at its depth, DDS from floats. The `tiff`
+/// crate writes no grey + alpha, so such a TIFF is written RGBA with the grey in all three
+/// colour channels.
 fn encode_whole(
     out: &mut BufWriter<File>,
     width: usize,
@@ -568,18 +570,29 @@ fn encode_whole(
                 hints.block_quality,
             );
         }
-        (FileFormat::Jpeg | FileFormat::Tga, Samples::U8(raw)) => {
+        (FileFormat::Jpeg | FileFormat::Tga | FileFormat::Bmp, Samples::U8(raw)) => {
             let image = match channels {
                 1 => DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap()),
                 2 => DynamicImage::ImageLumaA8(image::GrayAlphaImage::from_raw(w, h, raw).unwrap()),
                 3 => DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, raw).unwrap()),
                 _ => DynamicImage::ImageRgba8(image::RgbaImage::from_raw(w, h, raw).unwrap()),
             };
-            return if format == FileFormat::Tga {
-                image.write_with_encoder(image::codecs::tga::TgaEncoder::new(out))
-            } else {
-                let jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(out, 95);
-                image.write_with_encoder(jpeg)
+            return match format {
+                FileFormat::Tga => {
+                    image.write_with_encoder(image::codecs::tga::TgaEncoder::new(out))
+                }
+                FileFormat::Bmp => {
+                    // The image crate's BMP encoder drops grey's alpha: grey + alpha goes as RGBA.
+                    let image = match image {
+                        DynamicImage::ImageLumaA8(_) => DynamicImage::ImageRgba8(image.to_rgba8()),
+                        image => image,
+                    };
+                    image.write_with_encoder(image::codecs::bmp::BmpEncoder::new(out))
+                }
+                _ => {
+                    let jpeg = image::codecs::jpeg::JpegEncoder::new_with_quality(out, 95);
+                    image.write_with_encoder(jpeg)
+                }
             }
             .map_err(|e| e.to_string());
         }
@@ -791,6 +804,7 @@ mod tests {
             FileFormat::Tiff16,
             FileFormat::TiffFloat,
             FileFormat::Tga,
+            FileFormat::Bmp,
             FileFormat::WebpLossy,
             FileFormat::WebpLossless,
         ] {
@@ -821,9 +835,9 @@ mod tests {
                 let mut whole = read_image(&name("whole"), u64::MAX).unwrap().map;
                 assert!(bands == whole, "{format} ×{channels}");
                 if whole.channels() == channels + 2 {
-                    // TIFF and WebP write grey + alpha as RGBA, WebP grey as RGB: the grey in R,
-                    // G and B, within the level by which the reader still takes them as one
-                    // grey (lossy WebP's colour conversion).
+                    // TIFF, BMP and WebP write grey + alpha as RGBA, WebP grey as RGB: the grey
+                    // in R, G and B, within the level by which the reader still takes them as
+                    // one grey (lossy WebP's colour conversion).
                     let apart = (1..3)
                         .flat_map(|c| whole.plane(c).iter().zip(whole.plane(0)))
                         .map(|(a, b)| (a - b).abs())
@@ -841,6 +855,7 @@ mod tests {
                     FileFormat::Png8
                     | FileFormat::Tiff8
                     | FileFormat::Tga
+                    | FileFormat::Bmp
                     | FileFormat::WebpLossless => 0.5 / 255.0,
                     FileFormat::Png16 | FileFormat::Tiff16 => 0.5 / 65535.0,
                     FileFormat::Jpeg | FileFormat::WebpLossy => 0.1,
