@@ -34,5 +34,5 @@ MATUP_BIN=/tmp/device/matup MATUP_REPO=$PWD \
     /tmp/device/device-bench --bench 2>&1 | tee "$out/bench.txt"
 # The SR stage's parts: the network alone, the outputs' download, the host's blending.
 /tmp/device/gpu-stages --bench 2>&1 | tee "$out/gpu-stages.txt" || echo "gpu-stages failed"
-# Another engine on the same network and GPU (onnxruntime's CUDA build is too large to carry).
+# Another engine on the same network and GPU: PyTorch's cuDNN, as onnxruntime's CUDA provider.
 python3 scripts/torch-network-time.py 2>&1 | tee "$out/torch.txt" || true

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Another engine's time for matup's network, for comparison with candle's on the same GPU.
 
-The GPU machines carry PyTorch (with cuDNN) and onnxruntime's CPU build only: onnxruntime's
-CUDA provider does not fit in what a device call carries. PyTorch runs the same cuDNN
-convolutions that provider would, so this interprets the shipped ONNX graph (its few
+A GPU machine with PyTorch has cuDNN, but seldom onnxruntime's CUDA build (onnxruntime-gpu,
+a separate package of several hundred MB). PyTorch runs the same cuDNN convolutions that
+provider would, so this interprets the shipped ONNX graph (its few
 operators) as PyTorch operations and times the SR stage's network work of a 1K² material:
 eight 1K² images (four maps, two self-ensemble passes) ×4, whole, in one batch. First it checks
 the interpretation against onnxruntime's CPU build on a small input.
