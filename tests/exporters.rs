@@ -13,11 +13,9 @@ mod common;
 use std::path::Path;
 
 use image::{DynamicImage, ImageEncoder};
-use matup::apps::folder::upscale_to_folder;
 use matup::config::Config;
 use matup::io::Names;
 use matup::material::Material;
-use matup::progress::Silent;
 use matup::{load_material, shading_model, LightSetSpec, LoadOptions, Map, SaveOptions};
 
 const SIZE: usize = 64;
@@ -340,20 +338,12 @@ fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
 
         // (b) Every file back, as it was, ×4.
         let out = dir.path().join("out");
-        upscale_to_folder(
-            &material,
-            &config,
-            &out,
-            &SaveOptions {
-                names: Names::Keep,
-                ..Default::default()
-            },
-            false,
-            None,
-            None,
-            &Silent,
-        )
-        .unwrap_or_else(|e| panic!("{layout}: {e}"));
+        let keep_names = SaveOptions {
+            names: Names::Keep,
+            ..Default::default()
+        };
+        common::upscale_into(&material, &config, &out, &keep_names)
+            .unwrap_or_else(|e| panic!("{layout}: {e}"));
         for f in &files {
             let before = image::open(input.join(f.name)).unwrap();
             let after = image::open(out.join(f.name))

@@ -10,7 +10,6 @@ use std::path::Path;
 use dds::header::Header;
 use dds::{ColorFormat, Decoder, Encoder, ImageView, ImageViewMut, Size};
 use image::ImageEncoder;
-use matup::apps::folder::upscale_to_folder;
 use matup::config::Config;
 use matup::progress::Silent;
 use matup::{load_material, save_material, shading_model, LightSetSpec, LoadOptions, SaveOptions};
@@ -182,17 +181,7 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
         same.render_psnr
     );
 
-    upscale_to_folder(
-        &material,
-        &Config::default(),
-        &out,
-        &SaveOptions::default(),
-        false,
-        None,
-        None,
-        &Silent,
-    )
-    .unwrap();
+    common::upscale_into(&material, &Config::default(), &out, &SaveOptions::default()).unwrap();
     let mut off = Vec::new();
     for (name, _, format, srgb, mipmaps, channels) in files {
         let before = decode(&input.join(name));
@@ -221,17 +210,7 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
         format: Some("dds".parse().unwrap()),
         ..Default::default()
     };
-    upscale_to_folder(
-        &expected,
-        &Config::default(),
-        &converted,
-        &save,
-        false,
-        None,
-        None,
-        &Silent,
-    )
-    .unwrap();
+    common::upscale_into(&expected, &Config::default(), &converted, &save).unwrap();
     for (name, format, srgb) in [
         ("baseColor.dds", dds::Format::BC7_UNORM, true),
         ("normal.dds", dds::Format::BC5_UNORM, false),
@@ -663,19 +642,10 @@ fn an_output_larger_than_webp_holds_is_refused_before_any_work() {
         ..Config::default()
     };
     let out = dir.path().join("out");
-    let error = upscale_to_folder(
-        &lr,
-        &config,
-        &out,
-        &SaveOptions::default(),
-        false,
-        None,
-        None,
-        &Silent,
-    )
-    .err()
-    .expect("refused")
-    .to_string();
+    let error = common::upscale_into(&lr, &config, &out, &SaveOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
     assert!(
         error.contains("baseColor.webp")
             && error.contains("16384×16384")

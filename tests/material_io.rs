@@ -435,17 +435,7 @@ fn a_16_bit_tiff_a_tga_and_a_bmp_material_upscale_into_their_own_formats() {
         let input = saved(&m, format, NormalConvention::DirectX);
         let lr = load(input.path()).unwrap();
         let out = tempfile::tempdir().unwrap();
-        matup::folder::upscale_to_folder(
-            &lr,
-            &config,
-            out.path(),
-            &SaveOptions::default(),
-            false,
-            None,
-            None,
-            &Silent,
-        )
-        .unwrap();
+        common::upscale_into(&lr, &config, out.path(), &SaveOptions::default()).unwrap();
         let back = load(out.path()).unwrap();
         assert_eq!((back.width(), back.height_px()), (512, 512), "{format}");
         let (upscaled, _) = matup::upscale(&lr, &config, &Default::default(), &Silent).unwrap();

@@ -10,7 +10,6 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use matup::config::Config;
-use matup::folder::upscale_to_folder;
 use matup::io::Names;
 use matup::material::{DdsFormat, FileFormat};
 use matup::progress::Silent;
@@ -310,16 +309,7 @@ fn damaged_files_are_upscaled_or_refused_by_name_and_never_panic() {
                 let before = snapshot(&folder);
                 let run = std::panic::catch_unwind(|| {
                     let material = load_material(Some(&folder), &load_options)?;
-                    upscale_to_folder(
-                        &material,
-                        &config,
-                        &out,
-                        &save_options,
-                        false,
-                        None,
-                        None,
-                        &Silent,
-                    )
+                    common::upscale_into(&material, &config, &out, &save_options)
                 });
                 let what = format!("{format} {damage:?} #{case} ({name})");
                 let outputs: Vec<PathBuf> = files

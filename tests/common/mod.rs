@@ -11,6 +11,26 @@ use matup::{FileFormat, Map, RunOptions};
 
 pub mod nets;
 
+/// Upscales `material` into `out` as `matup upscale` does without its run options: no resume,
+/// no memory limit, no fingerprint, no progress shown.
+pub fn upscale_into(
+    material: &Material,
+    config: &Config,
+    out: &Path,
+    save: &matup::SaveOptions,
+) -> matup::Result<matup::folder::FolderRun> {
+    matup::folder::upscale_to_folder(
+        material,
+        config,
+        out,
+        save,
+        false,
+        None,
+        None,
+        &matup::progress::Silent,
+    )
+}
+
 /// A real material the repository ships for its tests: `tests/data/materials/<name>`, 256²
 /// box-filtered from the 1024² set of that name (`tests/data/README.md`).
 pub fn test_material(name: &str) -> PathBuf {
