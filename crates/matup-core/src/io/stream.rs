@@ -571,6 +571,11 @@ fn encode_whole(
             );
         }
         (FileFormat::Jpeg | FileFormat::Tga | FileFormat::Bmp, Samples::U8(raw)) => {
+            // The image crate's BMP encoder drops grey's alpha: grey + alpha goes as RGBA.
+            let (channels, raw) = match (format, channels) {
+                (FileFormat::Bmp, 2) => (4, as_rgba(2, raw)),
+                _ => (channels, raw),
+            };
             let image = match channels {
                 1 => DynamicImage::ImageLuma8(image::GrayImage::from_raw(w, h, raw).unwrap()),
                 2 => DynamicImage::ImageLumaA8(image::GrayAlphaImage::from_raw(w, h, raw).unwrap()),
@@ -582,11 +587,6 @@ fn encode_whole(
                     image.write_with_encoder(image::codecs::tga::TgaEncoder::new(out))
                 }
                 FileFormat::Bmp => {
-                    // The image crate's BMP encoder drops grey's alpha: grey + alpha goes as RGBA.
-                    let image = match image {
-                        DynamicImage::ImageLumaA8(_) => DynamicImage::ImageRgba8(image.to_rgba8()),
-                        image => image,
-                    };
                     image.write_with_encoder(image::codecs::bmp::BmpEncoder::new(out))
                 }
                 _ => {
