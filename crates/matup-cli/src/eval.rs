@@ -5,11 +5,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use matup_core::resample::Border;
+use matup_core::resample::{Border, SeamSteps};
 use matup_core::tileable::decide_tileable;
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, Material, PluginSpec};
 use matup_eval::metrics::{
-    evaluate, false_colour, map_block_edges, map_seams, Evaluation, FalseColour,
+    evaluate, false_colour, map_block_edges, map_seam_steps, Evaluation, FalseColour,
 };
 
 #[derive(Args, Debug)]
@@ -63,7 +63,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let border =
         |lr: &Material| Border::for_tiling(made_tileable.unwrap_or_else(|| decide_tileable(lr).0));
     let Some(reference_folder) = &args.reference else {
-        let seams = map_seams(&candidate, scale);
+        let seam_steps = map_seam_steps(&candidate, scale);
+        let seams: BTreeMap<&String, f64> =
+            seam_steps.iter().map(|(m, s)| (m, s.ratio())).collect();
         let block_edges = map_block_edges(&candidate, scale);
         let false_colour = input
             .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None, border(&lr)))
@@ -72,12 +74,13 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             let report = serde_json::json!({
                 "scale": scale,
                 "map_seams": seams,
+                "map_seam_steps": seam_steps,
                 "map_block_edges": block_edges,
                 "false_colour": false_colour,
             });
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
-            print_seams(&seams, None, scale);
+            print_seams(&seam_steps, None, scale);
             print_block_edges(&block_edges, None, scale);
             print_false_colour(false_colour.as_ref(), "against the input alone");
         }
@@ -171,7 +174,11 @@ fn print_table(e: &Evaluation) {
     for (name, value) in rows {
         println!("{name:<28} {value:>12}");
     }
-    print_seams(&e.map_seams, Some(&e.reference_map_seams), e.scale);
+    print_seams(
+        &e.map_seam_steps,
+        Some(&e.reference_map_seam_steps),
+        e.scale,
+    );
     print_block_edges(
         &e.map_block_edges,
         Some(&e.reference_map_block_edges),
@@ -183,11 +190,12 @@ fn print_table(e: &Evaluation) {
     );
 }
 
-/// Each map's wrap-around seam ratio (and the reference's): about 1 where copies join
-/// without a seam.
+/// Each map's wrap-around seam ratio (and the reference's), about 1 where copies join without
+/// a seam, and its two parts: a ratio above the reference's comes from a larger wrap-around
+/// step or from a smoother interior.
 fn print_seams(
-    seams: &BTreeMap<String, f64>,
-    reference: Option<&BTreeMap<String, f64>>,
+    steps: &BTreeMap<String, SeamSteps>,
+    reference: Option<&BTreeMap<String, SeamSteps>>,
     scale: usize,
 ) {
     let phase = if scale > 1 {
@@ -195,8 +203,26 @@ fn print_seams(
     } else {
         String::new()
     };
-    println!("wrap-around seam ratio per map (about 1: tiles without a seam{phase})");
-    print_per_map(seams, reference);
+    println!(
+        "wrap-around seam ratio per map (about 1: tiles without a seam{phase}) = the wrap-around \
+         step / the mean interior step"
+    );
+    for (map, s) in steps {
+        let (ratio, parts) = match reference.and_then(|r| r.get(map)) {
+            Some(r) => (
+                format!("{:.2} ({:.2})", s.ratio(), r.ratio()),
+                format!(
+                    "{:.4} / {:.4} ({:.4} / {:.4})",
+                    s.wrap, s.interior, r.wrap, r.interior
+                ),
+            ),
+            None => (
+                format!("{:.2}", s.ratio()),
+                format!("{:.4} / {:.4}", s.wrap, s.interior),
+            ),
+        };
+        println!("  {map:<26} {ratio:>12} = {parts}");
+    }
 }
 
 /// Each map's block-edge ratio (and the reference's), at scales above 1.

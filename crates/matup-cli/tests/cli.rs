@@ -478,6 +478,13 @@ fn downsample_then_eval_reports_a_table_and_json() {
             ["baseColor", "height", "metallic", "normal", "roughness"]
         );
         let ratio = |map: &str| seams[map].as_f64().unwrap();
+        // Its two parts: the wrap-around step over the mean interior step.
+        for map in ["baseColor", "normal"] {
+            let steps = &report["map_seam_steps"][map];
+            let part = |k: &str| steps[k].as_f64().unwrap();
+            assert!(part("wrap") > 0.0 && part("interior") > 0.0, "{steps}");
+            assert!((part("wrap") / part("interior") - ratio(map)).abs() < 1e-9);
+        }
         (ratio("baseColor"), ratio("normal"))
     };
     let (whole_colour, whole_normal) = seams(&denim);

@@ -5,6 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use rayon::prelude::*;
+use serde::Serialize;
 
 use crate::map::{Dihedral, Map, PARALLEL_TEXELS};
 use crate::{Error, Result};
@@ -513,29 +514,49 @@ pub fn neighbourhood_ranges<const N: usize>(
 
 /// How well an image wraps around: the mean |difference| across the wrap-around edge over the
 /// mean |difference| across interior edges at the same phase of a `period`-texel grid (≈ 1:
-/// seamless; ≫ 1: a seam). The larger of the row and column ratios, over all channels.
+/// seamless; ≫ 1: a seam). The larger of the row and column ratios, over all channels
+/// ([`seam_steps`] gives its two parts).
+pub fn seam_ratio(map: &Map, period: usize) -> f32 {
+    seam_steps(map, period).ratio() as f32
+}
+
+/// The two parts of a [`seam_ratio`] along the axis where it is larger.
 ///
 /// An output upscaled ×s carries its input's texel grid: steps across the input's texel edges
 /// (every s-th) are larger than those inside a texel. The wrap-around edge lies on that grid,
 /// so it is compared with the interior steps every `period` = s texels; with `period` 1 (or one
 /// that does not divide the side) it is compared with every interior step.
-pub fn seam_ratio(map: &Map, period: usize) -> f32 {
-    let ratio = |wrap: f64, interior: f64| {
-        if interior <= 1e-12 {
-            if wrap <= 1e-12 {
-                1.0
-            } else {
-                f64::INFINITY
-            }
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SeamSteps {
+    /// The mean |difference| across the wrap-around edge.
+    pub wrap: f64,
+    /// The mean |difference| across the interior edges at the wrap-around edge's phase.
+    pub interior: f64,
+}
+
+impl SeamSteps {
+    /// `wrap` over `interior`: 1 where both are 0, infinite where only `interior` is.
+    pub fn ratio(self) -> f64 {
+        if self.interior > 1e-12 {
+            self.wrap / self.interior
+        } else if self.wrap <= 1e-12 {
+            1.0
         } else {
-            wrap / interior
+            f64::INFINITY
         }
-    };
+    }
+}
+
+/// The [`SeamSteps`] of `map` on a `period`-texel grid, along the axis whose ratio is larger.
+pub fn seam_steps(map: &Map, period: usize) -> SeamSteps {
     // Along the rows of `m`: the step into row i from the one before it, wrapping at 0.
     let along_rows = |m: &Map| {
         let n = m.height();
         if n < 2 {
-            return 1.0;
+            return SeamSteps {
+                wrap: 0.0,
+                interior: 0.0,
+            };
         }
         let period = if period > 1 && n % period == 0 && n / period >= 2 {
             period
@@ -544,10 +565,18 @@ pub fn seam_ratio(map: &Map, period: usize) -> f32 {
         };
         let step = |i: usize| row_difference(m, (i + n - 1) % n, i);
         let edges: Vec<usize> = (1..n / period).map(|k| k * period).collect();
-        let interior = edges.iter().map(|&i| step(i)).sum::<f64>() / edges.len().max(1) as f64;
-        ratio(step(0), interior)
+        SeamSteps {
+            wrap: step(0),
+            interior: edges.iter().map(|&i| step(i)).sum::<f64>() / edges.len().max(1) as f64,
+        }
     };
-    along_rows(map).max(along_rows(&map.transformed(Dihedral::TRANSPOSE))) as f32
+    let rows = along_rows(map);
+    let columns = along_rows(&map.transformed(Dihedral::TRANSPOSE));
+    if columns.ratio() > rows.ratio() {
+        columns
+    } else {
+        rows
+    }
 }
 
 /// The mean |difference| between rows `a` and `b` of `map`, over its columns and channels.
@@ -719,5 +748,10 @@ mod tests {
         // A real seam still stands out at the phase: the ramp's wrap step is 31 steps.
         let ramp = Map::from_fn(32, 32, 1, |_, _, x| x as f32);
         assert!(seam_ratio(&ramp, 4) > 10.0);
+        // Its parts, from the columns (the rows do not vary): a wrap step of 31 over interior
+        // steps of 1.
+        let steps = seam_steps(&ramp, 4);
+        assert_eq!((steps.wrap, steps.interior), (31.0, 1.0));
+        assert_eq!(steps.ratio() as f32, seam_ratio(&ramp, 4));
     }
 }

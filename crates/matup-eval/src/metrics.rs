@@ -11,7 +11,9 @@ use matup_core::lights::{Light, LightSetSpec};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::render::{render, RenderOptions};
-use matup_core::resample::{gaussian_blur, lr_texel, neighbourhood_ranges, seam_ratio, Border};
+use matup_core::resample::{
+    gaussian_blur, lr_texel, neighbourhood_ranges, seam_ratio, seam_steps, Border, SeamSteps,
+};
 use matup_core::shading::ShadingModel;
 use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
 use matup_core::{Error, Result};
@@ -50,6 +52,10 @@ pub struct Evaluation {
     /// Each map's wrap-around seam ratio ([`map_seams`]), the candidate's and the reference's.
     pub map_seams: BTreeMap<String, f64>,
     pub reference_map_seams: BTreeMap<String, f64>,
+    /// The two parts of each map's seam ratio ([`map_seam_steps`]): where the candidate's ratio
+    /// exceeds the reference's, whether its wrap-around step is larger or its interior smoother.
+    pub map_seam_steps: BTreeMap<String, SeamSteps>,
+    pub reference_map_seam_steps: BTreeMap<String, SeamSteps>,
     /// Each map's block-edge ratio ([`block_edge_ratio`]), the candidate's and the
     /// reference's: about 1 without a grid of the input's texels in the output.
     pub map_block_edges: BTreeMap<String, f64>,
@@ -202,6 +208,8 @@ pub fn evaluate(
         reference_seam_ratio: wrap_seam_ratio(reference, scale) as f64,
         map_seams: map_seams(candidate, scale),
         reference_map_seams: map_seams(reference, scale),
+        map_seam_steps: map_seam_steps(candidate, scale),
+        reference_map_seam_steps: map_seam_steps(reference, scale),
         map_block_edges: map_block_edges(candidate, scale),
         reference_map_block_edges: map_block_edges(reference, scale),
         render_sharpness: mean(3),
@@ -219,6 +227,12 @@ pub fn map_seams(material: &Material, scale: usize) -> BTreeMap<String, f64> {
     each_map(material, |map| seam_ratio(map, scale) as f64)
 }
 
+/// Each map's [`SeamSteps`] (the wrap-around step and the interior steps at the grid's phase
+/// that [`map_seams`] divides), by file name.
+pub fn map_seam_steps(material: &Material, scale: usize) -> BTreeMap<String, SeamSteps> {
+    each_map(material, |map| seam_steps(map, scale))
+}
+
 /// Each map's [`block_edge_ratio`], by file name; empty at scale 1.
 pub fn map_block_edges(material: &Material, scale: usize) -> BTreeMap<String, f64> {
     if scale < 2 {
@@ -227,7 +241,7 @@ pub fn map_block_edges(material: &Material, scale: usize) -> BTreeMap<String, f6
     each_map(material, |map| block_edge_ratio(map, scale))
 }
 
-fn each_map(material: &Material, f: impl Fn(&Map) -> f64) -> BTreeMap<String, f64> {
+fn each_map<T>(material: &Material, f: impl Fn(&Map) -> T) -> BTreeMap<String, T> {
     MapKind::ALL
         .into_iter()
         .filter_map(|kind| Some((kind.file_stem().to_string(), f(material.map(kind)?))))
