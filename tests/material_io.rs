@@ -794,3 +794,185 @@ fn a_packed_file_given_by_a_relative_path_is_read_as_its_packing_says() {
     assert_eq!(back.get_pixel(3, 5)[2], 77);
     assert_eq!(back.get_pixel(3, 5)[0], packed.get_pixel(3, 5)[0]);
 }
+
+/// `map`'s first channel as an 8-bit grey PNG at `path`.
+fn save_grey(map: &Map, path: &Path) {
+    let levels: Vec<u8> = (map.plane(0).iter())
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    image::GrayImage::from_raw(map.width() as u32, map.height() as u32, levels)
+        .unwrap()
+        .save(path)
+        .unwrap();
+}
+
+/// The 8-bit grey PNG at `path` as levels, and its size.
+fn grey_levels(path: &Path) -> (Vec<f32>, [usize; 2]) {
+    let image = image::open(path).unwrap().into_luma8();
+    let size = [image.width() as usize, image.height() as usize];
+    (image.into_raw().into_iter().map(f32::from).collect(), size)
+}
+
+/// The largest difference, in levels, between each texel of `input` and the mean of the
+/// `factor × factor` block of `output` above it.
+fn box_back_worst(input: &[f32], input_size: [usize; 2], output: &[f32], factor: usize) -> f32 {
+    let [w, h] = input_size;
+    let mut worst = 0.0f32;
+    for y in 0..h {
+        for x in 0..w {
+            let block: f32 = (0..factor * factor)
+                .map(|k| output[(factor * y + k / factor) * factor * w + factor * x + k % factor])
+                .sum();
+            worst = worst.max((block / (factor * factor) as f32 - input[y * w + x]).abs());
+        }
+    }
+    worst
+}
+
+#[test]
+fn images_of_another_size_come_back_upscaled_apart_by_the_same_factor() {
+    use matup::config::{Config, TargetSize};
+    // A real material's 256² maps, with an occlusion map at half their size and a mask at a
+    // quarter beside them (made from its height), as packs that bake these smaller ship them.
+    let source = common::test_material("ambientcg_Leather025");
+    let dir = tempfile::tempdir().unwrap();
+    for f in ["baseColor.png", "normal.png", "roughness.png", "height.png"] {
+        copy(&source.join(f), dir.path(), f);
+    }
+    let height = load(&source).unwrap().height.unwrap();
+    let occlusion = matup::resample::box_downsample(&height, 2);
+    save_grey(&occlusion, &dir.path().join("ambientOcclusion.png"));
+    save_grey(
+        &matup::resample::box_downsample(&height, 4),
+        &dir.path().join("mask.png"),
+    );
+    let material = load(dir.path()).unwrap();
+    assert_eq!((material.width(), material.carried.extras.len()), (256, 0));
+
+    let out = tempfile::tempdir().unwrap();
+    let config = Config {
+        scale: 2,
+        ..Config::default()
+    };
+    let run = common::upscale_into(&material, &config, out.path(), &SaveOptions::default());
+    let report = run.unwrap().report;
+    // Every file back, each ×2 and consistent with its input.
+    for (name, size) in [
+        ("baseColor.png", 512),
+        ("ambientOcclusion.png", 256),
+        ("mask.png", 128),
+    ] {
+        let (input, input_size) = grey_levels(&dir.path().join(name));
+        let (output, output_size) = grey_levels(&out.path().join(name));
+        assert_eq!(output_size, [size, size], "{name}");
+        if name != "baseColor.png" {
+            let worst = box_back_worst(&input, input_size, &output, 2);
+            assert!(worst <= 2.0, "{name}: {worst} levels from its input");
+        }
+    }
+    let sizes: Vec<([usize; 2], [usize; 2], &str)> = (report.other_sizes.iter())
+        .map(|r| (r.input_size, r.output_size, r.files[0].as_str()))
+        .collect();
+    assert_eq!(
+        sizes,
+        [
+            ([64, 64], [128, 128], "mask.png"),
+            ([128, 128], [256, 256], "ambientOcclusion.png")
+        ]
+    );
+
+    // A size asked for holds for the maps; the others keep the ratio (256² → 640², ×2.5).
+    let out = tempfile::tempdir().unwrap();
+    let config = Config {
+        size: Some(TargetSize {
+            width: 640,
+            height: None,
+        }),
+        upsampler: "bicubic".into(),
+        ..Config::default()
+    };
+    common::upscale_into(&material, &config, out.path(), &SaveOptions::default()).unwrap();
+    for (name, side) in [
+        ("height.png", 640),
+        ("ambientOcclusion.png", 320),
+        ("mask.png", 160),
+    ] {
+        let (_, size) = grey_levels(&out.path().join(name));
+        assert_eq!(size, [side, side], "{name}");
+    }
+}
+
+#[test]
+fn a_folder_of_textures_of_many_sizes_comes_back_whole() {
+    // Textures as a game's dump names them, none a map matup knows, in three sizes: the first
+    // image's size is a material of carried images, each other size one of its own.
+    let height = load(&common::test_material("ambientcg_Rock029"))
+        .unwrap()
+        .height
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let files = [
+        ("tex1_128x128_5f3a.png", 1),
+        ("tex1_64x64_9c1e.png", 2),
+        ("tex1_64x64_a07b.png", 2),
+        ("tex1_32x32_e4d2.png", 4),
+    ];
+    for (name, factor) in files {
+        let map = matup::resample::box_downsample(&height, 2 * factor);
+        save_grey(&map, &dir.path().join(name));
+    }
+    let material = load(dir.path()).unwrap();
+    assert_eq!(material.width(), 128);
+    let out = tempfile::tempdir().unwrap();
+    let config = matup::config::Config {
+        upsampler: "bicubic".into(),
+        ..Default::default()
+    };
+    let run = common::upscale_into(&material, &config, out.path(), &SaveOptions::default());
+    assert_eq!(run.unwrap().report.other_sizes.len(), 2);
+    for (name, _) in files {
+        let (input, input_size) = grey_levels(&dir.path().join(name));
+        let (output, output_size) = grey_levels(&out.path().join(name));
+        assert_eq!(output_size, input_size.map(|s| 4 * s), "{name}");
+        let worst = box_back_worst(&input, input_size, &output, 4);
+        assert!(worst <= 2.0, "{name}: {worst} levels from its input");
+    }
+
+    // Two sizes whose files one format would give one name: refused by that name, the
+    // first one's file kept.
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["stone_mask.png", "stone_grime.png"] {
+        save_grey(
+            &matup::resample::box_downsample(&height, 4),
+            &dir.path().join(name),
+        );
+    }
+    let small = matup::resample::box_downsample(&height, 8);
+    let levels = small
+        .plane(0)
+        .iter()
+        .map(|v| (v * 255.0).round() as u8)
+        .collect();
+    image::GrayImage::from_raw(32, 32, levels)
+        .unwrap()
+        .save(dir.path().join("stone_mask.tga"))
+        .unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let save = SaveOptions {
+        format: Some(FileFormat::Png8),
+        ..SaveOptions::default()
+    };
+    let material = load(dir.path()).unwrap();
+    let e = common::upscale_into(&material, &config, out.path(), &save)
+        .err()
+        .unwrap();
+    let e = e.to_string();
+    assert!(
+        e.contains("stone_mask.png") && e.contains("two of the input's files"),
+        "{e}"
+    );
+    assert_eq!(
+        grey_levels(&out.path().join("stone_mask.png")).1,
+        [256, 256]
+    );
+}

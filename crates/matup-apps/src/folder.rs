@@ -2,17 +2,21 @@
 //! each material of a library. The maps, `preview.png` and `run.json` are each written
 //! atomically, `run.json` last, so a folder with a `run.json` holds a finished run.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use matup_core::io::{check_output_folder, save_png, write_atomic, MaterialWriter, SaveOptions};
-use matup_core::material::Material;
+use matup_core::io::{
+    check_output_folder, load_material, save_png, write_atomic, LoadOptions, MaterialPaths,
+    MaterialWriter, SaveOptions,
+};
+use matup_core::material::{Material, OtherSizeFile};
 use matup_core::progress::Progress;
 use matup_core::shading::shading_model;
 use matup_core::{Error, Result};
-use matup_method::config::choose_upsampler;
+use matup_method::config::{choose_upsampler, TargetSize};
 use matup_method::pipeline::{output_size, upscale_streamed};
 use matup_method::preview::{preview_of_centre, PreviewWindow};
-use matup_method::report::{peak_memory_mib, RunReport};
+use matup_method::report::{peak_memory_mib, OtherSizeRun, RunReport};
 use matup_method::Config;
 use matup_method::RunOptions;
 
@@ -74,6 +78,10 @@ pub fn upscale_to_folder(
     let preview_path = out.join("preview.png");
     save_png(&preview_path, &sheet)?;
     written.push(preview_path);
+    let (other_sizes, mut other_files) =
+        upscale_other_sizes(material, config, out, save, &options, &written, progress)?;
+    report.other_sizes = other_sizes;
+    written.append(&mut other_files);
     // The peak after the maps and the preview, not only the pipeline's.
     report.peak_memory_mib = peak_memory_mib();
     let json = serde_json::to_string_pretty(&report)
@@ -83,4 +91,99 @@ pub fn upscale_to_folder(
     written.push(run_json);
     let _ = std::fs::remove_dir_all(&checkpoints); // finished: nothing to resume
     Ok(FolderRun { report, written })
+}
+
+/// The folder's images of another size than its maps
+/// ([`MaterialOrigin::other_sizes`](matup_core::material::MaterialOrigin::other_sizes)), each
+/// size loaded as a material of its own and upscaled by the factor that takes the maps to
+/// their output size, into `out` under their own names, none of them a file of `taken`: the
+/// runs and the files written.
+fn upscale_other_sizes(
+    material: &Material,
+    config: &Config,
+    out: &Path,
+    save: &SaveOptions,
+    options: &RunOptions,
+    taken: &[PathBuf],
+    progress: &dyn Progress,
+) -> Result<(Vec<OtherSizeRun>, Vec<PathBuf>)> {
+    let (mut runs, mut written) = (Vec::new(), Vec::new());
+    let Some(origin) = &material.origin else {
+        return Ok((runs, written));
+    };
+    let mut by_size: BTreeMap<[usize; 2], Vec<&OtherSizeFile>> = BTreeMap::new();
+    for file in &origin.other_sizes {
+        by_size.entry(file.size).or_default().push(file);
+    }
+    let input = [material.width(), material.height_px()];
+    let maps_output = output_size(material, config)?;
+    for (size, files) in by_size {
+        let names: Vec<String> = (files.iter())
+            .map(|f| {
+                f.path
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned()
+            })
+            .collect();
+        let [w, h] = size;
+        progress.note(&format!(
+            "{} ({w}×{h}, another size than the material's {}×{}): upscaled apart, by the \
+             same factor",
+            names.join(", "),
+            input[0],
+            input[1]
+        ));
+        let paths = MaterialPaths {
+            carried: files.iter().map(|f| (f.path.clone(), f.data)).collect(),
+            ..MaterialPaths::default()
+        };
+        // Their texel count passed the limit when the folder was read.
+        let load = LoadOptions {
+            paths,
+            normal_convention: None,
+            max_texels: u64::MAX,
+        };
+        let part = load_material(None, &load)?;
+        // A size asked for holds for the maps: these keep the ratio it gave them.
+        let config = match config.size {
+            None => config.clone(),
+            Some(_) => {
+                let side = |i: usize| (size[i] * maps_output[i] + input[i] / 2) / input[i];
+                Config {
+                    size: Some(TargetSize {
+                        width: side(0),
+                        height: Some(side(1)),
+                    }),
+                    ..config.clone()
+                }
+            }
+        };
+        let part_size = output_size(&part, &config)?;
+        let options = RunOptions {
+            checkpoint_folder: (options.checkpoint_folder.as_ref())
+                .map(|c| c.join(format!("other-size-{w}x{h}"))),
+            resume: options.resume,
+            oracle: None,
+            memory_limit: options.memory_limit,
+        };
+        let taken: Vec<PathBuf> = (taken.iter()).chain(&written).cloned().collect();
+        let mut maps =
+            MaterialWriter::new(out, part_size, part.origin.as_ref(), save)?.beside(&taken);
+        let report = upscale_streamed(&part, &config, &options, progress, &mut |_, band| {
+            maps.write_band(band)
+        })?;
+        written.append(&mut maps.finish()?);
+        runs.push(OtherSizeRun {
+            files: names,
+            input_size: size,
+            output_size: part_size,
+            upsampler_used: report.upsampler_used,
+            route: report.route,
+            tileable: report.tileable,
+            carried: report.carried,
+        });
+    }
+    Ok((runs, written))
 }

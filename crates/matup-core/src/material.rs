@@ -32,11 +32,23 @@ pub struct MaterialOrigin {
     pub normal_evidence: String,
     /// The size of its maps: [width, height].
     pub size: [usize; 2],
-    /// What of the folder was not loaded, and why (an image of a size of its own).
-    pub left_out: Vec<String>,
+    /// The folder's images of another size than its maps, not loaded: each size is a
+    /// material of its own (`matup upscale` upscales them after the maps, by the same factor).
+    pub other_sizes: Vec<OtherSizeFile>,
     /// What else the run should say about how the files were read (a flag that replaced a
     /// file of the folder).
     pub notes: Vec<String>,
+}
+
+/// An image of a material's folder whose size is not its maps', carried as a material of its
+/// own size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OtherSizeFile {
+    pub path: PathBuf,
+    /// [width, height].
+    pub size: [usize; 2],
+    /// Whether its name says it holds data (occlusion, a mask) rather than colour.
+    pub data: bool,
 }
 
 impl MaterialOrigin {

@@ -26,4 +26,4 @@ pub mod train;
 pub use config::Config;
 pub use context::RunOptions;
 pub use pipeline::{upscale, upscale_streamed};
-pub use report::{LevelReport, RunReport};
+pub use report::{LevelReport, OtherSizeRun, RunReport};

@@ -158,13 +158,6 @@ pub fn upscale_streamed(
     for note in &stand_ins {
         progress.note(note);
     }
-    let left_out = material
-        .origin
-        .as_ref()
-        .map_or_else(Vec::new, |o| o.left_out.clone());
-    for why in &left_out {
-        progress.note(&format!("left out (not upscaled): {why}"));
-    }
     let run = |m: &Material, c: &Config, p: &dyn Progress| {
         upscale(m, c, &RunOptions::default(), p).map(|(result, _)| result)
     };
@@ -281,7 +274,7 @@ pub fn upscale_streamed(
         carried,
         sources,
         stand_ins,
-        left_out,
+        other_sizes: Vec::new(),
         memory_limit_mib: options.memory_limit.map(|b| b as f64 / (1024.0 * 1024.0)),
         peak_memory_mib: peak_memory_mib(),
         threads: rayon::current_num_threads(),
@@ -622,9 +615,18 @@ fn carried_upsampling<'a>(
 /// A note for each map the input lacks: what stands in for it, where renders use it, and that
 /// it is not written.
 fn stand_in_notes(material: &Material, config: &Config) -> Vec<String> {
+    let stand_ins = material.stand_ins();
+    // Images alone (a model's emission texture, a folder of textures) stand in for no maps.
+    if stand_ins.len()
+        == MapKind::ALL
+            .iter()
+            .filter(|k| k.stand_in().is_some())
+            .count()
+    {
+        return vec!["no material maps: each image is upscaled on its own".into()];
+    }
     let renders = config.train.epochs > 0 || config.select != crate::config::Selection::Off;
-    material
-        .stand_ins()
+    stand_ins
         .into_iter()
         .map(|kind| {
             format!(

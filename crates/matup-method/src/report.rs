@@ -48,8 +48,9 @@ pub struct RunReport {
     pub sources: Vec<String>,
     /// Maps the input lacks, and what stood in for them.
     pub stand_ins: Vec<String>,
-    /// Images of the input folder that were not upscaled, and why.
-    pub left_out: Vec<String>,
+    /// The folder's images of another size than its maps, upscaled after them, a run for
+    /// each size (filled in by the caller that writes them: `matup_apps::folder`).
+    pub other_sizes: Vec<OtherSizeRun>,
     /// The heap the output's bands were planned within (`--memory-limit`), in MiB; none: one
     /// band per level.
     pub memory_limit_mib: Option<f64>,
@@ -60,6 +61,20 @@ pub struct RunReport {
     /// material from one to redo.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub settings_fingerprint: Option<String>,
+}
+
+/// The run of a folder's images of one size that is not its maps'.
+#[derive(Clone, Debug, Serialize)]
+pub struct OtherSizeRun {
+    /// The files' names.
+    pub files: Vec<String>,
+    pub input_size: [usize; 2],
+    pub output_size: [usize; 2],
+    pub upsampler_used: String,
+    pub route: String,
+    pub tileable: bool,
+    /// How each map was upsampled, as [`RunReport::carried`].
+    pub carried: Vec<String>,
 }
 
 /// One level (one ×s step) of a run.

@@ -130,8 +130,9 @@ impl Default for LoadOptions {
 /// given explicitly. Any of base colour, normal, roughness and metallic may be missing: its
 /// [`MapKind::stand_in`] takes its place ([`Material::stand_ins`] says which). Alpha
 /// channels, packed channels matup does not render with and the folder's other maps are
-/// carried ([`Material::carried`]); maps of another size than the material's are left out,
-/// and [`MaterialOrigin::left_out`] says so. The normal convention comes from the file's
+/// carried ([`Material::carried`]); carried images of another size than the maps (than the
+/// first carried image's, where there are no maps) are set aside, each size a material of its
+/// own ([`MaterialOrigin::other_sizes`]). The normal convention comes from the file's
 /// name, else `options`, else the exporter the names mark, else the maps
 /// ([`MaterialOrigin::normal_evidence`] says which).
 pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Material> {
@@ -185,17 +186,14 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         files.push((path, role, how));
     }
 
+    // The maps' files first: their size is the material's, which carried files must share.
+    files.sort_by_key(|(_, role, _)| matches!(role, FileRole::Carried { .. }));
     let mut reader = Reader::new(options.max_texels);
     for (path, role, how) in &files {
         reader.read(path, role, how)?;
     }
     // Files carried alone (a model's emission texture) are a material of their own size.
-    let carried_size = (reader.extras.first())
-        .map(|e| (e.map.width(), e.map.height()))
-        .filter(|&(w, h)| {
-            (reader.extras.iter()).all(|e| (e.map.width(), e.map.height()) == (w, h))
-        });
-    let Some((w, h)) = reader.size.or(carried_size) else {
+    let Some((w, h)) = reader.size else {
         return Err(Error::material(
             &origin_folder,
             format!(
@@ -280,7 +278,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
             normal_convention: convention,
             normal_evidence: evidence,
             size: [w, h],
-            left_out: reader.left_out,
+            other_sizes: reader.other_sizes,
             notes,
         }),
     })

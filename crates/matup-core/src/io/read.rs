@@ -9,7 +9,7 @@ use super::discover::{file_name, FileRole};
 use super::image_file::{read_image, ImageFile};
 use crate::layout::{channel_letter, Channel, FileLayout, Holds, Packed, Stored};
 use crate::map::Map;
-use crate::material::{normalize_normals, Extra, MapKind};
+use crate::material::{normalize_normals, Extra, MapKind, OtherSizeFile};
 use crate::{Error, Result};
 
 /// Channels of an integer file that differ by at most this are one grey value stored in
@@ -26,12 +26,13 @@ pub(crate) struct Reader {
     pub alpha: BTreeMap<MapKind, Map>,
     pub extras: Vec<Extra>,
     pub layout: Vec<FileLayout>,
-    /// The size of the maps: the first file's that supplies one.
+    /// The size of the maps: the first file's that supplies one, else the first carried
+    /// file's (files that supply maps are read first).
     pub size: Option<(usize, usize)>,
     /// Files that supply maps with their sizes, to name them when sizes differ.
     sizes: Vec<(PathBuf, usize, usize)>,
-    /// What of the files is not kept, and why.
-    pub left_out: Vec<String>,
+    /// Carried files of another size than the maps, set aside.
+    pub other_sizes: Vec<OtherSizeFile>,
 }
 
 /// How many components a map of `kind` has.
@@ -59,16 +60,13 @@ impl Reader {
     pub fn read(&mut self, path: &Path, role: &FileRole, recognised_as: &str) -> Result<()> {
         let file = read_image(path, self.max_texels)?;
         let size = (file.map.width(), file.map.height());
-        if let FileRole::Carried { .. } = role {
-            if self.size.is_some_and(|s| s != size) {
-                self.left_out.push(format!(
-                    "{}: {}×{}, the material's maps are {}×{}",
-                    file_name(path),
-                    size.0,
-                    size.1,
-                    self.size.unwrap().0,
-                    self.size.unwrap().1
-                ));
+        if let FileRole::Carried { data } = role {
+            if *self.size.get_or_insert(size) != size {
+                self.other_sizes.push(OtherSizeFile {
+                    path: path.to_path_buf(),
+                    size: [size.0, size.1],
+                    data: *data,
+                });
                 return Ok(());
             }
         } else {

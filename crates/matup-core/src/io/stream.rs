@@ -260,6 +260,11 @@ impl ImageWriter {
         })
     }
 
+    /// The file it writes.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// The format the file is written in.
     pub fn format(&self) -> FileFormat {
         self.format

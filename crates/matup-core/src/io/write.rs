@@ -27,6 +27,8 @@ pub struct MaterialWriter {
     options: SaveOptions,
     /// Opened with the first band, which says what maps there are.
     files: Vec<FileWriter>,
+    /// Files another writer wrote into the folder, which this one must not overwrite.
+    taken: Vec<PathBuf>,
 }
 
 /// A file to write: what each channel holds and how it is stored.
@@ -44,6 +46,9 @@ struct FileWriter {
     stand_in: Option<(MapKind, &'static [f32])>,
     all_stand_in: bool,
 }
+
+const TWO_FILES_IN_ONE: &str = "two of the input's files would be written to this file; rename \
+                                one, or use matup's names (--names matup)";
 
 impl MaterialWriter {
     /// For a material of `size` ([width, height]) from `origin` (whose layout, formats, names
@@ -74,7 +79,15 @@ impl MaterialWriter {
             origin: origin.cloned(),
             options: options.clone(),
             files: Vec::new(),
+            taken: Vec::new(),
         })
+    }
+
+    /// The writer, refusing to write any of `taken` (another material's files in the same
+    /// folder; checked as it finishes, since a stand-in map may go unwritten).
+    pub fn beside(mut self, taken: &[PathBuf]) -> MaterialWriter {
+        self.taken = taken.to_vec();
+        self
     }
 
     /// Appends `band`'s rows (every map, as wide as the material) below those written so far.
@@ -141,10 +154,17 @@ impl MaterialWriter {
     /// Completes every file (each on its own thread: JPEG and TIFF are encoded here); returns
     /// their paths.
     pub fn finish(self) -> Result<Vec<PathBuf>> {
-        self.files
-            .into_par_iter()
-            // A stand-in never changed is dropped: its temporary file goes with it.
+        // A stand-in never changed is dropped: its temporary file goes with it.
+        let kept: Vec<FileWriter> = (self.files.into_iter())
             .filter(|file| !(file.stand_in.is_some() && file.all_stand_in))
+            .collect();
+        if let Some(file) = kept
+            .iter()
+            .find(|f| self.taken.iter().any(|t| t == f.file.path()))
+        {
+            return Err(Error::file(file.file.path(), TWO_FILES_IN_ONE));
+        }
+        kept.into_par_iter()
             .map(|file| file.file.finish())
             .collect()
     }
@@ -297,11 +317,7 @@ impl MaterialWriter {
             let path =
                 (self.out_dir).join(format!("{}.{}", planned.stem, planned.format.extension()));
             if paths.contains(&path) {
-                return Err(Error::file(
-                    &path,
-                    "two of the material's files would be written to this file; rename one, or \
-                     use matup's names (--names matup)",
-                ));
+                return Err(Error::file(&path, TWO_FILES_IN_ONE));
             }
             paths.push(path.clone());
             let channels = planned.channels.len();
