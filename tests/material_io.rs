@@ -976,3 +976,19 @@ fn a_folder_of_textures_of_many_sizes_comes_back_whole() {
         [256, 256]
     );
 }
+
+#[test]
+fn pictures_of_the_material_are_passed_over_by_name_and_the_run_names_them() {
+    let dir = folder_without(&[]);
+    image::RgbImage::new(64, 64)
+        .save(dir.path().join("preview.png"))
+        .unwrap();
+    let origin = load(dir.path()).unwrap().origin.unwrap();
+    assert!(
+        (origin.notes.iter())
+            .any(|n| n.starts_with("preview.png: taken by its name for a picture")),
+        "{:?}",
+        origin.notes
+    );
+    assert!((origin.layout.iter()).all(|f| !f.path.ends_with("preview.png")));
+}

@@ -272,6 +272,9 @@ pub struct Discovered {
     pub files: Vec<(PathBuf, FileRole)>,
     /// The exporter the names mark and the normal convention it writes, if they mark one.
     pub exporter: Option<(String, NormalConvention)>,
+    /// Images taken for pictures of the material by their names (`preview`, the material's
+    /// name alone): not read, and said so.
+    pub pictures: Vec<PathBuf>,
 }
 
 /// Assigns the image files of `folder` to roles. When the normal map exists in both
@@ -342,6 +345,7 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
     let mut maps: BTreeMap<Role, Vec<(PathBuf, Option<NormalConvention>)>> = BTreeMap::new();
     let mut packed = Vec::new();
     let mut carried = Vec::new();
+    let mut pictures = Vec::new();
     let mut exporter = None;
     for (path, parts) in images.iter().zip(&stems) {
         let parts = &parts[shared.min(parts.len())..];
@@ -352,9 +356,10 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         {
             exporter.get_or_insert((name.to_string(), *convention));
         }
-        // Games name a texture's colour after it alone (`rock01.dds` beside `rock01_n.dds`);
-        // a picture of a material is never a DDS file.
-        let colour_by_name = parts.is_empty() && has_extension(path, &["dds"]);
+        // Games name a texture's colour after it alone (`rock01.dds` beside `rock01_n.dds`,
+        // `rock01.tga` in a mod's sources); a picture of a material is never in a game
+        // engine's texture format.
+        let colour_by_name = parts.is_empty() && has_extension(path, &["dds", "tga"]);
         let role = classify(parts).or_else(|| {
             colour_by_name.then_some(FileRole::Map {
                 role: Role::BaseColor,
@@ -373,7 +378,7 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
                 packed.push((path.clone(), FileRole::Packed(p)));
             }
             Some(role) => carried.push((path.clone(), role)),
-            None => {}
+            None => pictures.push(path.clone()),
         }
     }
 
@@ -412,7 +417,11 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
     }
     files.extend(packed);
     files.extend(carried);
-    Ok(Discovered { files, exporter })
+    Ok(Discovered {
+        files,
+        exporter,
+        pictures,
+    })
 }
 
 /// What a file holds by its own name alone (an explicit file, no folder around it).
@@ -588,12 +597,21 @@ mod tests {
             roles.contains(&("rock01_n.dds".into(), map(Role::Normal))),
             "{roles:?}"
         );
-        // A PNG named after the material alone is still its picture.
-        std::fs::rename(dir.path().join("rock01.dds"), dir.path().join("rock01.png")).unwrap();
+        // So is a TGA (a mod's sources); a PNG named after the material alone is still its
+        // picture, and listed as one.
+        std::fs::rename(dir.path().join("rock01.dds"), dir.path().join("rock01.tga")).unwrap();
+        let found = discover(dir.path(), NormalConvention::DirectX).unwrap();
+        let colour = (found.files.iter()).find(|(_, r)| *r == map(Role::BaseColor));
+        assert_eq!(
+            colour.map(|(p, _)| file_name(p)).as_deref(),
+            Some("rock01.tga")
+        );
+        std::fs::rename(dir.path().join("rock01.tga"), dir.path().join("rock01.png")).unwrap();
         let found = discover(dir.path(), NormalConvention::DirectX).unwrap();
         assert!(found
             .files
             .iter()
             .all(|(p, _)| file_name(p) != "rock01.png"));
+        assert_eq!(found.pictures, [dir.path().join("rock01.png")]);
     }
 }

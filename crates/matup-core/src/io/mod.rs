@@ -160,6 +160,16 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         }
         files.push((path, role, flag));
     }
+    // Pictures are passed over by their names: the run says which, and how to read one.
+    for picture in &discovered.pictures {
+        if !files.iter().any(|(p, ..)| same_file(p, picture)) {
+            let name = file_name(picture);
+            notes.push(format!(
+                "{name}: taken by its name for a picture of the material, not upscaled \
+                 (--base-color {name}, or another map's flag, reads it as that map)"
+            ));
+        }
+    }
     for (path, role) in discovered.files {
         if files.iter().any(|(p, ..)| same_file(p, &path)) {
             continue;
