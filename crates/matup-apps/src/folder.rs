@@ -26,7 +26,7 @@ pub const CHECKPOINT_FOLDER: &str = ".matup-checkpoint";
 /// What [`upscale_to_folder`] wrote.
 pub struct FolderRun {
     pub report: RunReport,
-    /// The maps, then `preview.png` and `run.json`.
+    /// The maps, `preview.png`, the files of other sizes, then `run.json`.
     pub written: Vec<PathBuf>,
 }
 
@@ -82,7 +82,7 @@ pub fn upscale_to_folder(
         upscale_other_sizes(material, config, out, save, &options, &written, progress)?;
     report.other_sizes = other_sizes;
     written.append(&mut other_files);
-    // The peak after the maps and the preview, not only the pipeline's.
+    // The peak after the maps, the preview and the other sizes, not only the pipeline's.
     report.peak_memory_mib = peak_memory_mib();
     let json = serde_json::to_string_pretty(&report)
         .map_err(|e| Error::Invalid(format!("run.json: {e}")))?;
