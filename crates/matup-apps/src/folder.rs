@@ -6,8 +6,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use matup_core::io::{
-    check_output_folder, load_material, save_png, write_atomic, LoadOptions, MaterialPaths,
-    MaterialWriter, SaveOptions,
+    check_output_folder, file_name, load_material, save_png, write_atomic, LoadOptions,
+    MaterialPaths, MaterialWriter, SaveOptions,
 };
 use matup_core::material::{Material, OtherSizeFile};
 use matup_core::progress::Progress;
@@ -118,15 +118,7 @@ fn upscale_other_sizes(
     let input = [material.width(), material.height_px()];
     let maps_output = output_size(material, config)?;
     for (size, files) in by_size {
-        let names: Vec<String> = (files.iter())
-            .map(|f| {
-                f.path
-                    .file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .into_owned()
-            })
-            .collect();
+        let names: Vec<String> = files.iter().map(|f| file_name(&f.path)).collect();
         let [w, h] = size;
         progress.note(&format!(
             "{} ({w}×{h}, another size than the material's {}×{}): upscaled apart, by the \

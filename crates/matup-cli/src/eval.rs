@@ -9,7 +9,7 @@ use matup_core::resample::{Border, SeamSteps};
 use matup_core::tileable::decide_tileable;
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, Material, PluginSpec};
 use matup_eval::metrics::{
-    evaluate, false_colour, map_block_edges, map_seam_steps, Evaluation, FalseColour,
+    evaluate, false_colour, map_block_edges, map_seam_steps, seam_ratios, Evaluation, FalseColour,
 };
 
 #[derive(Args, Debug)]
@@ -64,8 +64,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         |lr: &Material| Border::for_tiling(made_tileable.unwrap_or_else(|| decide_tileable(lr).0));
     let Some(reference_folder) = &args.reference else {
         let seam_steps = map_seam_steps(&candidate, scale);
-        let seams: BTreeMap<&String, f64> =
-            seam_steps.iter().map(|(m, s)| (m, s.ratio())).collect();
+        let seams = seam_ratios(&seam_steps);
         let block_edges = map_block_edges(&candidate, scale);
         let false_colour = input
             .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None, border(&lr)))

@@ -12,7 +12,7 @@ use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{
-    gaussian_blur, lr_texel, neighbourhood_ranges, seam_ratio, seam_steps, Border, SeamSteps,
+    gaussian_blur, lr_texel, neighbourhood_ranges, seam_steps, Border, SeamSteps,
 };
 use matup_core::shading::ShadingModel;
 use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
@@ -49,7 +49,7 @@ pub struct Evaluation {
     /// seamless), and of the reference's, at the grid's phase ([`wrap_seam_ratio`]).
     pub seam_ratio: f64,
     pub reference_seam_ratio: f64,
-    /// Each map's wrap-around seam ratio ([`map_seams`]), the candidate's and the reference's.
+    /// Each map's wrap-around seam ratio ([`seam_ratios`]), the candidate's and the reference's.
     pub map_seams: BTreeMap<String, f64>,
     pub reference_map_seams: BTreeMap<String, f64>,
     /// The two parts of each map's seam ratio ([`map_seam_steps`]): where the candidate's ratio
@@ -194,6 +194,8 @@ pub fn evaluate(
     let n = per_light.len().max(1) as f64;
     let mean = |k: usize| per_light.iter().map(|p| p[k]).sum::<f64>() / n;
     let texels = (reference.width() * reference.height_px()) as f64;
+    let seam_steps = map_seam_steps(candidate, scale);
+    let reference_seam_steps = map_seam_steps(reference, scale);
     Ok(Evaluation {
         lights: lights.len(),
         render_psnr: psnr(mean(0) / (3.0 * texels)),
@@ -206,10 +208,10 @@ pub fn evaluate(
         scale,
         seam_ratio: wrap_seam_ratio(candidate, scale) as f64,
         reference_seam_ratio: wrap_seam_ratio(reference, scale) as f64,
-        map_seams: map_seams(candidate, scale),
-        reference_map_seams: map_seams(reference, scale),
-        map_seam_steps: map_seam_steps(candidate, scale),
-        reference_map_seam_steps: map_seam_steps(reference, scale),
+        map_seams: seam_ratios(&seam_steps),
+        reference_map_seams: seam_ratios(&reference_seam_steps),
+        map_seam_steps: seam_steps,
+        reference_map_seam_steps: reference_seam_steps,
         map_block_edges: map_block_edges(candidate, scale),
         reference_map_block_edges: map_block_edges(reference, scale),
         render_sharpness: mean(3),
@@ -218,17 +220,19 @@ pub fn evaluate(
     })
 }
 
-/// Each map's wrap-around seam ratio, by file name (`baseColor`, `normal`, …): the mean
-/// |difference| across the wrap-around edges over that across interior edges at the same
-/// phase of the input's texel grid (`scale` texels; [`seam_ratio`]), the larger of rows and
-/// columns. About 1 where copies laid side by side join without a seam; a tileable input's
-/// maps show what its output's should be. Needs no reference.
-pub fn map_seams(material: &Material, scale: usize) -> BTreeMap<String, f64> {
-    each_map(material, |map| seam_ratio(map, scale) as f64)
+/// Each map's wrap-around seam ratio, by file name (`baseColor`, `normal`, …), from its
+/// [`map_seam_steps`]: the mean |difference| across the wrap-around edges over that across
+/// interior edges at the same phase of the input's texel grid ([`seam_steps`]), the larger of
+/// rows and columns. About 1 where copies laid side by side join without a seam; a tileable
+/// input's maps show what its output's should be. Needs no reference.
+pub fn seam_ratios(steps: &BTreeMap<String, SeamSteps>) -> BTreeMap<String, f64> {
+    (steps.iter())
+        .map(|(map, s)| (map.clone(), s.ratio()))
+        .collect()
 }
 
 /// Each map's [`SeamSteps`] (the wrap-around step and the interior steps at the grid's phase
-/// that [`map_seams`] divides), by file name.
+/// that [`seam_ratios`] divides), by file name.
 pub fn map_seam_steps(material: &Material, scale: usize) -> BTreeMap<String, SeamSteps> {
     each_map(material, |map| seam_steps(map, scale))
 }

@@ -431,7 +431,8 @@ pub(crate) fn role_of_name(path: &Path) -> Option<FileRole> {
     ))
 }
 
-pub(crate) fn file_name(path: &Path) -> String {
+/// A path's file name, as errors and notes name files.
+pub fn file_name(path: &Path) -> String {
     path.file_name()
         .unwrap_or_default()
         .to_string_lossy()

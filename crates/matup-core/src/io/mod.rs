@@ -12,7 +12,7 @@ mod write;
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
-pub use discover::{discover, Discovered, FileRole, Role};
+pub use discover::{discover, file_name, Discovered, FileRole, Role};
 pub use image_file::{encoded_size, is_image_file, write_atomic, IMAGE_EXTENSIONS};
 pub use stream::{ChannelRows, ImageWriter, Samples, WriteHints};
 pub use write::{check_output_folder, retag, MaterialWriter};
@@ -25,7 +25,6 @@ use crate::material::{
     NormalConvention,
 };
 use crate::{Error, Result};
-use discover::file_name;
 pub use image_file::encode_png8;
 use image_file::write_image;
 use read::Reader;
