@@ -365,6 +365,7 @@ fn every_exporters_folder_renders_as_its_data_and_comes_back_file_for_file() {
                     &plane(&before, c),
                     &plane(&after, c),
                     4 * SIZE,
+                    4,
                     colour,
                 );
                 offs.sort_by(f32::total_cmp);

@@ -193,7 +193,7 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
         assert_eq!(after.mipmaps, if mipmaps { 9 } else { 1 }, "{name}");
         for c in 0..channels {
             let levels =
-                common::box_back_levels(&before.planes[c], &after.planes[c], 4 * SIZE, srgb);
+                common::box_back_levels(&before.planes[c], &after.planes[c], 4 * SIZE, 4, srgb);
             let worst = levels.into_iter().fold(0.0, f32::max);
             println!("{name} channel {c}: box-filters back within {worst:.2} levels");
             if worst > 6.0 {
@@ -402,9 +402,10 @@ fn check_textures(
                     })
                     .collect()
             };
-            let worst = common::box_back_levels(&plane(&before), &plane(&after), 4 * SIZE, colour)
-                .into_iter()
-                .fold(0.0, f32::max);
+            let worst =
+                common::box_back_levels(&plane(&before), &plane(&after), 4 * SIZE, 4, colour)
+                    .into_iter()
+                    .fold(0.0, f32::max);
             println!("{name} channel {c}: box-filters back within {worst:.2} levels");
             let levels = if stem == "metallicRoughness" {
                 levels + 1.0

@@ -806,27 +806,20 @@ fn save_grey(map: &Map, path: &Path) {
         .unwrap();
 }
 
-/// The 8-bit grey PNG at `path` as levels, and its size.
-fn grey_levels(path: &Path) -> (Vec<f32>, [usize; 2]) {
+/// The 8-bit grey PNG at `path` as values in [0, 1], and its size.
+fn grey_values(path: &Path) -> (Vec<f32>, [usize; 2]) {
     let image = image::open(path).unwrap().into_luma8();
     let size = [image.width() as usize, image.height() as usize];
-    (image.into_raw().into_iter().map(f32::from).collect(), size)
+    let values = image.into_raw().into_iter().map(|v| v as f32 / 255.0);
+    (values.collect(), size)
 }
 
-/// The largest difference, in levels, between each texel of `input` and the mean of the
-/// `factor × factor` block of `output` above it.
-fn box_back_worst(input: &[f32], input_size: [usize; 2], output: &[f32], factor: usize) -> f32 {
-    let [w, h] = input_size;
-    let mut worst = 0.0f32;
-    for y in 0..h {
-        for x in 0..w {
-            let block: f32 = (0..factor * factor)
-                .map(|k| output[(factor * y + k / factor) * factor * w + factor * x + k % factor])
-                .sum();
-            worst = worst.max((block / (factor * factor) as f32 - input[y * w + x]).abs());
-        }
-    }
-    worst
+/// How far, in levels, the grey PNG `input` lies at worst from `output` box-filtered
+/// ÷`factor`.
+fn box_back_worst(input: &Path, output: &Path, factor: usize) -> f32 {
+    let ((input, _), (output, [width, _])) = (grey_values(input), grey_values(output));
+    let levels = common::box_back_levels(&input, &output, width, factor, false);
+    levels.into_iter().fold(0.0, f32::max)
 }
 
 #[test]
@@ -862,11 +855,10 @@ fn images_of_another_size_come_back_upscaled_apart_by_the_same_factor() {
         ("ambientOcclusion.png", 256),
         ("mask.png", 128),
     ] {
-        let (input, input_size) = grey_levels(&dir.path().join(name));
-        let (output, output_size) = grey_levels(&out.path().join(name));
-        assert_eq!(output_size, [size, size], "{name}");
+        let (input, output) = (dir.path().join(name), out.path().join(name));
+        assert_eq!(grey_values(&output).1, [size, size], "{name}");
         if name != "baseColor.png" {
-            let worst = box_back_worst(&input, input_size, &output, 2);
+            let worst = box_back_worst(&input, &output, 2);
             assert!(worst <= 2.0, "{name}: {worst} levels from its input");
         }
     }
@@ -897,7 +889,7 @@ fn images_of_another_size_come_back_upscaled_apart_by_the_same_factor() {
         ("ambientOcclusion.png", 320),
         ("mask.png", 160),
     ] {
-        let (_, size) = grey_levels(&out.path().join(name));
+        let (_, size) = grey_values(&out.path().join(name));
         assert_eq!(size, [side, side], "{name}");
     }
 }
@@ -931,10 +923,13 @@ fn a_folder_of_textures_of_many_sizes_comes_back_whole() {
     let run = common::upscale_into(&material, &config, out.path(), &SaveOptions::default());
     assert_eq!(run.unwrap().report.other_sizes.len(), 2);
     for (name, _) in files {
-        let (input, input_size) = grey_levels(&dir.path().join(name));
-        let (output, output_size) = grey_levels(&out.path().join(name));
-        assert_eq!(output_size, input_size.map(|s| 4 * s), "{name}");
-        let worst = box_back_worst(&input, input_size, &output, 4);
+        let (input, output) = (dir.path().join(name), out.path().join(name));
+        assert_eq!(
+            grey_values(&output).1,
+            grey_values(&input).1.map(|s| 4 * s),
+            "{name}"
+        );
+        let worst = box_back_worst(&input, &output, 4);
         assert!(worst <= 2.0, "{name}: {worst} levels from its input");
     }
 
@@ -972,7 +967,7 @@ fn a_folder_of_textures_of_many_sizes_comes_back_whole() {
         "{e}"
     );
     assert_eq!(
-        grey_levels(&out.path().join("stone_mask.png")).1,
+        grey_values(&out.path().join("stone_mask.png")).1,
         [256, 256]
     );
 }

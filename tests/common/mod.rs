@@ -95,10 +95,16 @@ pub fn max_abs_diff(a: &Map, b: &Map) -> f32 {
         .fold(0.0, f32::max)
 }
 
-/// How far, in 8-bit levels, each texel of `input` lies from the mean of the 4×4 block of
-/// `output` (a ×4 upscale of it, `width` texels wide) above it: in linear light for sRGB
-/// `colour`, as stored otherwise.
-pub fn box_back_levels(input: &[f32], output: &[f32], width: usize, colour: bool) -> Vec<f32> {
+/// How far, in 8-bit levels, each texel of square `input` lies from the mean of the
+/// `factor × factor` block of `output` (a ×`factor` upscale of it, `width` texels wide) above
+/// it: in linear light for sRGB `colour`, as stored otherwise.
+pub fn box_back_levels(
+    input: &[f32],
+    output: &[f32],
+    width: usize,
+    factor: usize,
+    colour: bool,
+) -> Vec<f32> {
     let linear = |v: f32| {
         if colour {
             matup::color::srgb_to_linear(v)
@@ -113,12 +119,12 @@ pub fn box_back_levels(input: &[f32], output: &[f32], width: usize, colour: bool
             v
         }
     };
-    let small = width / 4;
+    let (small, f) = (width / factor, factor);
     (0..small * small)
         .map(|i| {
             let (y, x) = (i / small, i % small);
-            let block = (0..16).map(|k| linear(output[(4 * y + k / 4) * width + 4 * x + k % 4]));
-            (stored(block.sum::<f32>() / 16.0) - input[i]).abs() * 255.0
+            let block = (0..f * f).map(|k| linear(output[(f * y + k / f) * width + f * x + k % f]));
+            (stored(block.sum::<f32>() / (f * f) as f32) - input[i]).abs() * 255.0
         })
         .collect()
 }
