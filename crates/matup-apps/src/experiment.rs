@@ -20,7 +20,7 @@ use matup_core::resample::Border;
 use matup_core::shading::shading_model;
 use matup_core::upsample::{check_scale, upsampler};
 use matup_core::{Error, PluginSpec, Result};
-use matup_eval::metrics::{evaluate, false_colour, Evaluation};
+use matup_eval::metrics::{evaluate, false_colour, new_structure, worst_new_structure, Evaluation};
 use matup_method::config::choose_upsampler;
 use matup_method::config::{check_supported_scale, Config};
 use matup_method::per_map::upscale_per_map;
@@ -480,6 +480,8 @@ pub fn run_experiment(
                                 Some(&p.truth.base_color),
                                 facts.border,
                             )?);
+                            ev.new_structure = new_structure(&p.lr, &material, facts.border)?;
+                            ev.new_structure_worst = Some(worst_new_structure(&ev.new_structure));
                             Ok((facts, ev))
                         })
                         .map_err(|e| e.to_string())
@@ -698,7 +700,7 @@ fn append_journal(path: &Path, row: &Row) -> Result<()> {
 }
 
 /// The metric columns, in table order.
-pub const METRICS: [&str; 13] = [
+pub const METRICS: [&str; 14] = [
     "render_psnr",
     "render_ssim",
     "render_flip",
@@ -709,6 +711,7 @@ pub const METRICS: [&str; 13] = [
     "roughness_rmse",
     "metallic_rmse",
     "false_colour_texels",
+    "new_structure_worst",
     "seam_ratio",
     "reference_seam_ratio",
     "lights",

@@ -9,7 +9,9 @@ use matup_core::resample::{Border, SeamSteps};
 use matup_core::tileable::decide_tileable;
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, Material, PluginSpec};
 use matup_eval::metrics::{
-    evaluate, false_colour, map_block_edges, map_seam_steps, seam_ratios, Evaluation, FalseColour,
+    evaluate, false_colour, map_block_edges, map_seam_steps, new_structure, seam_ratios,
+    worst_new_structure, Evaluation, FalseColour, NewStructure, NEW_STRUCTURE_DEGREES,
+    NEW_STRUCTURE_LEVELS,
 };
 
 #[derive(Args, Debug)]
@@ -66,8 +68,11 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         let seam_steps = map_seam_steps(&candidate, scale);
         let seams = seam_ratios(&seam_steps);
         let block_edges = map_block_edges(&candidate, scale);
-        let false_colour = input
-            .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None, border(&lr)))
+        let false_colour = (input.as_ref())
+            .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None, border(lr)))
+            .transpose()?;
+        let new = (input.as_ref())
+            .map(|lr| new_structure(lr, &candidate, border(lr)))
             .transpose()?;
         if args.json {
             let report = serde_json::json!({
@@ -76,12 +81,15 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 "map_seam_steps": seam_steps,
                 "map_block_edges": block_edges,
                 "false_colour": false_colour,
+                "new_structure": new,
+                "new_structure_worst": new.as_ref().map(worst_new_structure),
             });
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
             print_seams(&seam_steps, None, scale);
             print_block_edges(&block_edges, None, scale);
             print_false_colour(false_colour.as_ref(), "against the input alone");
+            print_new_structure(new.as_ref());
         }
         return Ok(());
     };
@@ -107,12 +115,16 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         model.as_ref(),
         &LightSetSpec::held_out(args.lights),
     )?;
-    e.false_colour = input
+    e.false_colour = (input.as_ref())
         .map(|lr| {
             let truth = Some(&reference.base_color);
-            false_colour(&lr.base_color, &candidate.base_color, truth, border(&lr))
+            false_colour(&lr.base_color, &candidate.base_color, truth, border(lr))
         })
         .transpose()?;
+    if let Some(lr) = &input {
+        e.new_structure = new_structure(lr, &candidate, border(lr))?;
+        e.new_structure_worst = Some(worst_new_structure(&e.new_structure));
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&e)?);
     } else {
@@ -139,6 +151,32 @@ fn print_false_colour(f: Option<&FalseColour>, how: &str) {
             )
         ),
         None => println!("false colour: needs the input (--input, or a run.json that names it)"),
+    }
+}
+
+/// Each map's new structure and box-back error, against the input.
+fn print_new_structure(maps: Option<&BTreeMap<String, NewStructure>>) {
+    let Some(maps) = maps else {
+        println!("new structure: needs the input (--input, or a run.json that names it)");
+        return;
+    };
+    println!(
+        "new structure per map: texels more than {NEW_STRUCTURE_LEVELS} levels outside every \
+         input texel around them (luminance / any channel; normals: turned more than \
+         {NEW_STRUCTURE_DEGREES}° from every input normal around them), and the blocks \
+         box-filtered back against their input texel (levels, mean / worst)"
+    );
+    for (map, n) in maps {
+        let angle = n
+            .normal_angle
+            .map_or(String::new(), |a| format!(", angle {:.3}%", 100.0 * a));
+        println!(
+            "  {map:<12} {:.3}% / {:.3}%{angle}; box-back {:.2} / {:.2}",
+            100.0 * n.luminance,
+            100.0 * n.channel,
+            n.box_back_mean,
+            n.box_back_worst
+        );
     }
 }
 
@@ -187,6 +225,7 @@ fn print_table(e: &Evaluation) {
         e.false_colour.as_ref(),
         "hues neither input nor reference has",
     );
+    print_new_structure((e.false_colour.is_some()).then_some(&e.new_structure));
 }
 
 /// Each map's wrap-around seam ratio (and the reference's), about 1 where copies join without

@@ -12,7 +12,7 @@ use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{
-    gaussian_blur, lr_texel, neighbourhood_ranges, seam_steps, Border, SeamSteps,
+    box_downsample, gaussian_blur, lr_texel, neighbourhood_ranges, seam_steps, Border, SeamSteps,
 };
 use matup_core::shading::ShadingModel;
 use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
@@ -69,6 +69,12 @@ pub struct Evaluation {
     /// when the caller knows the input.
     #[serde(flatten)]
     pub false_colour: Option<FalseColour>,
+    /// Each map's structure the input has nowhere near ([`new_structure`]), when the caller
+    /// knows the input.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub new_structure: BTreeMap<String, NewStructure>,
+    /// Of those maps, the largest share of texels of new structure ([`worst_new_structure`]).
+    pub new_structure_worst: Option<f64>,
 }
 
 /// How many texels of an upscaled base colour have a hue that neither the input nor the truth
@@ -136,6 +142,165 @@ pub fn false_colour(
         false_colour_texels: texels as f64,
         false_colour_rate: texels as f64 / up.len().max(1) as f64,
     })
+}
+
+/// How far a texel may lie outside the range of the input texels around it, in 8-bit levels,
+/// before it counts as new structure ([`new_structure`]): well past a JPEG's noise, and past
+/// what sharpening an edge the input has draws (bicubic: 0.003% of DamagedHelmet's colour).
+pub const NEW_STRUCTURE_LEVELS: f32 = 16.0;
+
+/// How far a normal may turn from every input normal around it before it counts as new
+/// structure, in degrees.
+pub const NEW_STRUCTURE_DEGREES: f32 = 10.0;
+
+/// Structure an upscaled map has that its input has nowhere near, and how well it box-filters
+/// back to its input ([`new_structure`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct NewStructure {
+    /// The share of texels whose luminance (a grey map: value) lies more than
+    /// [`NEW_STRUCTURE_LEVELS`] outside the range of its input texel's 3×3 neighbourhood.
+    pub luminance: f64,
+    /// The share of texels with any channel so far outside its neighbourhood's range.
+    pub channel: f64,
+    /// Normal maps: the share of texels turned more than [`NEW_STRUCTURE_DEGREES`] from every
+    /// input normal around them.
+    pub normal_angle: Option<f64>,
+    /// The mean and the worst of the output's blocks box-filtered back against their input
+    /// texel, in 8-bit levels of the stored values (colour averaged as light, in linear).
+    pub box_back_mean: f64,
+    pub box_back_worst: f64,
+}
+
+/// [`NewStructure`] of each map `candidate` (upscaled `scale`×) and `lr` both have: base colour,
+/// normal, roughness, metallic and height. Neighbours past the edge as `border` says.
+pub fn new_structure(
+    lr: &Material,
+    candidate: &Material,
+    border: Border,
+) -> Result<BTreeMap<String, NewStructure>> {
+    let scale = candidate.width() / lr.width().max(1);
+    if scale == 0
+        || candidate.width() != lr.width() * scale
+        || candidate.height_px() != lr.height_px() * scale
+    {
+        return Err(Error::Invalid(format!(
+            "new structure: the upscaled material ({}×{}) is no whole multiple of its input \
+             ({}×{})",
+            candidate.width(),
+            candidate.height_px(),
+            lr.width(),
+            lr.height_px()
+        )));
+    }
+    let kinds = [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+        MapKind::Height,
+    ];
+    let mut out = BTreeMap::new();
+    for kind in kinds {
+        if let (Some(lr_map), Some(up)) = (lr.map(kind), candidate.map(kind)) {
+            out.insert(
+                kind.file_stem().to_string(),
+                map_new_structure(kind, lr_map, up, scale, border),
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// The largest share of texels of new structure over `maps`: any channel's, or a normal's angle.
+pub fn worst_new_structure(maps: &BTreeMap<String, NewStructure>) -> f64 {
+    (maps.values())
+        .map(|m| m.channel.max(m.normal_angle.unwrap_or(0.0)))
+        .fold(0.0, f64::max)
+}
+
+/// [`new_structure`] of one map of `kind`.
+fn map_new_structure(
+    kind: MapKind,
+    lr: &Map,
+    up: &Map,
+    scale: usize,
+    border: Border,
+) -> NewStructure {
+    // The values as stored, in 8-bit levels: colour sRGB, normals (n + 1) / 2.
+    let stored = |v: f32| match kind {
+        MapKind::BaseColor => 255.0 * linear_to_srgb(v),
+        MapKind::Normal => 127.5 * (v + 1.0),
+        _ => 255.0 * v,
+    };
+    let channels = lr.channels().min(up.channels()).min(3);
+    let levels = |m: &Map| -> Vec<[f32; 4]> {
+        (0..m.texels())
+            .map(|i| {
+                let mut v = [0.0; 4];
+                for (c, value) in v.iter_mut().enumerate().take(channels) {
+                    *value = stored(m.plane(c)[i]);
+                }
+                // The luminance (Rec. 709 weights) of colours, else the first channel.
+                v[3] = match channels {
+                    3 => 0.2126 * v[0] + 0.7152 * v[1] + 0.0722 * v[2],
+                    _ => v[0],
+                };
+                v
+            })
+            .collect()
+    };
+    let (lr_levels, up_levels) = (levels(lr), levels(up));
+    let ranges = neighbourhood_ranges(&lr_levels, lr.width(), border);
+    let (w, n) = (up.width(), up.texels().max(1) as f64);
+    let outside =
+        |v: f32, [lo, hi]: [f32; 2]| v < lo - NEW_STRUCTURE_LEVELS || v > hi + NEW_STRUCTURE_LEVELS;
+    let (mut luminance, mut channel) = (0usize, 0usize);
+    for (i, v) in up_levels.iter().enumerate() {
+        let r = &ranges[lr_texel(i, w, scale, lr.width())];
+        luminance += outside(v[3], r[3]) as usize;
+        channel += (0..channels).any(|c| outside(v[c], r[c])) as usize;
+    }
+    let normal_angle = (kind == MapKind::Normal).then(|| {
+        let cos_limit = NEW_STRUCTURE_DEGREES.to_radians().cos();
+        let normal = |m: &Map, i: usize| glam::Vec3::from_array([0, 1, 2].map(|c| m.plane(c)[i]));
+        let far = (0..up.texels())
+            .filter(|&i| {
+                let (y, x) = ((i / w / scale) as isize, ((i % w) / scale) as isize);
+                let n = normal(up, i).normalize_or_zero();
+                !(0..9).any(|k| {
+                    let j = border.index(y + k / 3 - 1, lr.height()) * lr.width()
+                        + border.index(x + k % 3 - 1, lr.width());
+                    normal(lr, j).normalize_or_zero().dot(n) >= cos_limit
+                })
+            })
+            .count();
+        far as f64 / n
+    });
+    // Box-filtered back as the file's values average: colour as light, normals as directions.
+    let back = box_downsample(up, scale);
+    let (mut sum, mut worst) = (0.0f64, 0.0f32);
+    for i in 0..lr.texels() {
+        let mut mean = [0.0f32; 3];
+        for (c, value) in mean.iter_mut().enumerate().take(channels) {
+            *value = back.plane(c)[i];
+        }
+        if kind == MapKind::Normal {
+            let unit = glam::Vec3::from_array(mean).normalize_or_zero();
+            mean = unit.to_array();
+        }
+        let miss = (0..channels)
+            .map(|c| (stored(mean[c]) - stored(lr.plane(c)[i])).abs())
+            .fold(0.0f32, f32::max);
+        sum += miss as f64;
+        worst = worst.max(miss);
+    }
+    NewStructure {
+        luminance: luminance as f64 / n,
+        channel: channel as f64 / n,
+        normal_angle,
+        box_back_mean: sum / lr.texels().max(1) as f64,
+        box_back_worst: worst as f64,
+    }
 }
 
 /// Renders `reference` and `candidate` under `lights` with `model` and compares them.
@@ -217,6 +382,8 @@ pub fn evaluate(
         render_sharpness: mean(3),
         reference_render_sharpness: mean(4),
         false_colour: None,
+        new_structure: BTreeMap::new(),
+        new_structure_worst: None,
     })
 }
 
@@ -404,6 +571,65 @@ mod tests {
     /// Grey with dark grooves every 8th row, `size`² (linear).
     fn grooved_grey(size: usize) -> Map {
         Map::from_fn(size, size, 3, |_, y, _| if y % 8 == 3 { 0.01 } else { 0.3 })
+    }
+
+    #[test]
+    fn new_structure_counts_blobs_the_input_has_nowhere_near_and_box_back_errors() {
+        // A light speckled ground, 16² input texels upscaled ×4 by repetition (nothing new),
+        // then with one black blob of 2×2 output texels in a light neighbourhood.
+        let lr_colour = Map::from_fn(16, 16, 3, |_, y, x| {
+            if (x * 7 + y * 3) % 11 == 0 {
+                0.45
+            } else {
+                0.8
+            }
+        });
+        let mut lr = Material::uniform(16, [0.8; 3], 0.5, 0.0);
+        lr.base_color = lr_colour.clone();
+        let mut up = Material::uniform(64, [0.8; 3], 0.5, 0.0);
+        up.base_color = Map::from_fn(64, 64, 3, |c, y, x| lr_colour.get(c, y / 4, x / 4));
+        let clean = new_structure(&lr, &up, Border::Wrap).unwrap();
+        for (map, n) in &clean {
+            assert_eq!((n.luminance, n.channel), (0.0, 0.0), "{map}");
+            assert!(n.box_back_worst < 0.01, "{map}: {}", n.box_back_worst);
+        }
+        assert_eq!(clean["normal"].normal_angle, Some(0.0));
+        assert_eq!(worst_new_structure(&clean), 0.0);
+        // Input texel (1, 2) and its 8 neighbours are all 0.8: a black blob of 4 texels in its
+        // block is 4 new texels,
+        // and its block box-filters back far off (colour averaged as light).
+        let (y0, x0) = (4 + 1, 8 + 1);
+        assert!((0..9).all(|k| lr_colour.get(0, k / 3, 1 + k % 3) == 0.8));
+        let mut blob = up.clone();
+        for (y, x) in [(y0, x0), (y0, x0 + 1), (y0 + 1, x0), (y0 + 1, x0 + 1)] {
+            for c in 0..3 {
+                blob.base_color.plane_mut(c)[y * 64 + x] = 0.0;
+            }
+        }
+        let found = new_structure(&lr, &blob, Border::Wrap).unwrap();
+        let colour = found["baseColor"];
+        assert_eq!(colour.luminance, 4.0 / 4096.0);
+        assert_eq!(colour.channel, 4.0 / 4096.0);
+        // The block's mean in linear light is 0.8·12/16 = 0.6: sRGB 203 against 231.
+        let want = 255.0 * (linear_to_srgb(0.8) - linear_to_srgb(0.6));
+        assert!(
+            (colour.box_back_worst - want as f64).abs() < 0.01,
+            "{colour:?}"
+        );
+        assert_eq!(worst_new_structure(&found), 4.0 / 4096.0);
+        // A normal turned 30° in a flat neighbourhood is new; one turned 5° is not.
+        let mut turned = up.clone();
+        for (i, degrees) in [(0usize, 30.0f32), (64 * 40 + 40, 5.0)] {
+            let a = degrees.to_radians();
+            for (c, v) in [a.sin(), 0.0, a.cos()].into_iter().enumerate() {
+                turned.normal.plane_mut(c)[i] = v;
+            }
+        }
+        let normal = new_structure(&lr, &turned, Border::Wrap).unwrap()["normal"];
+        assert_eq!(normal.normal_angle, Some(1.0 / 4096.0));
+        // Sizes that are no whole multiple are refused.
+        let odd = Material::uniform(30, [0.8; 3], 0.5, 0.0);
+        assert!(new_structure(&lr, &odd, Border::Wrap).is_err());
     }
 
     #[test]
