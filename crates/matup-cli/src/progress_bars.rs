@@ -2,6 +2,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 use matup_apps::batch::{BatchProgress, Handled};
@@ -25,6 +26,92 @@ pub struct Bars {
     multi: MultiProgress,
     /// Clear a stage's bar when the next begins (in a batch), rather than leave it as a log.
     clear_finished: bool,
+    /// Where stderr is no terminal (a log file, a cluster job) bars are hidden: each stage is
+    /// logged as lines instead, unless `None` (a batch logs its materials, not their stages).
+    log: Option<Mutex<StageLog>>,
+}
+
+/// What the progress lines of a log need: when the run and the stage began, the stage's
+/// count, and when the last line was written.
+struct StageLog {
+    run_start: Instant,
+    stage: String,
+    stage_start: Instant,
+    done: u64,
+    total: u64,
+    last_line: Instant,
+}
+
+/// A stage's progress is logged at most this often, and when it ends.
+const LOG_EVERY: Duration = Duration::from_secs(30);
+
+impl StageLog {
+    fn new() -> Self {
+        let now = Instant::now();
+        StageLog {
+            run_start: now,
+            stage: String::new(),
+            stage_start: now,
+            done: 0,
+            total: 0,
+            last_line: now,
+        }
+    }
+
+    /// The line for stage `name` starting, and starts counting it.
+    fn start(&mut self, name: &str, total: u64) -> String {
+        let now = Instant::now();
+        (self.stage, self.stage_start, self.done, self.total) = (name.to_string(), now, 0, total);
+        self.last_line = now;
+        let steps = if total > 1 {
+            format!(" ({total} steps)")
+        } else {
+            String::new()
+        };
+        format!("[{}] {name}: started{steps}", clock(now - self.run_start))
+    }
+
+    /// `done` more steps of the stage; a line when it ends or [`LOG_EVERY`] has passed, with
+    /// the time the stage has taken and an estimate of what it has left.
+    fn advance(&mut self, done: u64) -> Option<String> {
+        self.done += done;
+        let now = Instant::now();
+        let finished = self.total > 0 && self.done >= self.total;
+        if !finished && now - self.last_line < LOG_EVERY {
+            return None;
+        }
+        self.last_line = now;
+        let taken = now - self.stage_start;
+        let at = clock(now - self.run_start);
+        if finished {
+            return Some(format!("[{at}] {}: done in {}", self.stage, clock(taken)));
+        }
+        let left = match self.done {
+            0 => String::new(),
+            done if self.total > done => {
+                let per_step = taken.as_secs_f64() / done as f64;
+                let left = Duration::from_secs_f64(per_step * (self.total - done) as f64);
+                format!(", about {} left", clock(left))
+            }
+            _ => String::new(),
+        };
+        Some(format!(
+            "[{at}] {}: {}/{} after {}{left}",
+            self.stage,
+            self.done,
+            self.total,
+            clock(taken)
+        ))
+    }
+}
+
+/// A duration as h:mm:ss, or m:ss under an hour.
+fn clock(d: Duration) -> String {
+    let s = d.as_secs();
+    match s / 3600 {
+        0 => format!("{}:{:02}", s / 60, s % 60),
+        h => format!("{h}:{:02}:{:02}", s / 60 % 60, s % 60),
+    }
 }
 
 impl Bars {
@@ -44,12 +131,14 @@ impl Bars {
         } else {
             ProgressDrawTarget::stderr()
         };
+        let multi_hidden = target.is_hidden();
         Bars {
             current: Mutex::new(None),
             quiet,
             interrupted,
             multi: MultiProgress::with_draw_target(target),
             clear_finished: false,
+            log: (!quiet && multi_hidden).then(|| Mutex::new(StageLog::new())),
         }
     }
 
@@ -83,6 +172,9 @@ impl Progress for Bars {
         if self.quiet {
             return;
         }
+        if let Some(log) = &self.log {
+            eprintln!("{}", log.lock().unwrap().start(name, total));
+        }
         let mut current = self.current.lock().unwrap();
         match current.take() {
             Some(bar) if self.clear_finished => bar.finish_and_clear(),
@@ -96,6 +188,9 @@ impl Progress for Bars {
     }
 
     fn advance(&self, done: u64, loss: Option<f64>) {
+        if let Some(line) = (self.log.as_ref()).and_then(|log| log.lock().unwrap().advance(done)) {
+            eprintln!("{line}");
+        }
         if let Some(bar) = &*self.current.lock().unwrap() {
             bar.inc(done);
             if let Some(l) = loss {
@@ -124,6 +219,7 @@ impl BatchBars {
     pub fn new(quiet: bool) -> Self {
         let stages = Bars {
             clear_finished: true,
+            log: None,
             ..Bars::new(quiet)
         };
         let materials = stages.multi.add(ProgressBar::new(0));
