@@ -288,8 +288,13 @@ fn gltf_textures() -> Vec<(&'static str, Vec<u8>)> {
 
 /// A quad's positions, texture coordinates and indices: the geometry every model carries.
 fn quad_geometry() -> Vec<u8> {
+    quad_geometry_repeating(1.0)
+}
+
+/// [`quad_geometry`] with its UVs running over `repeats` copies of the texture on each axis.
+fn quad_geometry_repeating(repeats: f32) -> Vec<u8> {
     let positions: [f32; 12] = [0., 0., 0., 1., 0., 0., 1., 1., 0., 0., 1., 0.];
-    let uvs: [f32; 8] = [0., 1., 1., 1., 1., 0., 0., 0.];
+    let uvs: [f32; 8] = [0., 1., 1., 1., 1., 0., 0., 0.].map(|v: f32| v * repeats);
     let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];
     let mut bytes: Vec<u8> = positions.iter().flat_map(|v| v.to_le_bytes()).collect();
     bytes.extend(uvs.iter().flat_map(|v| v.to_le_bytes()));
@@ -479,6 +484,45 @@ fn a_gltf_model_comes_back_as_the_same_model_with_every_texture_upscaled_in_its_
     // The input is untouched and nothing is left over in the output.
     assert_eq!(std::fs::read(input.join("quad.bin")).unwrap(), geometry);
     assert!(!out.join(".matup-model").exists());
+}
+
+#[test]
+fn a_uv_atlas_is_not_wrapped_and_a_texture_tiled_over_the_model_is_judged_by_its_edges() {
+    let dir = tempfile::tempdir().unwrap();
+    let textures = gltf_textures();
+    let images: Vec<serde_json::Value> = (textures.iter())
+        .map(|(name, _)| serde_json::json!({"uri": name}))
+        .collect();
+    for (name, bytes) in &textures {
+        std::fs::write(dir.path().join(name), bytes).unwrap();
+    }
+    let run = |repeats: f32| {
+        let geometry = quad_geometry_repeating(repeats);
+        std::fs::write(dir.path().join("quad.bin"), &geometry).unwrap();
+        let buffer = serde_json::json!({"uri": "quad.bin", "byteLength": geometry.len()});
+        let json = model_json(serde_json::Value::from(images.clone()), buffer, &[]);
+        let model = dir.path().join("quad.gltf");
+        std::fs::write(&model, serde_json::to_vec(&json).unwrap()).unwrap();
+        let out = dir.path().join(format!("out-{repeats}"));
+        let run = upscale_model_with_defaults(&model, &out);
+        run.runs[0].1.clone()
+    };
+    // UVs over one copy of the textures: an atlas, whose edges are no neighbours.
+    let atlas = run(1.0);
+    assert!(!atlas.tileable);
+    assert!(
+        atlas
+            .tiling_source
+            .as_deref()
+            .is_some_and(|s| s.contains("UV atlas")),
+        "{:?}",
+        atlas.tiling_source
+    );
+    assert_eq!(atlas.tiling_evidence, None);
+    // Over three copies the texture repeats: its edges decide, as for a folder.
+    let tiled = run(3.0);
+    assert_eq!(tiled.tiling_source, None);
+    assert!(tiled.tiling_evidence.is_some());
 }
 
 /// A GLB of the quad with `textures` embedded after its geometry: its JSON, its binary chunk

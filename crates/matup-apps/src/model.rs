@@ -118,12 +118,18 @@ pub fn upscale_model(
             "is the model's own folder; write the upscaled model elsewhere",
         ));
     }
+    // Everything the model needs is read before any work: a missing buffer or image is
+    // reported now, not after an hour of upscaling.
+    let buffers = model.buffers()?;
     let images = model.images()?;
     let groups = model.groups(&images)?;
 
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let work = out.join(WORK_FOLDER);
-    let _ = std::fs::remove_dir_all(&work);
+    // A killed run's working folder is cleared first; this run's goes when it ends, however
+    // it ends (an error, Ctrl-C).
+    let work = WorkFolder(out.join(WORK_FOLDER));
+    let _ = std::fs::remove_dir_all(&work.0);
+    let work = &work.0;
     let mut upscaled: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
     let mut runs = Vec::new();
     let mut written = Vec::new();
@@ -133,11 +139,14 @@ pub fn upscale_model(
         ..save.clone()
     };
     for (g, group) in groups.groups.iter().enumerate() {
+        if progress.cancelled() {
+            return Err(Error::Interrupted);
+        }
         progress.note(&format!(
             "{}: {}",
             group.label,
             (group.uses.iter())
-                .map(|(image, role)| format!("image {image} as {}", role.words()))
+                .map(|&(image, role)| format!("{} as {}", images[image].name, role.words()))
                 .collect::<Vec<_>>()
                 .join(", ")
         ));
@@ -146,7 +155,7 @@ pub fn upscale_model(
         std::fs::create_dir_all(&input).map_err(|e| Error::io(&input, e))?;
         let mut paths = MaterialPaths::default();
         for &(image, role) in &group.uses {
-            let file = input.join(images[image].file_name(image));
+            let file = input.join(images[image].file_name());
             std::fs::write(&file, &images[image].bytes).map_err(|e| Error::io(&file, e))?;
             match role {
                 Role::BaseColor => paths.base_color = Some(file),
@@ -164,8 +173,19 @@ pub fn upscale_model(
             normal_convention: Some(NormalConvention::OpenGl),
             max_texels: load.max_texels,
         };
-        let material = load_material(None, &options)
+        let mut material = load_material(None, &options)
             .map_err(|e| Error::file(path, format!("{}: {e}", group.label)))?;
+        // A UV atlas is not wrapped: islands across its edges are no neighbours.
+        let atlas = (group.material).is_some_and(|m| model.reads_one_copy(m, &buffers));
+        if let Some(origin) = material.origin.as_mut() {
+            origin.normal_evidence = "glTF's own: its specification says OpenGL".into();
+            origin.tiling = atlas.then(|| {
+                (
+                    false,
+                    "a UV atlas: every primitive of its material reads one copy of it".into(),
+                )
+            });
+        }
         let run = upscale_to_folder(
             &material,
             config,
@@ -177,7 +197,7 @@ pub fn upscale_model(
             progress,
         )?;
         for &(image, _) in &group.uses {
-            let file = output.join(images[image].file_name(image));
+            let file = output.join(images[image].file_name());
             let bytes = std::fs::read(&file).map_err(|e| Error::io(&file, e))?;
             upscaled.insert(image, bytes);
         }
@@ -192,12 +212,43 @@ pub fn upscale_model(
     }
     let mut files = model.write(&images, &upscaled, out)?;
     files.append(&mut written);
-    let _ = std::fs::remove_dir_all(&work);
     Ok(ModelRun {
         written: files,
         runs,
         notes: groups.notes,
     })
+}
+
+/// The working folder, removed when dropped: on success, on an error and on Ctrl-C alike.
+struct WorkFolder(PathBuf);
+
+impl Drop for WorkFolder {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// UVs that never pass more than a rounding error into a neighbouring copy of the texture
+/// (its unit square): DamagedHelmet's V runs over 1.0005–1.9987, one copy.
+fn within_one_copy(lo: f32, hi: f32) -> bool {
+    const SLACK: f32 = 1e-3;
+    lo.is_finite() && hi.is_finite() && (lo + SLACK).floor() == (hi - SLACK).floor()
+}
+
+/// Stems made unique (as files on a case-blind disk) with the image's number, and kept off
+/// the names of the run's own files (`preview.png`, `run.json`) written beside them.
+fn unique_stems(images: &mut [Image]) {
+    let key = |stem: &str| stem.to_lowercase();
+    let mut count: BTreeMap<String, usize> = BTreeMap::new();
+    for image in images.iter() {
+        *count.entry(key(&image.stem)).or_default() += 1;
+    }
+    for (i, image) in images.iter_mut().enumerate() {
+        let stem = key(&image.stem);
+        if count[&stem] > 1 || stem == "preview" || stem == "run" {
+            image.stem = format!("{}-{i}", image.stem);
+        }
+    }
 }
 
 /// Whether two paths name one folder.
@@ -218,6 +269,9 @@ struct Image {
     size: (u32, u32),
     /// Where it is stored, for messages: its URI or bufferView.
     name: String,
+    /// The stem of its file while it is upscaled: its URI's or its name's, so that the run's
+    /// notes name `Default_albedo`, not a number.
+    stem: String,
 }
 
 /// The image formats a glTF model holds that matup writes back: the core PNG and JPEG, and
@@ -245,13 +299,14 @@ impl Encoding {
 }
 
 impl Image {
-    fn file_name(&self, index: usize) -> String {
+    /// Its file's name while it is upscaled: its stem, with the extension of its bytes.
+    fn file_name(&self) -> String {
         let extension = match self.encoding {
             Encoding::Png => "png",
             Encoding::Jpeg => "jpg",
             Encoding::Webp => "webp",
         };
-        format!("image-{index}.{extension}")
+        format!("{}.{extension}", self.stem)
     }
 
     fn mime(&self) -> &'static str {
@@ -267,6 +322,8 @@ impl Image {
 struct Group {
     label: String,
     uses: Vec<(usize, Role)>,
+    /// The material whose images these are (none for the images no material uses).
+    material: Option<usize>,
 }
 
 struct Groups {
@@ -349,7 +406,12 @@ impl Model {
         let file = self
             .folder
             .join(relative_path(uri).map_err(|e| self.bad(e))?);
-        std::fs::read(&file).map_err(|e| Error::io(&file, e))
+        std::fs::read(&file).map_err(|e| {
+            self.bad(format!(
+                "'{uri}', which the model names, cannot be read at {}: {e}",
+                file.display()
+            ))
+        })
     }
 
     /// Every image of the model, read and checked to be PNG or JPEG.
@@ -379,14 +441,80 @@ impl Model {
             })?;
             let size = encoded_size(&bytes)
                 .ok_or_else(|| self.bad(format!("{name} is not a readable image")))?;
+            let uri_stem = (image["uri"].as_str())
+                .filter(|uri| !uri.starts_with("data:"))
+                .and_then(|uri| Some(relative_path(uri).ok()?.file_stem()?.to_str()?.to_owned()));
+            let stem = uri_stem
+                .or_else(|| image["name"].as_str().map(str::to_owned))
+                .map(|stem| sanitised(&stem))
+                .filter(|stem| !stem.is_empty())
+                .unwrap_or_else(|| format!("image-{i}"));
             images.push(Image {
                 bytes,
                 encoding,
                 size,
                 name,
+                stem,
             });
         }
+        unique_stems(&mut images);
         Ok(images)
+    }
+
+    /// Every buffer's bytes, in order; an error names the first that cannot be read.
+    fn buffers(&self) -> Result<Vec<Vec<u8>>> {
+        (0..self.array("buffers").len())
+            .map(|b| self.buffer(b))
+            .collect()
+    }
+
+    /// Whether every primitive drawn with material `m` reads its textures' UVs within one
+    /// copy of them (one unit square, on both axes): a UV atlas, whose edges are no
+    /// neighbours. False where any UVs cross a copy's edge (a texture tiled over a floor), a
+    /// texture is transformed (`KHR_texture_transform`), no primitive uses the material, or
+    /// the UVs cannot be read: the material's edges then decide.
+    fn reads_one_copy(&self, m: usize, buffers: &[Vec<u8>]) -> bool {
+        let material = &self.array("materials")[m];
+        let mut sets = Vec::new();
+        let mut transformed = false;
+        visit_texture_infos(material, &mut |info, _| {
+            sets.push(info["texCoord"].as_u64().unwrap_or(0) as u32);
+            transformed |= !info["extensions"]["KHR_texture_transform"].is_null();
+        });
+        sets.sort();
+        sets.dedup();
+        if transformed || sets.is_empty() {
+            return false;
+        }
+        let Some(document) = serde_json::from_value(self.json.clone())
+            .ok()
+            .and_then(|root| gltf::Document::from_json(root).ok())
+        else {
+            return false;
+        };
+        let mut read_any = false;
+        for primitive in document.meshes().flat_map(|mesh| mesh.primitives()) {
+            if primitive.material().index() != Some(m) {
+                continue;
+            }
+            let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+            for &set in &sets {
+                let Some(uvs) = reader.read_tex_coords(set) else {
+                    return false;
+                };
+                let mut range = [[f32::INFINITY, f32::NEG_INFINITY]; 2];
+                for uv in uvs.into_f32() {
+                    for (axis, value) in uv.into_iter().enumerate() {
+                        range[axis] = [range[axis][0].min(value), range[axis][1].max(value)];
+                    }
+                }
+                if !range.iter().all(|&[lo, hi]| within_one_copy(lo, hi)) {
+                    return false;
+                }
+                read_any = true;
+            }
+        }
+        read_any
     }
 
     fn view_bytes(&self, index: usize) -> Result<Vec<u8>> {
@@ -493,7 +621,7 @@ impl Model {
                 for &(image, role) in &uses {
                     taken.insert(image, (name.clone(), role));
                 }
-                groups.extend(by_size(&name, uses, images));
+                groups.extend(by_size(&name, Some(m), uses, images));
             }
         }
         let unused: Vec<(usize, Role)> = (0..images.len())
@@ -505,7 +633,7 @@ impl Model {
                 "{} image(s) no material uses, upscaled as colour",
                 unused.len()
             ));
-            groups.extend(by_size("unused-images", unused, images));
+            groups.extend(by_size("unused-images", None, unused, images));
         }
         Ok(Groups { groups, notes })
     }
@@ -675,7 +803,12 @@ fn sanitised(name: &str) -> String {
 }
 
 /// `uses` split by image size (a material's textures may differ in size), each part labelled.
-fn by_size(name: &str, uses: Vec<(usize, Role)>, images: &[Image]) -> Vec<Group> {
+fn by_size(
+    name: &str,
+    material: Option<usize>,
+    uses: Vec<(usize, Role)>,
+    images: &[Image],
+) -> Vec<Group> {
     let mut sizes: Vec<(u32, u32)> = uses.iter().map(|&(i, _)| images[i].size).collect();
     sizes.sort();
     sizes.dedup();
@@ -689,6 +822,7 @@ fn by_size(name: &str, uses: Vec<(usize, Role)>, images: &[Image]) -> Vec<Group>
             uses: (uses.iter().copied())
                 .filter(|&(i, _)| images[i].size == size)
                 .collect(),
+            material,
         })
         .collect()
 }
@@ -696,6 +830,18 @@ fn by_size(name: &str, uses: Vec<(usize, Role)>, images: &[Image]) -> Vec<Group>
 /// The textures a material uses, each with its role: the core ones, then every
 /// `…Texture` of its extensions.
 fn material_textures(material: &Value) -> Vec<(usize, Role)> {
+    let mut found = Vec::new();
+    visit_texture_infos(material, &mut |info, role| {
+        if let Some(index) = info["index"].as_u64() {
+            found.push((index as usize, role));
+        }
+    });
+    found
+}
+
+/// Each texture info of a material (its object: `index`, `texCoord`, extensions) with the
+/// role of its texture, in [`material_textures`]' order.
+fn visit_texture_infos(material: &Value, visit: &mut dyn FnMut(&Value, Role)) {
     let pbr = &material["pbrMetallicRoughness"];
     let core = [
         (&pbr["baseColorTexture"], Role::BaseColor),
@@ -707,24 +853,24 @@ fn material_textures(material: &Value) -> Vec<(usize, Role)> {
         (&material["occlusionTexture"], Role::Carried { data: true }),
         (&material["emissiveTexture"], Role::Carried { data: false }),
     ];
-    let mut found: Vec<(usize, Role)> = (core.iter())
-        .filter_map(|(info, role)| Some((info["index"].as_u64()? as usize, *role)))
-        .collect();
-    fn walk(value: &Value, found: &mut Vec<(usize, Role)>) {
+    for (info, role) in core {
+        if info.is_object() {
+            visit(info, role);
+        }
+    }
+    fn walk(value: &Value, visit: &mut dyn FnMut(&Value, Role)) {
         if let Value::Object(map) = value {
             for (key, value) in map {
-                match value["index"].as_u64() {
-                    Some(index) if key.ends_with("Texture") => {
-                        let data = !COLOUR_EXTENSION_TEXTURES.contains(&key.as_str());
-                        found.push((index as usize, Role::Carried { data }));
-                    }
-                    _ => walk(value, found),
+                if key.ends_with("Texture") && value["index"].is_u64() {
+                    let data = !COLOUR_EXTENSION_TEXTURES.contains(&key.as_str());
+                    visit(value, Role::Carried { data });
+                } else {
+                    walk(value, visit);
                 }
             }
         }
     }
-    walk(&material["extensions"], &mut found);
-    found
+    walk(&material["extensions"], visit);
 }
 
 #[cfg(test)]
@@ -747,6 +893,7 @@ mod tests {
                 encoding: Encoding::Png,
                 size: (s, s),
                 name: format!("image {i}"),
+                stem: format!("image-{i}"),
             })
             .collect()
     }

@@ -698,3 +698,143 @@ fn learn_trains_on_pairs_equal_to_what_matup_downsample_writes() {
     let angle = matup_eval::metrics::mean_angle_degrees(&pair.lr.normal, &written.normal);
     assert!(angle < 0.3, "normals {angle}°");
 }
+
+#[test]
+fn a_run_logged_to_a_file_writes_a_line_per_stage_with_its_time() {
+    // stderr is a pipe here, as a log file or a cluster job's is: no bars are drawn, so each
+    // stage is logged as it starts and ends.
+    let out = tempfile::tempdir().unwrap();
+    let o = matup(&[
+        "upscale",
+        &sample(),
+        "-o",
+        out.path().join("o").to_str().unwrap(),
+        "--upsampler",
+        "bicubic",
+    ]);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    for stage in ["level 1: residual base", "infer"] {
+        let started = format!("] {stage}: started");
+        let line = (err.lines())
+            .find(|l| l.contains(&started))
+            .unwrap_or_else(|| panic!("no line for {stage} starting:\n{err}"));
+        assert!(line.starts_with("[0:0"), "elapsed time first: {line}");
+        assert!(
+            err.lines()
+                .any(|l| l.contains(&format!("] {stage}: done in 0:"))),
+            "no line for {stage} ending:\n{err}"
+        );
+    }
+}
+
+/// A glTF quad whose material shows the sample's colour and normal maps, in `folder`.
+#[cfg(unix)]
+fn sample_model(folder: &std::path::Path) -> PathBuf {
+    let floats = |v: &[f32]| v.iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>();
+    let mut bin = floats(&[0., 0., 0., 1., 0., 0., 1., 1., 0., 0., 1., 0.]);
+    bin.extend(floats(&[0., 1., 1., 1., 1., 0., 0., 0.]));
+    bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+    std::fs::write(folder.join("quad.bin"), &bin).unwrap();
+    for name in ["baseColor.png", "normal.png"] {
+        std::fs::copy(PathBuf::from(sample()).join(name), folder.join(name)).unwrap();
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "meshes": [{"primitives": [{
+            "attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0
+        }]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+             "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 48, "byteLength": 32},
+            {"buffer": 0, "byteOffset": 80, "byteLength": 12}
+        ],
+        "buffers": [{"uri": "quad.bin", "byteLength": bin.len()}],
+        "materials": [{
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
+            "normalTexture": {"index": 1}
+        }],
+        "textures": [{"source": 0}, {"source": 1}],
+        "images": [{"uri": "baseColor.png"}, {"uri": "normal.png"}]
+    });
+    let model = folder.join("quad.gltf");
+    std::fs::write(&model, serde_json::to_vec(&json).unwrap()).unwrap();
+    model
+}
+
+#[cfg(unix)]
+#[test]
+fn an_interrupted_model_run_leaves_no_working_folder_and_no_model() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let model = sample_model(dir.path());
+    let out = dir.path().join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_matup"))
+        .args([
+            "upscale",
+            model.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut log = String::new();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    // Ctrl-C once the upscaling has begun: its textures are unpacked in the working folder.
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        log += &line;
+        log += "\n";
+        if line.contains("residual base: started") {
+            assert!(out.join(".matup-model").is_dir(), "{log}");
+            let pid = child.id().to_string();
+            assert!(Command::new("kill")
+                .args(["-INT", &pid])
+                .status()
+                .unwrap()
+                .success());
+            break;
+        }
+    }
+    for line in lines {
+        log += &line.unwrap();
+        log += "\n";
+    }
+    let status = child.wait().unwrap();
+    assert!(!status.success(), "{log}");
+    assert!(log.contains("interrupted"), "{log}");
+    assert!(!out.join(".matup-model").exists(), "{log}");
+    assert!(
+        !out.join("quad.gltf").exists(),
+        "no model half written: {log}"
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn a_model_missing_its_buffer_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = sample_model(dir.path());
+    std::fs::remove_file(dir.path().join("quad.bin")).unwrap();
+    let out = dir.path().join("out");
+    let o = matup(&[
+        "upscale",
+        model.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("'quad.bin'") && err.contains("cannot be read"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing was made: {err}");
+}

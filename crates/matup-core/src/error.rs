@@ -44,6 +44,11 @@ pub enum Error {
     )]
     Cancelled { epochs_done: usize },
 
+    /// The user asked a run without checkpoints to stop: it stopped before writing what was
+    /// not finished.
+    #[error("interrupted: what was not finished was not written; run the same command again")]
+    Interrupted,
+
     #[error(transparent)]
     Candle(#[from] candle_core::Error),
 }

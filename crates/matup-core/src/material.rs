@@ -38,6 +38,10 @@ pub struct MaterialOrigin {
     /// What else the run should say about how the files were read (a flag that replaced a
     /// file of the folder).
     pub notes: Vec<String>,
+    /// What the material's source says of its tiling, where it says something: whether it
+    /// tiles, and why (a glTF model's UVs read one copy of an atlas). Without it, and without
+    /// a setting, its edges decide.
+    pub tiling: Option<(bool, String)>,
 }
 
 /// An image of a material's folder whose size is not its maps', carried as a material of its
@@ -423,9 +427,93 @@ pub fn normalize_normals(normal: &mut Map) {
     }
 }
 
+/// How far past unit length (5%, beyond any 8-bit file's or JPEG's error) a file's normals
+/// around a texel begin to have it read from its x and y alone, and how far (15%) they have
+/// it read so wholly ([`normals_from_file`]).
+const NORMAL_LENGTH_TRUSTED: f32 = 1.05;
+const NORMAL_LENGTH_REBUILT: f32 = 1.15;
+
+/// Normals as a file stores them (decoded, not yet unit) made unit vectors. A well-formed
+/// file's vectors are unit within its precision, and a filtered one's shorter (averaging
+/// shortens them, its z agreeing with its x and y): both are renormalised. A vector longer
+/// than unit comes from neither: its z disagrees with its x and y, as in a baked,
+/// JPEG-compressed game texture whose blue channel jumps while red and green run smooth
+/// (DamagedHelmet: lengths 0.53–1.27 along its stripes). Renormalising there turns a smooth
+/// slope into directions that jump from texel to texel, which an SR network draws as patches
+/// of noise (docs/experiments/2026-11-28-no-new-structure.md). So where any vector of a
+/// texel's 3×3 neighbourhood is longer than unit by 5% or more, the texel's x and y are
+/// taken at their word and z rebuilt from them, as engines that read two channels (BC5,
+/// Unreal, Unity) do, blended in up to 15% so the reading changes smoothly.
+pub fn normals_from_file(normal: &mut Map) {
+    let (w, h, n) = (normal.width(), normal.height(), normal.texels());
+    let vector = |data: &[f32], i: usize| glam::Vec3::new(data[i], data[n + i], data[2 * n + i]);
+    let lengths: Vec<f32> = (0..n).map(|i| vector(normal.data(), i).length()).collect();
+    let data = normal.data_mut();
+    for i in 0..n {
+        let (y, x) = (i / w, i % w);
+        let mut longest = 0.0f32;
+        for ny in y.saturating_sub(1)..(y + 2).min(h) {
+            for nx in x.saturating_sub(1)..(x + 2).min(w) {
+                longest = longest.max(lengths[ny * w + nx]);
+            }
+        }
+        let rebuilt = ((longest - NORMAL_LENGTH_TRUSTED)
+            / (NORMAL_LENGTH_REBUILT - NORMAL_LENGTH_TRUSTED))
+            .clamp(0.0, 1.0);
+        if rebuilt == 0.0 {
+            continue;
+        }
+        let v = vector(data, i);
+        let xy = glam::Vec2::new(v.x, v.y);
+        let xy = if xy.length_squared() > 1.0 {
+            xy.normalize()
+        } else {
+            xy
+        };
+        let z = (1.0 - xy.length_squared()).max(0.0).sqrt();
+        let from_xy = glam::Vec3::new(xy.x, xy.y, if v.z < 0.0 { -z } else { z });
+        let u = v.normalize_or(glam::Vec3::Z).lerp(from_xy, rebuilt);
+        data[i] = u.x;
+        data[n + i] = u.y;
+        data[2 * n + i] = u.z;
+    }
+    normalize_normals(normal);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_normal_whose_z_disagrees_with_its_x_and_y_is_read_from_them() {
+        // Two rows: a filtered map's short vectors (z agreeing with x and y) and unit ones,
+        // renormalised; then DamagedHelmet's stripe, lengths 1.18 and 0.70 side by side, read
+        // from x and y.
+        let texels: [[[f32; 3]; 3]; 2] = [
+            [[0.6, 0.0, 0.8], [0.3, 0.4, 0.9], [0.27, 0.0, 0.9]],
+            [[0.0, 0.0, 1.0], [0.45, 0.44, 1.0], [-0.41, -0.46, 0.33]],
+        ];
+        let mut map = Map::from_fn(3, 2, 3, |c, y, x| texels[y][x][c]);
+        // The first row alone: nothing longer than unit near it.
+        let mut first = Map::from_fn(3, 1, 3, |c, _, x| texels[0][x][c]);
+        let mut plain = first.clone();
+        normals_from_file(&mut first);
+        normalize_normals(&mut plain);
+        assert_eq!(first.data(), plain.data(), "renormalised, bit for bit");
+        normals_from_file(&mut map);
+        let got = |y: usize, x: usize| {
+            glam::Vec3::new(map.get(0, y, x), map.get(1, y, x), map.get(2, y, x))
+        };
+        for (y, x) in [(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (1, 2)] {
+            assert!((got(y, x).length() - 1.0).abs() < 1e-5, "texel {y}, {x}");
+        }
+        for (x, [nx, ny]) in [(1, [0.45, 0.44]), (2, [-0.41, -0.46])] {
+            let n = got(1, x);
+            assert!((n.x - nx).abs() < 1e-5 && (n.y - ny).abs() < 1e-5, "{n:?}");
+        }
+        // A flat normal stays flat either way.
+        assert!((got(1, 0) - glam::Vec3::Z).length() < 1e-6);
+    }
 
     #[test]
     fn positions_follow_method_convention() {

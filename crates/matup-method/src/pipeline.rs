@@ -124,22 +124,33 @@ pub fn upscale_streamed(
 
     let model: Arc<dyn ShadingModel> =
         Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
-    let (tileable, evidence) = match config.tileable {
-        Some(t) => (t, None),
-        None => {
+    let source_says = (material.origin.as_ref()).and_then(|o| o.tiling.clone());
+    let (tileable, evidence) = match (config.tileable, source_says) {
+        (Some(t), _) => (t, None),
+        (None, Some((t, why))) => (t, Some(Err(why))),
+        (None, None) => {
             let (tileable, evidence) = decide_tileable(material);
-            (tileable, Some(evidence))
+            (tileable, Some(Ok(evidence)))
         }
     };
-    progress.note(&match evidence {
+    progress.note(&match &evidence {
+        Some(Err(why)) => format!(
+            "tileable: {} ({why}; --{}tileable decides otherwise)",
+            if tileable {
+                "yes, wrapped"
+            } else {
+                "no, mirrored"
+            },
+            if tileable { "no-" } else { "" }
+        ),
         // Decided by what each wrong call costs: mirroring a tileable input seams its output,
         // wrapping a crop costs little (docs/experiments/2026-11-26-seamless-by-default.md).
-        Some(e) if tileable => format!(
+        Some(Ok(e)) if tileable => format!(
             "tileable: yes, wrapped (its wrap-around step is {e:.2}× its largest interior step; \
              only past {SEAM_OVER_LARGEST_STEP} on both axes is it taken for a crop; \
              --no-tileable mirrors)"
         ),
-        Some(e) => format!(
+        Some(Ok(e)) => format!(
             "tileable: no, mirrored (its wrap-around step is {e:.2}× its largest interior step \
              on both axes: a crop; --tileable wraps)"
         ),
@@ -264,7 +275,8 @@ pub fn upscale_streamed(
         upsampler_used,
         route: reach.describe(),
         tileable,
-        tiling_evidence: evidence,
+        tiling_evidence: evidence.clone().and_then(Result::ok),
+        tiling_source: evidence.and_then(Result::err),
         selection,
         levels,
         timings,
@@ -412,7 +424,13 @@ fn run_level(
     let mut trained_base = trained_base;
     // Decided from the whole level input: every band treats each carried map alike.
     let carried_plan = CarriedPlan::of(&lr.carried);
+    // Ctrl-C stops the run between its stages; what was not finished is not written.
+    let go_on = || match ctx.progress.cancelled() {
+        true => Err(Error::Interrupted),
+        false => Ok(()),
+    };
     for band in plan.bands() {
+        go_on()?;
         let read = (!whole).then(|| band.read_material(lr));
         let lr_band = read.as_ref().unwrap_or(lr);
         let base = match trained_base.take() {
@@ -436,6 +454,7 @@ fn run_level(
                     )?)),
                 };
                 inner.advance(1, None);
+                go_on()?;
                 base
             }
         };

@@ -30,6 +30,9 @@ pub struct RunReport {
     /// wrap-around step over the largest interior step, the lesser axis
     /// (`matup_core::tileable::decide_tileable`).
     pub tiling_evidence: Option<f32>,
+    /// Why the source decided the tiling, where it did (a glTF model's UV atlas).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tiling_source: Option<String>,
     /// How the settings were chosen, with `select = "auto"` (`config` is the chosen one).
     pub selection: Option<SelectionReport>,
     pub levels: Vec<LevelReport>,

@@ -289,6 +289,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
             size: [w, h],
             other_sizes: reader.other_sizes,
             notes,
+            tiling: None,
         }),
     })
 }

@@ -9,7 +9,7 @@ use super::discover::{file_name, FileRole};
 use super::image_file::{read_image, ImageFile};
 use crate::layout::{channel_letter, Channel, FileLayout, Holds, Packed, Stored};
 use crate::map::Map;
-use crate::material::{normalize_normals, Extra, MapKind, OtherSizeFile};
+use crate::material::{normals_from_file, Extra, MapKind, OtherSizeFile};
 use crate::{Error, Result};
 
 /// Channels of an integer file that differ by at most this are one grey value stored in
@@ -308,7 +308,7 @@ impl Reader {
     }
 
     /// The map of `kind` read, if one was: a grey base colour's value in R, G and B; normals
-    /// renormalised.
+    /// made unit vectors ([`normals_from_file`]).
     pub fn map(&self, kind: MapKind) -> Option<Map> {
         let (w, h) = self.size?;
         let slots = self.components.get(&kind)?;
@@ -318,7 +318,7 @@ impl Reader {
             .collect();
         let mut map = Map::from_planar(w, h, slots.len(), data);
         if kind == MapKind::Normal {
-            normalize_normals(&mut map);
+            normals_from_file(&mut map);
         }
         Some(map)
     }
