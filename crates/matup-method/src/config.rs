@@ -407,6 +407,12 @@ pub struct FilterConfig {
     /// by back-projection (a smooth spread) between the later clamps, instead of settling each
     /// block alone, which moves whole blocks apart and draws the input's texel grid.
     pub clamp_back_project: bool,
+    /// With `back_project`: how far (in stored [0, 1] values, sRGB for colour) each texel of
+    /// the base colour, metallic and roughness may lie past the range of its LR texel's 3×3
+    /// neighbourhood, channel by channel, once back-projected; 1 keeps all. Back-projection
+    /// pays for a network's dark stroke with bright texels around it and pins texels at 0:
+    /// structure the input has nowhere near (docs/experiments/2026-11-28-no-new-structure.md).
+    pub neighbourhood_margin: f32,
 }
 
 impl FilterConfig {
@@ -493,9 +499,16 @@ impl Default for FilterConfig {
             // network, ×16 block edges at or below bicubic's on all 11 shared materials; settling
             // instead leaves denim_fabric's above it and victorian_wood's just below.
             clamp_back_project: true,
+            // Measured (docs/experiments/2026-11-28-no-new-structure.md): no texel of
+            // DamagedHelmet's colour, roughness or metallic 16 levels past its input around
+            // it; −0.034 dB on the shared set (Tiles012 −0.34), +0.001 on the val sets.
+            neighbourhood_margin: NEIGHBOURHOOD_MARGIN,
         }
     }
 }
+
+/// The default [`FilterConfig::neighbourhood_margin`].
+pub const NEIGHBOURHOOD_MARGIN: f32 = 0.06;
 
 /// Weights of the map-space prior `Σ_k w_k (f_k − base_k)²`, averaged over texels: each
 /// pulls a feature of the output toward the residual base.

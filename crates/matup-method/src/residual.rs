@@ -12,15 +12,21 @@ use crate::config::{Chroma, FilterConfig, ResidualBase};
 use crate::features::{features, pack_features};
 use crate::features::{ALPHA, FEATURES};
 use crate::per_map::{upscale_each_map, upscale_one_map_on_device};
-use matup_core::candle_core::{self, Device, Tensor};
+use matup_core::candle_core::{self, DType, Device, Tensor};
+use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::device_maps::{self, Separable};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::{
-    box_downsample_channels, for_each_upsampled_row, rows_per_task, upsample, Border, Kernel,
+    box_downsample_channels, for_each_upsampled_row, lr_texel, neighbourhood_ranges, rows_per_task,
+    upsample, Border, Kernel,
 };
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
+
+/// The grey features, metallic and alpha (as the roughness r), kept near their input after
+/// back-projection ([`back_project`]).
+const GREY_FEATURES: [std::ops::Range<usize>; 2] = [3..4, ALPHA..ALPHA + 1];
 
 /// Rounds of back-projection: each removes most of the mismatch that remains (a bilinear
 /// spread does not invert the box filter in one round), so three leave little.
@@ -61,12 +67,18 @@ pub fn project_onto_input(
         return;
     }
     let lr_features = features(lr);
+    let margin = config.neighbourhood_margin;
     if config.back_project {
-        back_project(base, &lr_features, scale, border);
+        back_project(base, &lr_features, scale, border, margin);
     }
     if config.clamp_chroma {
-        // The base colour is the features' first three channels.
-        clamp_chroma_to_input(base, &lr_features, scale, border);
+        // The base colour is the features' first three channels, linear.
+        let near = NearInput::new(&lr_features, 0..3, border, margin, Encoding::Srgb);
+        let clamp = |base: &mut Map| {
+            clamp_chroma_to_input(base, &lr_features, scale, border);
+            near.keep(base, scale, lr_features.width());
+        };
+        clamp(base);
         if config.back_project {
             // The clamp moves colours off their input, and bringing them back moves a few hues
             // out of their range: each twice more, the later moves far smaller, ending settled.
@@ -77,17 +89,125 @@ pub fn project_onto_input(
             // smooth spread, where settling each block alone moves whole blocks apart and
             // draws the input's texel grid, most at ×16
             // (docs/experiments/2026-11-26-seamless-by-default.md). The last bringing back
-            // settles the blocks either way: back-projection ending there moves hues again.
+            // settles the blocks either way, within the range kept near the input: both hold.
             for _ in 0..LATER_CLAMPS {
                 if config.clamp_back_project {
                     back_project_channels(base, &lr_features, scale, border, 0..3, stored_range);
                 } else {
-                    settle_blocks(base, &lr_features, scale, 0..3, stored_range);
+                    near.settle(base, &lr_features, scale);
                 }
-                clamp_chroma_to_input(base, &lr_features, scale, border);
+                clamp(base);
             }
-            settle_blocks(base, &lr_features, scale, 0..3, stored_range);
+            near.settle(base, &lr_features, scale);
         }
+    }
+}
+
+/// How a feature's values are compared with its input's: as they are, or (colour) as sRGB,
+/// the values a file stores and an eye judges.
+#[derive(Clone, Copy)]
+enum Encoding {
+    Linear,
+    Srgb,
+}
+
+/// The range each output texel of `channels` is kept within: the range its input texel's 3×3
+/// neighbourhood spans (rows and columns past the edge as the border says), widened by
+/// `margin`, per input texel. An SR network trained on clean materials reads a game
+/// texture's speckle and JPEG blocks as detail and draws a grey speck as a dark stroke;
+/// back-projection then keeps the block's mean by brightening the texels around it and pins
+/// the stroke at 0: black blobs and worms no input texel around them has
+/// (docs/experiments/2026-11-28-no-new-structure.md). Edges the input has, sharpened, stay.
+/// `None` ranges where the margin keeps everything (1 or more).
+struct NearInput {
+    channels: std::ops::Range<usize>,
+    /// Per channel, per input texel: the least and greatest value (in the map's own values).
+    ranges: Option<Vec<Vec<(f32, f32)>>>,
+}
+
+impl NearInput {
+    fn new(
+        lr: &Map,
+        channels: std::ops::Range<usize>,
+        border: Border,
+        margin: f32,
+        encoding: Encoding,
+    ) -> Self {
+        let ranges = (margin < 1.0).then(|| {
+            let (encode, decode): (fn(f32) -> f32, fn(f32) -> f32) = match encoding {
+                Encoding::Linear => (|v| v, |v| v),
+                Encoding::Srgb => (linear_to_srgb, srgb_to_linear),
+            };
+            (channels.clone())
+                .map(|c| {
+                    let (lo, hi) = stored_range(c);
+                    let values: Vec<[f32; 1]> = lr.plane(c).iter().map(|&v| [encode(v)]).collect();
+                    (neighbourhood_ranges(&values, lr.width(), border).into_iter())
+                        .map(|[[a, b]]| {
+                            let widened = |v: f32| decode(v.clamp(encode(lo), encode(hi)));
+                            (widened(a - margin), widened(b + margin))
+                        })
+                        .collect()
+                })
+                .collect()
+        });
+        NearInput { channels, ranges }
+    }
+
+    /// Each texel of `hr` (`scale` times the size of an input `lr_width` wide) kept within
+    /// its range.
+    fn keep(&self, hr: &mut Map, scale: usize, lr_width: usize) {
+        let Some(ranges) = &self.ranges else {
+            return;
+        };
+        let w = hr.width();
+        for (c, ranges) in self.channels.clone().zip(ranges) {
+            (hr.plane_mut(c).par_chunks_mut(w))
+                .enumerate()
+                .for_each(|(y, row)| {
+                    for (x, v) in row.iter_mut().enumerate() {
+                        let (lo, hi) = ranges[lr_texel(y * w + x, w, scale, lr_width)];
+                        *v = v.clamp(lo, hi);
+                    }
+                });
+        }
+    }
+
+    /// [`settle_blocks`] of the channels, within their ranges (the stored ranges where the
+    /// margin keeps everything): each block's mean its input texel's, and no texel moved out
+    /// of its range. The input texel lies within its own range, so every block can settle.
+    fn settle(&self, hr: &mut Map, lr: &Map, scale: usize) {
+        match &self.ranges {
+            None => settle_blocks(hr, lr, scale, self.channels.clone(), stored_range),
+            Some(ranges) => {
+                let start = self.channels.start;
+                settle_blocks_by(hr, lr, scale, self.channels.clone(), |c, j| {
+                    ranges[c - start][j]
+                })
+            }
+        }
+    }
+
+    /// The ranges on `device` at `scale` times the input's size, `[2, N, H, W]`: the least
+    /// values, then the greatest; `None` where the margin keeps everything.
+    fn on_device(
+        &self,
+        lr: &Map,
+        scale: usize,
+        device: &Device,
+    ) -> candle_core::Result<Option<[Tensor; 2]>> {
+        let Some(ranges) = &self.ranges else {
+            return Ok(None);
+        };
+        let end = |pick: fn((f32, f32)) -> f32| -> candle_core::Result<Tensor> {
+            let values: Vec<f32> = ranges
+                .iter()
+                .flat_map(|r| r.iter().map(|&e| pick(e)))
+                .collect();
+            let t = Tensor::from_vec(values, (ranges.len(), lr.height(), lr.width()), device)?;
+            device_maps::repeated(&t, scale)
+        };
+        Ok(Some([end(|r| r.0)?, end(|r| r.1)?]))
     }
 }
 
@@ -162,13 +282,30 @@ fn project_on_device(
             Tensor::cat(&[t.narrow(0, 0, ALPHA)?, t.narrow(0, ALPHA, 1)?.sqrt()?], 0)
         };
         let lr = as_stored(&lr_on_device)?;
-        let hr = back_project_on_device(
+        let mut hr = back_project_on_device(
             &as_stored(&base)?,
             &lr,
             scale,
             border,
             &ranges(0..FEATURES)?,
         )?;
+        let margin = config.neighbourhood_margin;
+        if margin < 1.0 {
+            // As `back_project` keeps the grey features near their input.
+            let mut lr_stored = lr_features.clone();
+            (lr_stored.plane_mut(ALPHA).iter_mut()).for_each(|a| *a = a.sqrt());
+            for grey in GREY_FEATURES {
+                let near =
+                    NearInput::new(&lr_stored, grey.clone(), border, margin, Encoding::Linear);
+                if let Some(ends) = near.on_device(&lr_stored, scale, &device)? {
+                    let c = grey.start;
+                    let kept = (hr.narrow(0, c, 1)?).maximum(&ends[0])?.minimum(&ends[1])?;
+                    let settled =
+                        settle_blocks_on_device(&kept, &lr.narrow(0, c, 1)?, scale, &ends)?;
+                    hr = with_channel(&hr, c, &settled)?;
+                }
+            }
+        }
         base = Tensor::cat(
             &[hr.narrow(0, 0, ALPHA)?, hr.narrow(0, ALPHA, 1)?.sqr()?],
             0,
@@ -177,20 +314,29 @@ fn project_on_device(
     if config.clamp_chroma {
         let rest = base.narrow(0, 3, FEATURES - 3)?;
         let bounds = chroma_bounds_on_device(&lr_features, scale, border, &device)?;
-        let mut colour = clamp_chroma_on_device(&base.narrow(0, 0, 3)?, &bounds)?;
+        let margin = config.neighbourhood_margin;
+        let near = NearInput::new(&lr_features, 0..3, border, margin, Encoding::Srgb);
+        let near = near.on_device(&lr_features, scale, &device)?;
+        let keep = |colour: Tensor| match &near {
+            Some([lo, hi]) => colour.maximum(lo)?.minimum(hi),
+            None => Ok(colour),
+        };
+        let mut colour = keep(clamp_chroma_on_device(&base.narrow(0, 0, 3)?, &bounds)?)?;
         if config.back_project {
             // As `project_onto_input` brings them back and clamps them, and why.
             let lr_colour = lr_on_device.narrow(0, 0, 3)?;
             let range = ranges(0..3)?;
+            // Settled within the range kept near the input, where there is one.
+            let settle_range = near.clone().unwrap_or(range.clone());
             for _ in 0..LATER_CLAMPS {
                 colour = if config.clamp_back_project {
                     back_project_on_device(&colour, &lr_colour, scale, border, &range)?
                 } else {
-                    settle_blocks_on_device(&colour, &lr_colour, scale, &range)?
+                    settle_blocks_on_device(&colour, &lr_colour, scale, &settle_range)?
                 };
-                colour = clamp_chroma_on_device(&colour, &bounds)?;
+                colour = keep(clamp_chroma_on_device(&colour, &bounds)?)?;
             }
-            colour = settle_blocks_on_device(&colour, &lr_colour, scale, &range)?;
+            colour = settle_blocks_on_device(&colour, &lr_colour, scale, &settle_range)?;
         }
         base = Tensor::cat(&[&colour, &rest], 0)?;
     }
@@ -223,7 +369,22 @@ pub fn back_project_on_device(
     settle_blocks_on_device(&hr, lr, scale, &[lo.clone(), hi.clone()])
 }
 
-/// [`settle_blocks`] on a device, every channel of `hr`, the range's ends finite.
+/// `t` (`[c, h, w]`) with channel `c` replaced by `part` (`[1, h, w]`).
+fn with_channel(t: &Tensor, c: usize, part: &Tensor) -> candle_core::Result<Tensor> {
+    let channels = t.dim(0)?;
+    let mut pieces = Vec::new();
+    if c > 0 {
+        pieces.push(t.narrow(0, 0, c)?);
+    }
+    pieces.push(part.clone());
+    if c + 1 < channels {
+        pieces.push(t.narrow(0, c + 1, channels - c - 1)?);
+    }
+    Tensor::cat(&pieces, 0)
+}
+
+/// [`settle_blocks`] on a device, every channel of `hr`, the range's ends finite: `[c, 1, 1]`
+/// each, or each texel's own (`[c, H, W]`, [`NearInput::on_device`]).
 fn settle_blocks_on_device(
     hr: &Tensor,
     lr: &Tensor,
@@ -233,12 +394,9 @@ fn settle_blocks_on_device(
     let n = (scale * scale) as f64;
     let miss = settled_part_on_device(&(lr - (device_maps::block_sums(hr, scale)? / n)?)?)?;
     let up = |t: &Tensor| device_maps::repeated(t, scale);
-    let toward_hi = miss.gt(0f32)?;
-    let end = toward_hi.where_cond(
-        &hi.broadcast_as(miss.shape())?,
-        &lo.broadcast_as(miss.shape())?,
-    )?;
-    let room = (up(&end)? - hr)?.abs()?;
+    let toward_hi = up(&miss.gt(0f32)?.to_dtype(DType::F32)?)?.gt(0.5f32)?;
+    let end = toward_hi.where_cond(&hi.broadcast_as(hr.shape())?, &lo.broadcast_as(hr.shape())?)?;
+    let room = (end - hr)?.abs()?;
     let total = device_maps::block_sums(&room, scale)?;
     let settles = miss.ne(0f32)?.mul(&total.gt(0f32)?)?;
     let share = settles.where_cond(&((&miss * n)? / &total)?, &miss.zeros_like()?)?;
@@ -271,12 +429,23 @@ pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
 /// Each feature is corrected as its file stores it, so that the output's files box-filter back
 /// to the input's: alpha (r²) as the roughness r (a mean of r² is not the square of a mean of
 /// r, and the two drift apart by up to 10 levels where roughness varies near 0).
-pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border) {
+///
+/// The grey features (metallic, roughness) are then kept within `margin` of their input's
+/// neighbourhoods ([`NearInput`]) and their blocks settled within them; the colour is kept so
+/// with its chroma ([`project_onto_input`]).
+pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin: f32) {
     let as_stored = |map: &mut Map| map.plane_mut(ALPHA).iter_mut().for_each(|a| *a = a.sqrt());
     let mut lr = lr.clone();
     as_stored(&mut lr);
     as_stored(hr);
     back_project_within(hr, &lr, scale, border, stored_range);
+    if margin < 1.0 {
+        for grey in GREY_FEATURES {
+            let near = NearInput::new(&lr, grey, border, margin, Encoding::Linear);
+            near.keep(hr, scale, lr.width());
+            near.settle(hr, &lr, scale);
+        }
+    }
     // Alpha was made by squaring r (`pack_features`), and √(r²) rounds back to r exactly, so a
     // texel no correction moved gets its alpha back bit for bit.
     hr.plane_mut(ALPHA).iter_mut().for_each(|r| *r *= *r);
@@ -391,15 +560,28 @@ pub fn settle_blocks(
     channels: std::ops::Range<usize>,
     range: impl Fn(usize) -> (f32, f32) + Sync,
 ) {
+    settle_blocks_by(hr, lr, scale, channels, |c, _| range(c));
+}
+
+/// [`settle_blocks`] with a range of its own for each block: `range(c, j)` for channel `c`
+/// of the block of LR texel `j`.
+pub fn settle_blocks_by(
+    hr: &mut Map,
+    lr: &Map,
+    scale: usize,
+    channels: std::ops::Range<usize>,
+    range: impl Fn(usize, usize) -> (f32, f32) + Sync,
+) {
     let (w, ow) = (lr.width(), lr.width() * scale);
     let n = (scale * scale) as f32;
     for c in channels {
-        let (lo, hi) = range(c);
         let lr_plane = lr.plane(c);
         (hr.plane_mut(c).par_chunks_mut(scale * ow))
             .zip(lr_plane.par_chunks(w))
-            .for_each(|(rows, lr_row)| {
+            .enumerate()
+            .for_each(|(y, (rows, lr_row))| {
                 for (x, &want) in lr_row.iter().enumerate() {
+                    let (lo, hi) = range(c, y * w + x);
                     let block = |rows: &mut [f32], f: &mut dyn FnMut(&mut f32)| {
                         for row in rows.chunks_exact_mut(ow) {
                             row[x * scale..(x + 1) * scale].iter_mut().for_each(&mut *f);
@@ -606,7 +788,7 @@ mod tests {
                     / lr.data().len() as f32
             };
             let before = error(&hr);
-            back_project(&mut hr, &lr, 4, border);
+            back_project(&mut hr, &lr, 4, border, 1.0);
             let after = error(&hr);
             println!("{border}: mismatch {before:.4} → {after:.4}");
             assert!(before > 0.02, "{border}: {before}");

@@ -1,0 +1,123 @@
+//! No artefact a user can see: game textures built like Khronos' DamagedHelmet (grey speckle
+//! on a light ground, JPEG-like noise, diagonal stripes whose normals' blue channel disagrees
+//! with red and green) come back from the defaults with no more new structure than bicubic
+//! draws, and box-filter back to their input.
+
+use matup::config::Config;
+use matup::eval::metrics::new_structure;
+use matup::per_map::upscale_per_map;
+use matup::progress::Silent;
+use matup::resample::{Border, Kernel};
+use matup::upsample::KernelUpsampler;
+use matup::{load_material, LoadOptions, RunOptions};
+
+const SIDE: u32 = 64;
+
+/// A small deterministic generator: the same "random" texels on every machine.
+fn noise(i: u32, salt: u32) -> f32 {
+    let mut x = i.wrapping_mul(0x9E37_79B9) ^ salt.wrapping_mul(0x85EB_CA6B);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x2C1B_3C6D);
+    x ^= x >> 12;
+    (x & 0xFFFF) as f32 / 65535.0
+}
+
+/// Writes the game texture's four maps as 8-bit PNGs into `folder`.
+fn write_game_texture(folder: &std::path::Path) {
+    let (w, h) = (SIDE, SIDE);
+    let level = |v: f32| v.round().clamp(0.0, 255.0) as u8;
+    // Base colour: a light painted ground with grey grime specks (one texel in 9), and the
+    // ±4-level noise a JPEG leaves.
+    let colour = image::RgbImage::from_fn(w, h, |x, y| {
+        let i = y * w + x;
+        let speck = noise(i, 1) < 0.11;
+        let ground = 200.0 + 8.0 * noise(i, 2) - 4.0;
+        let v = if speck {
+            ground - 40.0 - 50.0 * noise(i, 3)
+        } else {
+            ground
+        };
+        image::Rgb([level(v + 6.0), level(v + 3.0), level(v)])
+    });
+    colour.save(folder.join("basecolor.png")).unwrap();
+    // Normals: diagonal stripes (a groove every 8 texels, its sides tilted 40°) whose blue
+    // channel jumps as a baked, compressed texture's does: lengths 0.6–1.25.
+    let normal = image::RgbImage::from_fn(w, h, |x, y| {
+        let i = y * w + x;
+        let phase = (x + y) % 8;
+        let tilt: f32 = match phase {
+            0..=1 => 0.64,
+            2..=3 => -0.64,
+            _ => 0.0,
+        };
+        let (nx, ny) = (tilt / 2f32.sqrt(), tilt / 2f32.sqrt());
+        let z = (1.0 - tilt * tilt).sqrt();
+        let z = if tilt != 0.0 {
+            z * (0.6 + 0.7 * noise(i, 4))
+        } else {
+            z
+        };
+        let encode = |v: f32| level(127.5 * (v + 1.0));
+        image::Rgb([encode(nx), encode(ny), encode(z.min(1.0))])
+    });
+    normal.save(folder.join("normal.png")).unwrap();
+    // Roughness: grime specks rougher; metallic: a few painted-off patches of bare metal.
+    let grey = |f: &dyn Fn(u32) -> f32| {
+        image::GrayImage::from_fn(w, h, |x, y| image::Luma([level(f(y * w + x))]))
+    };
+    grey(&|i| 120.0 + 20.0 * noise(i, 5) + if noise(i, 1) < 0.11 { 70.0 } else { 0.0 })
+        .save(folder.join("roughness.png"))
+        .unwrap();
+    grey(&|i| {
+        if noise(i / 4, 6) < 0.05 {
+            230.0
+        } else {
+            10.0 + 6.0 * noise(i, 7)
+        }
+    })
+    .save(folder.join("metallic.png"))
+    .unwrap();
+}
+
+#[test]
+fn a_speckled_game_texture_comes_back_with_no_more_new_structure_than_bicubic_draws() {
+    let dir = tempfile::tempdir().unwrap();
+    write_game_texture(dir.path());
+    let lr = load_material(Some(dir.path()), &LoadOptions::default()).unwrap();
+    let config = Config {
+        tileable: Some(false),
+        seed: 1,
+        ..Config::default()
+    };
+    let (out, _) = matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
+    let defaults = new_structure(&lr, &out, Border::Mirror).unwrap();
+    // Bicubic as a user runs it: each map through it on its own.
+    let kernel = KernelUpsampler::new(Kernel::Bicubic { a: -0.5 });
+    let plain = upscale_per_map(&lr, &kernel, 4, Border::Mirror).unwrap();
+    let bicubic = new_structure(&lr, &plain, Border::Mirror).unwrap();
+    for (map, ours) in &defaults {
+        let theirs = bicubic[map];
+        println!("{map}: defaults {ours:?}\n{map}: bicubic {theirs:?}");
+        // No worse than twice bicubic's, give or take one texel in 4000 (64² × 16 texels): in
+        // its values for colour and grey maps, in its directions for normals (sharpened
+        // grooves leave their input's range of each channel, as bicubic's soft ones do not).
+        let allowed = |b: f64| 2.0 * b + 2.5e-4;
+        match (ours.normal_angle, theirs.normal_angle) {
+            (Some(a), Some(b)) => assert!(a <= allowed(b), "{map}: {a} against {b}"),
+            _ => {
+                assert!(ours.channel <= allowed(theirs.channel), "{map}");
+                assert!(ours.luminance <= allowed(theirs.luminance), "{map}");
+            }
+        }
+        // Every map box-filters back to its input (normals: renormalised, as directions).
+        let levels = if map == "normal" { 3.0 } else { 1.0 };
+        assert!(
+            ours.box_back_worst <= levels,
+            "{map}: {}",
+            ours.box_back_worst
+        );
+    }
+    // The speckle is there to be drawn: the measure is not blind to it.
+    let colour = defaults["baseColor"];
+    assert!(colour.box_back_mean > 0.0);
+}
