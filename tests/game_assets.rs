@@ -393,19 +393,17 @@ fn check_textures(
                 continue; // z is renormalised: x and y carry the normal
             }
             // A normal is read as its unit vector: a lossy file's x, y and z can disagree, so
-            // there its channels are compared renormalised.
+            // there its channels are compared as matup reads them (`normals_from_file`).
             let plane = |image: &image::DynamicImage| -> Vec<f32> {
                 let values = image.to_rgba32f().into_raw();
-                (values.chunks_exact(4))
-                    .map(|t| {
-                        if stem != "normal" || !lossy {
-                            return t[c];
-                        }
-                        let n = [0, 1, 2].map(|k| 2.0 * t[k] - 1.0);
-                        let length = n.iter().map(|v| v * v).sum::<f32>().sqrt();
-                        0.5 * n[c] / length + 0.5
-                    })
-                    .collect()
+                if stem != "normal" || !lossy {
+                    return values.chunks_exact(4).map(|t| t[c]).collect();
+                }
+                let (w, h) = (image.width() as usize, image.height() as usize);
+                let mut normals =
+                    matup::Map::from_fn(w, h, 3, |k, y, x| 2.0 * values[(y * w + x) * 4 + k] - 1.0);
+                matup::material::normals_from_file(&mut normals);
+                normals.plane(c).iter().map(|v| 0.5 * v + 0.5).collect()
             };
             let worst =
                 common::box_back_levels(&plane(&before), &plane(&after), 4 * SIZE, 4, colour)

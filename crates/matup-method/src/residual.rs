@@ -111,6 +111,22 @@ enum Encoding {
     Srgb,
 }
 
+impl Encoding {
+    fn encode(self, v: f32) -> f32 {
+        match self {
+            Encoding::Linear => v,
+            Encoding::Srgb => linear_to_srgb(v),
+        }
+    }
+
+    fn decode(self, v: f32) -> f32 {
+        match self {
+            Encoding::Linear => v,
+            Encoding::Srgb => srgb_to_linear(v),
+        }
+    }
+}
+
 /// The range each output texel of `channels` is kept within: the range its input texel's 3×3
 /// neighbourhood spans (rows and columns past the edge as the border says), widened by
 /// `margin`, per input texel. An SR network trained on clean materials reads a game
@@ -134,10 +150,7 @@ impl NearInput {
         encoding: Encoding,
     ) -> Self {
         let ranges = (margin < 1.0).then(|| {
-            let (encode, decode): (fn(f32) -> f32, fn(f32) -> f32) = match encoding {
-                Encoding::Linear => (|v| v, |v| v),
-                Encoding::Srgb => (linear_to_srgb, srgb_to_linear),
-            };
+            let (encode, decode) = (|v| encoding.encode(v), |v| encoding.decode(v));
             (channels.clone())
                 .map(|c| {
                     let (lo, hi) = stored_range(c);
