@@ -178,7 +178,10 @@ pub fn upscale_model(
         // A UV atlas is not wrapped: islands across its edges are no neighbours.
         let atlas = (group.material).is_some_and(|m| model.reads_one_copy(m, &buffers));
         if let Some(origin) = material.origin.as_mut() {
-            origin.normal_evidence = "glTF's own: its specification says OpenGL".into();
+            // A texture whose file name says DirectX is read so, and the run says why.
+            if origin.normal_convention == NormalConvention::OpenGl {
+                origin.normal_evidence = "glTF's own: its specification says OpenGL".into();
+            }
             origin.tiling = atlas.then(|| {
                 (
                     false,
