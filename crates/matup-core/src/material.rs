@@ -5,7 +5,9 @@ use std::path::PathBuf;
 
 use crate::layout::FileLayout;
 use crate::map::{Dihedral, Map};
-use crate::resample::{area_resize, box_downsample, upsample, Border, Kernel};
+use crate::resample::{
+    area_resize, box_downsample, neighbourhood_ranges, upsample, Border, Kernel,
+};
 use crate::shading::{Svbrdf, Texel};
 
 /// `alpha = r²` is clamped to `[MIN_ALPHA, 1]`.
@@ -445,18 +447,15 @@ const NORMAL_LENGTH_REBUILT: f32 = 1.15;
 /// taken at their word and z rebuilt from them, as engines that read two channels (BC5,
 /// Unreal, Unity) do, blended in up to 15% so the reading changes smoothly.
 pub fn normals_from_file(normal: &mut Map) {
-    let (w, h, n) = (normal.width(), normal.height(), normal.texels());
+    let n = normal.texels();
     let vector = |data: &[f32], i: usize| glam::Vec3::new(data[i], data[n + i], data[2 * n + i]);
-    let lengths: Vec<f32> = (0..n).map(|i| vector(normal.data(), i).length()).collect();
+    let lengths: Vec<[f32; 1]> = (0..n)
+        .map(|i| [vector(normal.data(), i).length()])
+        .collect();
+    // The longest vector of each texel's 3×3 neighbourhood (those inside the map).
+    let ranges = neighbourhood_ranges(&lengths, normal.width(), Border::Clamp);
     let data = normal.data_mut();
-    for i in 0..n {
-        let (y, x) = (i / w, i % w);
-        let mut longest = 0.0f32;
-        for ny in y.saturating_sub(1)..(y + 2).min(h) {
-            for nx in x.saturating_sub(1)..(x + 2).min(w) {
-                longest = longest.max(lengths[ny * w + nx]);
-            }
-        }
+    for (i, [[_, longest]]) in ranges.into_iter().enumerate() {
         let rebuilt = ((longest - NORMAL_LENGTH_TRUSTED)
             / (NORMAL_LENGTH_REBUILT - NORMAL_LENGTH_TRUSTED))
             .clamp(0.0, 1.0);

@@ -306,7 +306,7 @@ fn project_on_device(
         if margin < 1.0 {
             // As `back_project` keeps the grey features near their input.
             let mut lr_stored = lr_features.clone();
-            (lr_stored.plane_mut(ALPHA).iter_mut()).for_each(|a| *a = a.sqrt());
+            alpha_as_stored(&mut lr_stored);
             for grey in GREY_FEATURES {
                 let near =
                     NearInput::new(&lr_stored, grey.clone(), border, margin, Encoding::Linear);
@@ -315,7 +315,8 @@ fn project_on_device(
                     let kept = (hr.narrow(0, c, 1)?).maximum(&ends[0])?.minimum(&ends[1])?;
                     let settled =
                         settle_blocks_on_device(&kept, &lr.narrow(0, c, 1)?, scale, &ends)?;
-                    hr = with_channel(&hr, c, &settled)?;
+                    let (_, h, w) = hr.dims3()?;
+                    hr = hr.slice_assign(&[c..c + 1, 0..h, 0..w], &settled)?;
                 }
             }
         }
@@ -382,20 +383,6 @@ pub fn back_project_on_device(
     settle_blocks_on_device(&hr, lr, scale, &[lo.clone(), hi.clone()])
 }
 
-/// `t` (`[c, h, w]`) with channel `c` replaced by `part` (`[1, h, w]`).
-fn with_channel(t: &Tensor, c: usize, part: &Tensor) -> candle_core::Result<Tensor> {
-    let channels = t.dim(0)?;
-    let mut pieces = Vec::new();
-    if c > 0 {
-        pieces.push(t.narrow(0, 0, c)?);
-    }
-    pieces.push(part.clone());
-    if c + 1 < channels {
-        pieces.push(t.narrow(0, c + 1, channels - c - 1)?);
-    }
-    Tensor::cat(&pieces, 0)
-}
-
 /// [`settle_blocks`] on a device, every channel of `hr`, the range's ends finite: `[c, 1, 1]`
 /// each, or each texel's own (`[c, H, W]`, [`NearInput::on_device`]).
 fn settle_blocks_on_device(
@@ -447,10 +434,9 @@ pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
 /// neighbourhoods ([`NearInput`]) and their blocks settled within them; the colour is kept so
 /// with its chroma ([`project_onto_input`]).
 pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin: f32) {
-    let as_stored = |map: &mut Map| map.plane_mut(ALPHA).iter_mut().for_each(|a| *a = a.sqrt());
     let mut lr = lr.clone();
-    as_stored(&mut lr);
-    as_stored(hr);
+    alpha_as_stored(&mut lr);
+    alpha_as_stored(hr);
     back_project_within(hr, &lr, scale, border, stored_range);
     if margin < 1.0 {
         for grey in GREY_FEATURES {
@@ -462,6 +448,11 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin
     // Alpha was made by squaring r (`pack_features`), and √(r²) rounds back to r exactly, so a
     // texel no correction moved gets its alpha back bit for bit.
     hr.plane_mut(ALPHA).iter_mut().for_each(|r| *r *= *r);
+}
+
+/// Features with alpha (r²) as its file stores it, the roughness r.
+fn alpha_as_stored(features: &mut Map) {
+    (features.plane_mut(ALPHA).iter_mut()).for_each(|a| *a = a.sqrt());
 }
 
 /// [`back_project`] for any map, channel `c`'s values kept in `range(c)`.
