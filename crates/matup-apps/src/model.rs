@@ -7,7 +7,7 @@
 //! upscaled once, with the first material that uses it, and the model comes back as it was:
 //! every JSON field and extension kept, geometry bytes where they were, only the images new.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Component, Path, PathBuf};
 
 use base64::Engine;
@@ -121,8 +121,9 @@ pub fn upscale_model(
     // Everything the model needs is read before any work: a missing buffer or image is
     // reported now, not after an hour of upscaling.
     let buffers = model.buffers()?;
-    let images = model.images()?;
+    let images = model.images(&buffers)?;
     let groups = model.groups(&images)?;
+    let atlases = model.atlases(&buffers);
 
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     // A killed run's working folder is cleared first; this run's goes when it ends, however
@@ -176,7 +177,7 @@ pub fn upscale_model(
         let mut material = load_material(None, &options)
             .map_err(|e| Error::file(path, format!("{}: {e}", group.label)))?;
         // A UV atlas is not wrapped: islands across its edges are no neighbours.
-        let atlas = (group.material).is_some_and(|m| model.reads_one_copy(m, &buffers));
+        let atlas = (group.material).is_some_and(|m| atlases.contains(&m));
         if let Some(origin) = material.origin.as_mut() {
             // A texture whose file name says DirectX is read so, and the run says why.
             if origin.normal_convention == NormalConvention::OpenGl {
@@ -213,7 +214,7 @@ pub fn upscale_model(
         }
         runs.push((group.label.clone(), run.report));
     }
-    let mut files = model.write(&images, &upscaled, out)?;
+    let mut files = model.write(&images, &upscaled, &buffers, out)?;
     files.append(&mut written);
     Ok(ModelRun {
         written: files,
@@ -229,6 +230,32 @@ impl Drop for WorkFolder {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
     }
+}
+
+/// The texture coordinate sets a material's textures read, or `None` where it has none or one
+/// is transformed (`KHR_texture_transform`): then where it reads on its textures is not known
+/// from its UVs alone.
+fn texture_coordinate_sets(material: &Value) -> Option<Vec<u32>> {
+    let mut sets = Vec::new();
+    let mut transformed = false;
+    visit_texture_infos(material, &mut |info, _| {
+        sets.push(info["texCoord"].as_u64().unwrap_or(0) as u32);
+        transformed |= !info["extensions"]["KHR_texture_transform"].is_null();
+    });
+    sets.sort();
+    sets.dedup();
+    (!transformed && !sets.is_empty()).then_some(sets)
+}
+
+/// Whether `uvs` stay within one copy of the texture on both axes ([`within_one_copy`]).
+fn uvs_within_one_copy(uvs: impl Iterator<Item = [f32; 2]>) -> bool {
+    let mut range = [[f32::INFINITY, f32::NEG_INFINITY]; 2];
+    for uv in uvs {
+        for (axis, value) in uv.into_iter().enumerate() {
+            range[axis] = [range[axis][0].min(value), range[axis][1].max(value)];
+        }
+    }
+    range.iter().all(|&[lo, hi]| within_one_copy(lo, hi))
 }
 
 /// UVs that never pass more than a rounding error into a neighbouring copy of the texture
@@ -418,7 +445,7 @@ impl Model {
     }
 
     /// Every image of the model, read and checked to be PNG or JPEG.
-    fn images(&self) -> Result<Vec<Image>> {
+    fn images(&self, buffers: &[Vec<u8>]) -> Result<Vec<Image>> {
         let mut images = Vec::new();
         for (i, image) in self.array("images").iter().enumerate() {
             let (bytes, name) = match (image["uri"].as_str(), image["bufferView"].as_u64()) {
@@ -431,7 +458,7 @@ impl Model {
                     (self.uri_bytes(uri)?, name)
                 }
                 (None, Some(view)) => (
-                    self.view_bytes(view as usize)?,
+                    self.view_bytes(view as usize, buffers)?,
                     format!("image {i} (bufferView {view})"),
                 ),
                 (None, None) => return Err(self.bad(format!("image {i} has no URI or bufferView"))),
@@ -471,59 +498,50 @@ impl Model {
             .collect()
     }
 
-    /// Whether every primitive drawn with material `m` reads its textures' UVs within one
-    /// copy of them (one unit square, on both axes): a UV atlas, whose edges are no
-    /// neighbours. False where any UVs cross a copy's edge (a texture tiled over a floor), a
-    /// texture is transformed (`KHR_texture_transform`), no primitive uses the material, or
-    /// the UVs cannot be read: the material's edges then decide.
-    fn reads_one_copy(&self, m: usize, buffers: &[Vec<u8>]) -> bool {
-        let material = &self.array("materials")[m];
-        let mut sets = Vec::new();
-        let mut transformed = false;
-        visit_texture_infos(material, &mut |info, _| {
-            sets.push(info["texCoord"].as_u64().unwrap_or(0) as u32);
-            transformed |= !info["extensions"]["KHR_texture_transform"].is_null();
-        });
-        sets.sort();
-        sets.dedup();
-        if transformed || sets.is_empty() {
-            return false;
-        }
+    /// Buffer `index` of `buffers` ([`Model::buffers`]).
+    fn loaded<'a>(&self, buffers: &'a [Vec<u8>], index: usize) -> Result<&'a [u8]> {
+        (buffers.get(index).map(Vec::as_slice))
+            .ok_or_else(|| self.bad(format!("buffer {index} does not exist")))
+    }
+
+    /// The materials every primitive drawn with reads its textures' UVs within one copy of
+    /// them (one unit square, on both axes): UV atlases, whose edges are no neighbours. A
+    /// material is left out where any UVs cross a copy's edge (a texture tiled over a floor), a
+    /// texture is transformed (`KHR_texture_transform`), no primitive uses it, or the UVs
+    /// cannot be read: its edges then decide.
+    fn atlases(&self, buffers: &[Vec<u8>]) -> BTreeSet<usize> {
         let Some(document) = serde_json::from_value(self.json.clone())
             .ok()
             .and_then(|root| gltf::Document::from_json(root).ok())
         else {
-            return false;
+            return BTreeSet::new();
         };
-        let mut read_any = false;
+        let materials = self.array("materials");
+        // Each material drawn: whether every primitive so far read one copy.
+        let mut one_copy: BTreeMap<usize, bool> = BTreeMap::new();
         for primitive in document.meshes().flat_map(|mesh| mesh.primitives()) {
-            if primitive.material().index() != Some(m) {
+            let Some(m) = primitive.material().index() else {
                 continue;
-            }
+            };
             let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
-            for &set in &sets {
-                let Some(uvs) = reader.read_tex_coords(set) else {
-                    return false;
-                };
-                let mut range = [[f32::INFINITY, f32::NEG_INFINITY]; 2];
-                for uv in uvs.into_f32() {
-                    for (axis, value) in uv.into_iter().enumerate() {
-                        range[axis] = [range[axis][0].min(value), range[axis][1].max(value)];
-                    }
-                }
-                if !range.iter().all(|&[lo, hi]| within_one_copy(lo, hi)) {
-                    return false;
-                }
-                read_any = true;
-            }
+            let within = texture_coordinate_sets(&materials[m]).is_some_and(|sets| {
+                sets.iter().all(|&set| {
+                    reader
+                        .read_tex_coords(set)
+                        .is_some_and(|uvs| uvs_within_one_copy(uvs.into_f32()))
+                })
+            });
+            *one_copy.entry(m).or_insert(true) &= within;
         }
-        read_any
+        (one_copy.into_iter())
+            .filter_map(|(m, within)| within.then_some(m))
+            .collect()
     }
 
-    fn view_bytes(&self, index: usize) -> Result<Vec<u8>> {
+    fn view_bytes(&self, index: usize, buffers: &[Vec<u8>]) -> Result<Vec<u8>> {
         let view = (self.array("bufferViews").get(index))
             .ok_or_else(|| self.bad(format!("bufferView {index} does not exist")))?;
-        let buffer = self.buffer(view["buffer"].as_u64().unwrap_or(0) as usize)?;
+        let buffer = self.loaded(buffers, view["buffer"].as_u64().unwrap_or(0) as usize)?;
         let start = view["byteOffset"].as_u64().unwrap_or(0) as usize;
         let length = view["byteLength"].as_u64().unwrap_or(0) as usize;
         (buffer.get(start..start.saturating_add(length)))
@@ -648,6 +666,7 @@ impl Model {
         &self,
         images: &[Image],
         upscaled: &BTreeMap<usize, Vec<u8>>,
+        buffers: &[Vec<u8>],
         out: &Path,
     ) -> Result<Vec<PathBuf>> {
         let mut json = self.json.clone();
@@ -658,13 +677,13 @@ impl Model {
             .filter_map(|(i, image)| Some((image["bufferView"].as_u64()? as usize, i)))
             .collect();
         let views = self.array("bufferViews");
-        let mut buffers: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
+        let mut rewritten: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
         for &view in image_views.keys() {
             let b = views[view]["buffer"].as_u64().unwrap_or(0) as usize;
-            if buffers.contains_key(&b) {
+            if rewritten.contains_key(&b) {
                 continue;
             }
-            let mut bytes = self.buffer(b)?;
+            let mut bytes = self.loaded(buffers, b)?.to_vec();
             let kept = (views.iter().enumerate())
                 .filter(|(v, view)| {
                     !image_views.contains_key(v)
@@ -677,11 +696,11 @@ impl Model {
                 .max()
                 .unwrap_or(0) as usize;
             bytes.truncate(kept.div_ceil(4) * 4);
-            buffers.insert(b, bytes);
+            rewritten.insert(b, bytes);
         }
         for (&view, &image) in &image_views {
             let b = views[view]["buffer"].as_u64().unwrap_or(0) as usize;
-            let buffer = buffers.get_mut(&b).expect("a buffer of an image");
+            let buffer = rewritten.get_mut(&b).expect("a buffer of an image");
             buffer.resize(buffer.len().div_ceil(4) * 4, 0);
             let entry = &mut json["bufferViews"][view];
             entry["byteOffset"] = Value::from(buffer.len());
@@ -706,7 +725,7 @@ impl Model {
         // else copied byte for byte.
         let mut bin = self.bin.clone();
         for (b, buffer) in self.array("buffers").iter().enumerate() {
-            let new = buffers.get(&b);
+            let new = rewritten.get(&b);
             if let Some(bytes) = new {
                 json["buffers"][b]["byteLength"] = Value::from(bytes.len());
             }
@@ -727,7 +746,7 @@ impl Model {
                     let file = out.join(relative_path(uri).map_err(|e| self.bad(e))?);
                     let bytes = match new {
                         Some(bytes) => bytes.clone(),
-                        None => self.uri_bytes(uri)?,
+                        None => self.loaded(buffers, b)?.to_vec(),
                     };
                     write_file(&file, &bytes)?;
                     written.push(file);
