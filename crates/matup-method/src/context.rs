@@ -5,12 +5,15 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use crate::config::Config;
+use matup_core::candle_core::{Device, Tensor};
 use matup_core::lights::Light;
+use matup_core::map::Map;
 use matup_core::material::Material;
 use matup_core::progress::Progress;
 use matup_core::resample::Border;
 use matup_core::shading::ShadingModel;
 use matup_core::upsample::RgbUpsampler;
+use matup_core::{Error, Result};
 
 /// Where a run may keep checkpoints, and whether to continue from them.
 #[derive(Clone, Debug, Default)]
@@ -30,11 +33,61 @@ pub struct RunOptions {
 pub(crate) struct Context<'a> {
     pub(crate) config: &'a Config,
     pub(crate) model: Arc<dyn ShadingModel>,
-    pub(crate) upsampler: Box<dyn RgbUpsampler>,
+    pub(crate) upsampler: Box<dyn RgbUpsampler + 'a>,
     /// The upsampler's name, as the run reports it.
     pub(crate) upsampler_name: &'a str,
     pub(crate) lights: Vec<Light>,
     pub(crate) border: Border,
     pub(crate) options: &'a RunOptions,
     pub(crate) progress: &'a dyn Progress,
+}
+
+/// The run's upsampler, stopping the run where the caller asks ([`Progress::cancelled`]):
+/// each call checks first, so Ctrl-C stops a run between maps, not only between stages.
+pub(crate) struct StopsOnRequest<'a> {
+    pub(crate) inner: Box<dyn RgbUpsampler>,
+    pub(crate) progress: &'a dyn Progress,
+}
+
+impl StopsOnRequest<'_> {
+    fn go_on(&self) -> Result<()> {
+        match self.progress.cancelled() {
+            true => Err(Error::Interrupted),
+            false => Ok(()),
+        }
+    }
+}
+
+impl RgbUpsampler for StopsOnRequest<'_> {
+    fn native_scale(&self) -> Option<usize> {
+        self.inner.native_scale()
+    }
+    fn context(&self) -> usize {
+        self.inner.context()
+    }
+    fn tile(&self) -> Option<usize> {
+        self.inner.tile()
+    }
+    fn batches_images(&self) -> bool {
+        self.inner.batches_images()
+    }
+    fn serves_smaller_scales(&self) -> bool {
+        self.inner.serves_smaller_scales()
+    }
+    fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        self.go_on()?;
+        self.inner.upsample(images, scale, border)
+    }
+    fn device(&self) -> Option<Device> {
+        self.inner.device()
+    }
+    fn upsample_on_device(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+    ) -> Result<Vec<Tensor>> {
+        self.go_on()?;
+        self.inner.upsample_on_device(images, scale, border)
+    }
 }

@@ -13,7 +13,7 @@ use crate::bands::{
 };
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
 use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
-use crate::context::{Context, RunOptions};
+use crate::context::{Context, RunOptions, StopsOnRequest};
 use crate::fit::{
     decoded_maps_on_device, infer_material, learn_level, upsample_anisotropy, TrainedFilter,
 };
@@ -218,7 +218,10 @@ pub fn upscale_streamed(
     let ctx = Context {
         config,
         model,
-        upsampler,
+        upsampler: Box::new(StopsOnRequest {
+            inner: upsampler,
+            progress,
+        }),
         upsampler_name: &upsampler_used,
         lights,
         border: Border::for_tiling(tileable),
@@ -263,6 +266,7 @@ pub fn upscale_streamed(
         .rev()
         .find_map(|l| l.training.epoch_losses.last().copied());
     let [w, h] = reach.output_size(input);
+    drop(ctx); // it borrows the upsampler's name, which the report takes
     Ok(RunReport {
         matup_version: env!("CARGO_PKG_VERSION"),
         input_folder: material.origin.as_ref().map(|o| o.folder.clone()),

@@ -1,9 +1,12 @@
 //! matup's built-in RGB upsamplers, each registered with `inventory`: `bilinear`, `bicubic`
 //! and `lanczos3`, at any integer scale, on matup-core's shared resampling kernels; and, with
-//! the `onnx` feature (on by default), `onnx`: pre-trained super-resolution networks.
+//! the `onnx` feature (on by default), `onnx`: pre-trained super-resolution networks; and
+//! `callable`: a function the caller registers at run time ([`function`]).
 
+pub mod function;
 #[cfg(feature = "onnx")]
 pub mod onnx;
+pub mod tiled;
 
 use matup_core::plugin::{option_value, parse_options, PluginOption};
 use matup_core::resample::Kernel;
