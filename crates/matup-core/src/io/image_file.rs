@@ -16,7 +16,7 @@ use crate::{Error, Result};
 
 /// An image as stored: its values (integers scaled to [0, 1], EXR as is), grey or RGB with
 /// or without alpha (the last channel), and its format.
-pub(crate) struct ImageFile {
+pub struct ImageFile {
     pub map: Map,
     pub format: FileFormat,
 }
@@ -55,7 +55,7 @@ pub(super) fn has_extension(path: &Path, extensions: &[&str]) -> bool {
 
 /// Reads an image, refusing (from the header, before decoding) images with more than
 /// `max_texels` texels. Channels as stored: grey, grey + alpha, RGB or RGBA.
-pub(crate) fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
+pub fn read_image(path: &Path, max_texels: u64) -> Result<ImageFile> {
     if !path.is_file() {
         return Err(Error::file(path, "no such file"));
     }
@@ -408,7 +408,7 @@ fn read_tiff(path: &Path, max_texels: u64) -> Result<ImageFile> {
 
 /// Writes a grey or RGB map, either with alpha (values already in the file's encoding: [0, 1] for integer
 /// formats) atomically, as one band of [`super::stream::ImageWriter`].
-pub(crate) fn write_image(path: &Path, map: &Map, format: FileFormat) -> Result<()> {
+pub fn write_image(path: &Path, map: &Map, format: FileFormat) -> Result<()> {
     super::stream::write_whole(path, map, format)
 }
 

@@ -13,7 +13,9 @@ use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
 pub use discover::{discover, file_name, Discovered, FileRole, Role};
-pub use image_file::{encoded_size, is_image_file, write_atomic, IMAGE_EXTENSIONS};
+pub use image_file::{
+    encoded_size, is_image_file, read_image, write_atomic, write_image, ImageFile, IMAGE_EXTENSIONS,
+};
 pub use stream::{ChannelRows, ImageWriter, Samples, WriteHints};
 pub use write::{check_output_folder, retag, MaterialWriter};
 
@@ -26,7 +28,6 @@ use crate::material::{
 };
 use crate::{Error, Result};
 pub use image_file::encode_png8;
-use image_file::write_image;
 use read::Reader;
 
 /// Explicit files for some maps; they win over what folder discovery finds, and a file of the
