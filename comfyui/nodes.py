@@ -1,0 +1,286 @@
+"""ComfyUI nodes over the matup package: whole materials upscaled, not one image at a time.
+
+Maps travel as ComfyUI's IMAGE tensors ([B, H, W, C] float in [0, 1], as the files' codes:
+sRGB base colour, normals as colours) and alpha as a MASK ([B, H, W]). A folder travels as a
+MATUP_MATERIAL, which keeps its files' names, packing and formats for "matup: Save material".
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Dict, Optional, Tuple
+
+import numpy as np
+import torch
+
+import matup
+
+MAP_INPUTS = ("normal", "roughness", "metallic", "height", "occlusion", "emission")
+GREY = ("roughness", "metallic", "height", "occlusion")
+# What stands in for a map not given, in the output (as matup's renders assume).
+STAND_INS = {
+    "normal": (0.5, 0.5, 1.0),
+    "roughness": (0.5,) * 3,
+    "metallic": (0.0,) * 3,
+    "height": (0.5,) * 3,
+    "occlusion": (1.0,) * 3,
+    "emission": (0.0,) * 3,
+}
+SCALES = ["4", "2", "3", "8", "16"]
+
+
+def comfy_device() -> torch.device:
+    """ComfyUI's torch device where it runs inside ComfyUI, else the CPU."""
+    try:
+        from comfy import model_management
+    except ImportError:
+        return torch.device("cpu")
+    return model_management.get_torch_device()
+
+
+def network_of(upscale_model: Any, device: Optional[torch.device] = None) -> matup.Network:
+    """A spandrel model (ComfyUI's UPSCALE_MODEL) as matup's network, run on `device`."""
+    device = device or comfy_device()
+    upscale_model.to(device)
+    dtype = next(upscale_model.model.parameters()).dtype
+
+    def run(batch: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            x = torch.from_numpy(batch).permute(0, 3, 1, 2).to(device=device, dtype=dtype)
+            y = upscale_model(x).float().clamp(0, 1)
+            return y.permute(0, 2, 3, 1).cpu().numpy()
+
+    name = type(upscale_model.model).__name__
+    return matup.Network(run, scale=int(upscale_model.scale), name=name)
+
+
+def to_codes(image: torch.Tensor, grey: bool) -> np.ndarray:
+    """One image of a [B, H, W, C] tensor as 16-bit codes (H×W for grey maps)."""
+    array = image.detach().float().clamp(0, 1).cpu().numpy()
+    if grey:
+        array = array[:, :, 0]
+    return np.round(array * 65535.0).astype(np.uint16)
+
+
+def to_image(codes: np.ndarray) -> torch.Tensor:
+    """16-bit (or 8-bit) codes as one [H, W, 3] float image."""
+    scale = 65535.0 if codes.dtype == np.uint16 else 255.0
+    array = codes.astype(np.float32) / scale
+    if array.ndim == 2:
+        array = array[:, :, None]
+    if array.shape[2] == 1:
+        array = np.repeat(array, 3, axis=2)
+    return torch.from_numpy(np.ascontiguousarray(array[:, :, :3]))
+
+
+def settings_of(tileable: str, normal_convention: str) -> Dict[str, Any]:
+    return {
+        "tileable": {"auto": None, "yes": True, "no": False}[tileable],
+        "normal_convention": None if normal_convention == "auto" else normal_convention.lower(),
+    }
+
+
+class UpscaleMaterial:
+    """matup: Upscale material — every map of a material at once, back-projected, wrapped
+    where it tiles, by matup's tuned network or the UPSCALE_MODEL given."""
+
+    CATEGORY = "image/upscaling"
+    FUNCTION = "upscale"
+    RETURN_TYPES = ("IMAGE",) * 7 + ("MASK",)
+    RETURN_NAMES = ("base_color",) + MAP_INPUTS + ("alpha",)
+
+    @classmethod
+    def INPUT_TYPES(cls) -> Dict[str, Any]:
+        optional = {name: ("IMAGE",) for name in MAP_INPUTS}
+        optional["alpha"] = ("MASK",)
+        optional["upscale_model"] = ("UPSCALE_MODEL",)
+        optional["size"] = ("INT", {"default": 0, "min": 0, "max": 16384, "step": 1})
+        return {
+            "required": {
+                "base_color": ("IMAGE",),
+                "scale": (SCALES,),
+                "tileable": (["auto", "yes", "no"],),
+                "normal_convention": (["auto", "OpenGL", "DirectX"],),
+            },
+            "optional": optional,
+        }
+
+    def upscale(
+        self,
+        base_color: torch.Tensor,
+        scale: str = "4",
+        tileable: str = "auto",
+        normal_convention: str = "auto",
+        upscale_model: Any = None,
+        size: int = 0,
+        alpha: Optional[torch.Tensor] = None,
+        **maps: Optional[torch.Tensor],
+    ) -> Tuple[torch.Tensor, ...]:
+        given = {"base_color": base_color, **{k: v for k, v in maps.items() if v is not None}}
+        unknown = set(given) - {"base_color", *MAP_INPUTS}
+        if unknown:
+            raise ValueError(f"matup: no such map input: {sorted(unknown)}")
+        network = network_of(upscale_model) if upscale_model is not None else None
+        settings = settings_of(tileable, normal_convention)
+        outputs: Dict[str, list] = {name: [] for name in self.RETURN_NAMES}
+        progress = comfy_progress(base_color.shape[0])
+        for b in range(base_color.shape[0]):
+            arrays = {
+                name: to_codes(image[min(b, image.shape[0] - 1)], name in GREY)
+                for name, image in given.items()
+            }
+            if alpha is not None:
+                mask = alpha[min(b, alpha.shape[0] - 1)].detach().float().clamp(0, 1).cpu().numpy()
+                arrays["alpha"] = np.round(mask * 65535.0).astype(np.uint16)
+            big = matup.upscale(
+                arrays,
+                scale=None if size else int(scale),
+                size=size or None,
+                upsampler=network if network is not None else "auto",
+                progress=False,
+                **settings,
+            )
+            side = big["base_color"].shape[:2]
+            for name in self.RETURN_NAMES:
+                if name == "alpha":
+                    codes = big.get("alpha")
+                    mask = (
+                        torch.ones(side)
+                        if codes is None
+                        else torch.from_numpy(codes.astype(np.float32) / 65535.0)
+                    )
+                    outputs[name].append(mask)
+                elif name in big:
+                    outputs[name].append(to_image(big[name]))
+                else:
+                    outputs[name].append(torch.tensor(STAND_INS[name]).expand(*side, 3).clone())
+            progress(b + 1)
+        return tuple(torch.stack(outputs[name]) for name in self.RETURN_NAMES)
+
+
+def comfy_progress(total: int):
+    """ComfyUI's progress bar over the batch, where ComfyUI runs."""
+    try:
+        import comfy.utils
+
+        bar = comfy.utils.ProgressBar(total)
+        return lambda done: bar.update_absolute(done, total)
+    except ImportError:
+        return lambda done: None
+
+
+class LoadMaterial:
+    """matup: Load material — a folder in any layout matup reads (exporters' names, packed
+    channels, DirectX or OpenGL normals), as a MATUP_MATERIAL and its maps as images."""
+
+    CATEGORY = "image/upscaling"
+    FUNCTION = "load"
+    RETURN_TYPES = ("MATUP_MATERIAL", "IMAGE", "IMAGE", "IMAGE", "IMAGE", "IMAGE", "STRING")
+    RETURN_NAMES = ("material", "base_color", "normal", "roughness", "metallic", "height", "sources")
+
+    @classmethod
+    def INPUT_TYPES(cls) -> Dict[str, Any]:
+        return {"required": {"folder": ("STRING", {"default": ""})}}
+
+    def load(self, folder: str) -> Tuple[Any, ...]:
+        material = matup.read_material(os.path.expanduser(folder))
+        maps = material.maps
+        linear = maps["base_color"][:, :, :3]
+        srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+        images = [
+            srgb,
+            maps["normal"] * 0.5 + 0.5,
+            maps["roughness"],
+            maps["metallic"],
+            maps.get("height", np.full(material.size[::-1] + (1,), 0.5, np.float32)),
+        ]
+        tensors = [
+            torch.from_numpy(np.ascontiguousarray(np.repeat(i, 3 // i.shape[2], axis=2).clip(0, 1)))[None]
+            for i in images
+        ]
+        return (material, *tensors, "\n".join(material.sources))
+
+
+class UpscaleMaterialFolder:
+    """matup: Upscale loaded material — a MATUP_MATERIAL upscaled whole: every file back
+    under its own name, packing and format."""
+
+    CATEGORY = "image/upscaling"
+    FUNCTION = "upscale"
+    RETURN_TYPES = ("MATUP_MATERIAL",)
+    RETURN_NAMES = ("material",)
+
+    @classmethod
+    def INPUT_TYPES(cls) -> Dict[str, Any]:
+        return {
+            "required": {
+                "material": ("MATUP_MATERIAL",),
+                "scale": (SCALES,),
+                "tileable": (["auto", "yes", "no"],),
+                "normal_convention": (["auto", "OpenGL", "DirectX"],),
+            },
+            "optional": {"upscale_model": ("UPSCALE_MODEL",)},
+        }
+
+    def upscale(self, material, scale="4", tileable="auto", normal_convention="auto", upscale_model=None):
+        network = network_of(upscale_model) if upscale_model is not None else None
+        big = matup.upscale(
+            material,
+            scale=int(scale),
+            upsampler=network if network is not None else "auto",
+            progress=False,
+            **settings_of(tileable, normal_convention),
+        )
+        return (big,)
+
+
+class SaveMaterial:
+    """matup: Save material — a MATUP_MATERIAL written to a folder under its own names and
+    formats (or one format for every file)."""
+
+    CATEGORY = "image/upscaling"
+    FUNCTION = "save"
+    OUTPUT_NODE = True
+    RETURN_TYPES = ("STRING",)
+    RETURN_NAMES = ("written",)
+    FORMATS = ["as loaded", "png", "png16", "jpg", "exr-half", "exr-float", "tiff", "tga", "webp", "dds"]
+
+    @classmethod
+    def INPUT_TYPES(cls) -> Dict[str, Any]:
+        return {
+            "required": {
+                "material": ("MATUP_MATERIAL",),
+                "folder": ("STRING", {"default": "matup"}),
+                "format": (cls.FORMATS,),
+            }
+        }
+
+    def save(self, material, folder: str, format: str = "as loaded"):
+        folder = os.path.expanduser(folder)
+        if not os.path.isabs(folder):
+            folder = os.path.join(comfy_output_folder(), folder)
+        written = matup.write_material(material, folder, None if format == "as loaded" else format)
+        return {"ui": {"text": written}, "result": ("\n".join(written),)}
+
+
+def comfy_output_folder() -> str:
+    try:
+        import folder_paths
+
+        return folder_paths.get_output_directory()
+    except ImportError:
+        return os.getcwd()
+
+
+NODE_CLASS_MAPPINGS = {
+    "MatupUpscaleMaterial": UpscaleMaterial,
+    "MatupLoadMaterial": LoadMaterial,
+    "MatupUpscaleLoadedMaterial": UpscaleMaterialFolder,
+    "MatupSaveMaterial": SaveMaterial,
+}
+NODE_DISPLAY_NAME_MAPPINGS = {
+    "MatupUpscaleMaterial": "matup: Upscale material",
+    "MatupLoadMaterial": "matup: Load material",
+    "MatupUpscaleLoadedMaterial": "matup: Upscale loaded material",
+    "MatupSaveMaterial": "matup: Save material",
+}
