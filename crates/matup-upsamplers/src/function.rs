@@ -138,7 +138,7 @@ impl RgbUpsampler for FunctionUpsampler {
                 tiling,
                 t.batch,
                 false,
-                &mut |tiles, h, w| self.call(tiles, h, w),
+                &mut |tiles, [h, w]| self.call(tiles, h, w),
             )
         })
     }

@@ -8,6 +8,10 @@ use matup_core::resample::Border;
 use matup_core::{Map, Result};
 use rayon::prelude::*;
 
+/// Runs a network on a batch of tiles, each three planes (R, G, B) of `h × w` texels:
+/// `run(tiles, [h, w])`, each tile's output a 3-channel map.
+pub type RunTiles<'a> = dyn FnMut(&[Vec<f32>], [usize; 2]) -> Result<Vec<Map>> + 'a;
+
 /// Output rows of one channel blended by one task.
 const BLEND_ROWS: usize = 64;
 
@@ -198,7 +202,7 @@ pub fn upsample_tiled(
     tiling: Tiling,
     batch: usize,
     fixed_batch: bool,
-    run: &mut dyn FnMut(&[Vec<f32>], usize, usize) -> Result<Vec<Map>>,
+    run: &mut RunTiles,
 ) -> Result<Vec<Map>> {
     let s = tiling.scale;
     let (w, h) = (images[0].width(), images[0].height());
@@ -238,7 +242,7 @@ pub fn upsample_tiled(
             let last = tiles.last().expect("chunks are not empty").clone();
             tiles.resize(batch, last);
         }
-        let outputs = run(&tiles, rows.window, columns.window)?;
+        let outputs = run(&tiles, [rows.window, columns.window])?;
         let mut in_group: Vec<usize> = group.iter().map(|t| t.0).collect();
         in_group.dedup();
         for k in in_group {

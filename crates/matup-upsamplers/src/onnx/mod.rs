@@ -622,7 +622,7 @@ impl RgbUpsampler for OnnxUpsampler {
                     tiling,
                     batch,
                     self.fixed[0].is_some(),
-                    &mut |tiles, h, w| self.run_batch(tiles, h, w, Padding::Zero),
+                    &mut |tiles, [h, w]| self.run_batch(tiles, h, w, Padding::Zero),
                 )
             }
         })
