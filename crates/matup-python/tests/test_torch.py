@@ -102,3 +102,24 @@ def test_load_upscale_save_keeps_the_folders_names(tmp_path):
     written = result["result"][0].splitlines()
     assert sorted(Path(p).name for p in written) == sorted(p.name for p in SAMPLE.glob("*.png"))
     assert matup.read_image(tmp_path / "saved" / "baseColor.png").shape == (256, 256, 3)
+
+
+def test_the_shipped_network_for_spandrel_is_matups_own():
+    """models/span_x4_materials.safetensors (what "Load Upscale Model" opens) as the callable
+    gives the maps matup's own ONNX network gives, tiled as its sidecar says."""
+    model = spandrel.ModelLoader().load_from_file(REPO / "models/span_x4_materials.safetensors").eval()
+    assert type(model.model).__name__ == "SPAN" and model.scale == 4
+
+    def run(x):
+        with torch.no_grad():
+            y = model(torch.from_numpy(x).permute(0, 3, 1, 2))
+            return y.clamp(0, 1).permute(0, 2, 3, 1).numpy()
+
+    maps = {"base_color": sample("baseColor.png"), "normal": sample("normal.png"),
+            "roughness": sample("roughness.png", grey=True)}
+    own = matup.upscale(maps, upsampler="onnx:span_x4_materials", progress=False)
+    torch_net = matup.Network(run, scale=4, tile=256, overlap=22)
+    called = matup.upscale(maps, upsampler=torch_net, progress=False)
+    for role in maps:
+        diff = np.abs(own[role].astype(int) - called[role].astype(int))
+        assert diff.max() <= 1, (role, diff.max())
