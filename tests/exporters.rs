@@ -1,5 +1,6 @@
-//! Folders as real exporters write them (glTF, Unreal packed, Unity HDRP, Megascans, Poly
-//! Haven, ambientCG, Substance Designer, and an OpenGL folder whose names say nothing), each
+//! Folders as real exporters write them (glTF, Unreal packed, Unity HDRP, Megascans and its
+//! Unreal packing, Poly Haven, ambientCG, Substance Designer, a game mod's TGA folder, and an
+//! OpenGL folder whose names say nothing), each
 //! built from a real material of `tests/data` under that exporter's names, formats and
 //! packing. Each must (a) render as the same decoded data does in matup's own layout, and (b)
 //! come back ×4 file for file: the same names, formats, channels and bit depths, each channel
@@ -285,6 +286,24 @@ fn layouts() -> Vec<(&'static str, Vec<File>)> {
                 file("rust_metallic.png", &[Metal]),
                 file("rust_height16.png", &[Height]),
                 file("rust_ambientocclusion.png", &[Occlusion]),
+            ],
+        ),
+        (
+            "Megascans for Unreal (ORDp packing)",
+            vec![
+                file("T_tbkpeb3_4K_D.png", &rgb(Base)),
+                file("T_tbkpeb3_4K_N.png", &rgb(NormalDx)),
+                file("T_tbkpeb3_4K_ORDp.png", &[Occlusion, Rough, Height]),
+            ],
+        ),
+        (
+            "A game mod's TGA textures (_n, _h, _s suffixes)",
+            vec![
+                file("rock01.tga", &rgb(Base)),
+                file("rock01_n.tga", &rgb(NormalDx)),
+                file("rock01_h.tga", &[Height]),
+                // Specular: carried as the folder's other maps are.
+                file("rock01_s.tga", &[Occlusion]),
             ],
         ),
         (

@@ -454,6 +454,77 @@ fn a_16_bit_tiff_a_tga_and_a_bmp_material_upscale_into_their_own_formats() {
 }
 
 #[test]
+fn every_extension_comes_back_spelled_as_it_was() {
+    use matup::config::Config;
+    use matup::io::write_image;
+    let m = sample();
+    let config = Config {
+        upsampler: "bicubic".into(),
+        ..Config::default()
+    };
+    // Every spelling the readers accept, in both cases: each file comes back under its own.
+    let spellings = [
+        ("png", FileFormat::Png8),
+        ("jpg", FileFormat::Jpeg),
+        ("jpeg", FileFormat::Jpeg),
+        ("tif", FileFormat::Tiff8),
+        ("tiff", FileFormat::Tiff8),
+        ("tga", FileFormat::TgaRle),
+        ("bmp", FileFormat::Bmp),
+        ("webp", FileFormat::WebpLossless),
+        ("exr", FileFormat::ExrFloat),
+    ];
+    for upper in [false, true] {
+        for (extension, format) in spellings {
+            let extension = match upper {
+                true => extension.to_ascii_uppercase(),
+                false => extension.to_string(),
+            };
+            let dir = tempfile::tempdir().unwrap();
+            let name = format!("rock_basecolor.{extension}");
+            let colour = match format.is_float() {
+                true => m.base_color.clone(),
+                false => m
+                    .base_color
+                    .clone()
+                    .map_values(matup::color::linear_to_srgb),
+            };
+            write_image(&dir.path().join(&name), &colour, format).unwrap();
+            let lr = load(dir.path()).unwrap();
+            let out = tempfile::tempdir().unwrap();
+            let run = common::upscale_into(&lr, &config, out.path(), &SaveOptions::default());
+            let written: Vec<String> = (run.unwrap().written.iter())
+                .filter_map(|p| p.file_name()?.to_str().map(String::from))
+                .collect();
+            assert!(written.contains(&name), "{name}: wrote {written:?}");
+        }
+    }
+}
+
+#[test]
+fn a_packing_longer_than_its_file_is_refused_with_the_files_channel_count() {
+    use matup::io::write_image;
+    use matup::layout::Packing;
+    let dir = tempfile::tempdir().unwrap();
+    let packed = dir.path().join("rock_packed.png");
+    let m = sample();
+    let rgb = m.base_color.clone().map_values(|v| v.clamp(0.0, 1.0));
+    write_image(&packed, &rgb, FileFormat::Png8).unwrap();
+    let options = |letters: &str| LoadOptions {
+        paths: MaterialPaths {
+            packed: Some(packed.clone()),
+            packing: Some(letters.parse::<Packing>().unwrap()),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let e = error_of(matup::load_material(None, &options("ormh")));
+    assert!(e.contains("needs 4 channels, this one has 3"), "{e}");
+    let orh = matup::load_material(None, &options("orh")).unwrap();
+    assert!(orh.height.is_some(), "orh reads B as the height");
+}
+
+#[test]
 fn quantising_rounds_so_flat_normals_stay_flat() {
     let flat = Material::uniform(8, [0.5; 3], 0.5, 0.0);
     let dir = saved(&flat, FileFormat::Png8, NormalConvention::DirectX);

@@ -41,8 +41,9 @@ pub struct MaterialArgs {
     #[arg(long, value_name = "FILE")]
     pub packed: Option<PathBuf>,
     /// What the --packed file's channels hold: gltf, unreal, hdrp-mask,
-    /// unity-metallic-smoothness, or the channels' letters in order (o or a occlusion, r
-    /// roughness, m metallic, h height, x nothing: orm, rma, xrm).
+    /// unity-metallic-smoothness, megascans-unreal, or one to four of the channels' letters in
+    /// order, each once (o or a occlusion, r roughness, m metallic, h height, x nothing: orm,
+    /// rma, xrm, orh), no more than the file has channels.
     #[arg(long, value_name = "PACKING", requires = "packed")]
     pub packing: Option<Packing>,
 }

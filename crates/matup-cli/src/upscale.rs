@@ -186,7 +186,7 @@ pub struct SettingsArgs {
     #[arg(long)]
     pub texels_per_epoch: Option<usize>,
     /// Output format of every map (png, png16, jpg, exr-half, exr-float, tiff, tiff16,
-    /// tiff-float, tga, bmp, webp (lossy), webp-lossless; dds: BC7, BC5 for normals, BC4 for one channel; dds-bc1, dds-bc3,
+    /// tiff-float, tga, tga-rle, bmp, webp (lossy), webp-lossless; dds: BC7, BC5 for normals, BC4 for one channel; dds-bc1, dds-bc3,
     /// dds-bc4, dds-bc5, dds-bc7, dds-rgba8 and the other DDS formats, all with mip chains);
     /// default: the input's.
     #[arg(long)]

@@ -124,8 +124,10 @@ pub enum FileFormat {
     Tiff16,
     /// 32-bit float TIFF: linear values, as EXR.
     TiffFloat,
-    /// 8-bit TGA (game engines' format).
+    /// 8-bit TGA (game engines' format), uncompressed.
     Tga,
+    /// 8-bit TGA, run-length encoded, each scanline's packets its own (TGA 2.0).
+    TgaRle,
     /// 8-bit BMP (older games' format).
     Bmp,
     /// Lossy WebP (the web's format; glTF's `EXT_texture_webp`), 8-bit, alpha kept losslessly.
@@ -261,6 +263,7 @@ impl FileFormat {
             | FileFormat::Jpeg
             | FileFormat::Tiff8
             | FileFormat::Tga
+            | FileFormat::TgaRle
             | FileFormat::Bmp
             | FileFormat::WebpLossy
             | FileFormat::WebpLossless => SampleDepth::U8,
@@ -276,11 +279,29 @@ impl FileFormat {
             FileFormat::Jpeg => "jpg",
             FileFormat::ExrHalf | FileFormat::ExrFloat => "exr",
             FileFormat::Tiff8 | FileFormat::Tiff16 | FileFormat::TiffFloat => "tif",
-            FileFormat::Tga => "tga",
+            FileFormat::Tga | FileFormat::TgaRle => "tga",
             FileFormat::Bmp => "bmp",
             FileFormat::WebpLossy | FileFormat::WebpLossless => "webp",
             FileFormat::Dds(_) => "dds",
         }
+    }
+
+    /// The extension a file of this format is written with: `source`'s own, spelling and case
+    /// kept (`.tiff`, `.TGA`, `.jpeg`), where it names this format; else [`Self::extension`].
+    pub fn extension_as(self, source: Option<&std::path::Path>) -> String {
+        let own = source
+            .and_then(|p| p.extension())
+            .and_then(|e| e.to_str())
+            .filter(|e| {
+                let lower = e.to_ascii_lowercase();
+                let canonical = match lower.as_str() {
+                    "jpeg" => "jpg",
+                    "tiff" => "tif",
+                    other => other,
+                };
+                canonical == self.extension()
+            });
+        own.unwrap_or(self.extension()).to_string()
     }
 
     /// The longest side the format can store, for the formats that limit it below sizes matup
@@ -290,7 +311,7 @@ impl FileFormat {
         match self {
             FileFormat::WebpLossy | FileFormat::WebpLossless => Some(16383),
             FileFormat::Bmp => Some(32767),
-            FileFormat::Jpeg | FileFormat::Tga => Some(65535),
+            FileFormat::Jpeg | FileFormat::Tga | FileFormat::TgaRle => Some(65535),
             _ => None,
         }
     }
@@ -318,6 +339,7 @@ impl FromStr for FileFormat {
             "tiff16" => Ok(FileFormat::Tiff16),
             "tiff-float" | "tiff32" => Ok(FileFormat::TiffFloat),
             "tga" => Ok(FileFormat::Tga),
+            "tga-rle" => Ok(FileFormat::TgaRle),
             "bmp" => Ok(FileFormat::Bmp),
             "webp" => Ok(FileFormat::WebpLossy),
             "webp-lossless" => Ok(FileFormat::WebpLossless),
@@ -358,6 +380,7 @@ impl fmt::Display for FileFormat {
             FileFormat::Tiff16 => "tiff16",
             FileFormat::TiffFloat => "tiff-float",
             FileFormat::Tga => "tga",
+            FileFormat::TgaRle => "tga-rle",
             FileFormat::Bmp => "bmp",
             FileFormat::WebpLossy => "webp",
             FileFormat::WebpLossless => "webp-lossless",

@@ -247,6 +247,10 @@ pub struct Packing {
     pub channels: Vec<Packed>,
     /// The normal convention of the exporter that writes this packing, if it has one.
     pub normals: Option<NormalConvention>,
+    /// Spelled letter by letter (`ORM` in a name, `--packed orh`): every letter names a
+    /// channel the file must have. A table row's last channel may be missing (a mask map
+    /// saved without alpha).
+    pub spelled: bool,
 }
 
 /// A packing convention as a table row.
@@ -301,6 +305,13 @@ pub const PACKINGS: &[PackingRow] = &[
         ],
         normals: Some(NormalConvention::OpenGl),
     },
+    PackingRow {
+        key: "megascans-unreal",
+        name: "Megascans for Unreal ORDp (occlusion, roughness, displacement)",
+        words: &["ordp"],
+        channels: &[Packed::Occlusion, Packed::Roughness, Packed::Height],
+        normals: Some(NormalConvention::DirectX),
+    },
 ];
 
 impl PackingRow {
@@ -309,6 +320,7 @@ impl PackingRow {
             name: self.name.to_string(),
             channels: self.channels.to_vec(),
             normals: self.normals,
+            spelled: false,
         }
     }
 }
@@ -323,10 +335,12 @@ const LETTERS: &[(char, Packed)] = &[
 ];
 
 /// The packing a word spells, channel by channel (`arm`: occlusion, roughness, metallic):
-/// three or four letters of [`LETTERS`], each holding something else, roughness and metallic
-/// among them. With `unused`, `x` marks a channel that holds nothing (`--packing xrm`).
+/// letters of [`LETTERS`], each holding something else. A file's name spells three or four,
+/// roughness and metallic among them. With `unused` (`--packed`), any one to four letters that
+/// hold something, `x` marking a channel that holds nothing (`xrm`, `orh`, `orx`).
 pub fn spelled_packing(word: &str, unused: bool) -> Option<Packing> {
-    if !(3..=4).contains(&word.len()) {
+    let lengths = if unused { 1..=4 } else { 3..=4 };
+    if !lengths.contains(&word.chars().count()) {
         return None;
     }
     let mut channels = Vec::new();
@@ -342,10 +356,15 @@ pub fn spelled_packing(word: &str, unused: bool) -> Option<Packing> {
         channels.push(held);
     }
     let has = |p| channels.contains(&p);
-    (has(Packed::Roughness) && has(Packed::Metallic)).then(|| Packing {
+    let enough = match unused {
+        true => channels.iter().any(|&c| c != Packed::Unused),
+        false => has(Packed::Roughness) && has(Packed::Metallic),
+    };
+    enough.then(|| Packing {
         name: format!("{} (the name spells its channels)", word.to_uppercase()),
         channels,
         normals: None,
+        spelled: true,
     })
 }
 
@@ -372,8 +391,9 @@ impl FromStr for Packing {
         spelled_packing(&s, true).ok_or_else(|| {
             let keys: Vec<&str> = PACKINGS.iter().map(|r| r.key).collect();
             Error::Invalid(format!(
-                "unknown packing '{s}'; use {}, or the channels' letters in order (o or a \
-                 occlusion, r roughness, m metallic, h height, x nothing; e.g. orm, rma, xrm)",
+                "unknown packing '{s}'; use {}, or one to four letters, a file's channels in \
+                 order (o or a occlusion, r roughness, m metallic, h height, x nothing; each \
+                 once; e.g. orm, rma, xrm, orh)",
                 keys.join(", ")
             ))
         })
@@ -469,5 +489,40 @@ mod tests {
             Packed::Smoothness
         );
         assert!("rgb".parse::<Packing>().is_err());
+        // Every packing --packed's help describes: any letters, each once, holding something.
+        for (word, channels) in [
+            (
+                "orh",
+                vec![Packed::Occlusion, Packed::Roughness, Packed::Height],
+            ),
+            (
+                "orx",
+                vec![Packed::Occlusion, Packed::Roughness, Packed::Unused],
+            ),
+            (
+                "ormh",
+                vec![
+                    Packed::Occlusion,
+                    Packed::Roughness,
+                    Packed::Metallic,
+                    Packed::Height,
+                ],
+            ),
+            ("r", vec![Packed::Roughness]),
+        ] {
+            let packing = word.parse::<Packing>().unwrap();
+            assert_eq!(packing.channels, channels, "{word}");
+            assert!(packing.spelled, "{word}: every letter names a channel");
+        }
+        for word in ["xxx", "oo", "ormhx", "orq"] {
+            let e = word.parse::<Packing>().unwrap_err().to_string();
+            assert!(e.contains("one to four letters"), "{word}: {e}");
+        }
+        // Megascans' Unreal packing, by its name.
+        let ordp = packing_of_name(&words(&["ordp"]), &words(&["t", "rock", "4k", "ordp"]));
+        assert_eq!(
+            ordp.unwrap().channels,
+            [Packed::Occlusion, Packed::Roughness, Packed::Height]
+        );
     }
 }

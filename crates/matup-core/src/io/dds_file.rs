@@ -2,7 +2,7 @@
 //! of a 2D texture read as a map, and a map written back in its file's format, with a mip
 //! chain made here, because the crate's resizer knows neither sRGB colour nor normals.
 
-use std::io::{BufReader, Write};
+use std::io::Write;
 use std::path::Path;
 
 use dds::header::{Dx10Header, Dx9Header, DxgiFormat, Header};
@@ -20,13 +20,15 @@ use crate::{Error, Result};
 /// Reads the top level of a DDS texture: grey, RGB or RGBA as its format holds them (a BC1
 /// texture without punched-through texels as RGB); a two-channel normal format's x and y
 /// with z rebuilt in B, stored as normals are, `(z + 1) / 2`. `check_size(width, height)`
-/// may refuse the texture from its header, before it is decoded.
+/// may refuse the texture from its header, before it is decoded. Returns the map, its format
+/// and what was read leniently, for the run's notes ([`lenient_dx10_header`]).
 pub(crate) fn read_dds(
     path: &Path,
     check_size: impl Fn(usize, usize) -> Result<()>,
-) -> Result<(Map, DdsFormat)> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut decoder = Decoder::new(BufReader::new(file))
+) -> Result<(Map, DdsFormat, Vec<String>)> {
+    let mut bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let notes = lenient_dx10_header(&mut bytes);
+    let mut decoder = Decoder::new(std::io::Cursor::new(bytes))
         .map_err(|e| Error::file(path, format!("not a readable DDS file: {e}")))?;
     let header = decoder.header().clone();
     let Some(codec) = DdsCodec::of(decoder.format()) else {
@@ -41,12 +43,14 @@ pub(crate) fn read_dds(
     };
     let layout = decoder.layout();
     if !layout.is_texture() {
+        // Which header field decided it, in its words.
+        let array_size = header.dx10().map_or(1, |d| d.array_size);
         let what = if layout.is_cube_map() {
-            "a cube map"
+            "a cube map (the header's cube-map flags)".to_string()
         } else if layout.is_texture_array() {
-            "a texture array"
+            format!("a texture array (the DX10 header's array size {array_size})")
         } else {
-            "a volume texture"
+            "a volume texture (the header's depth)".to_string()
         };
         return Err(Error::file(path, format!("{what}, not a single 2D map")));
     }
@@ -82,7 +86,46 @@ pub(crate) fn read_dds(
         dx10: header.dx10().is_some(),
         mipmaps: header.mipmap_count().get() > 1,
     };
-    Ok((map, format))
+    Ok((map, format, notes))
+}
+
+/// Where the DX10 header's fields lie in a DDS file: after the magic (4 bytes), the header
+/// (124) and its pixel format's four-character code at 84.
+const FOURCC: usize = 84;
+const DXGI_FORMAT: usize = 128;
+const ARRAY_SIZE: usize = 140;
+
+/// The typeless block and 8-bit formats (DXGI numbers) and the UNORM twin each is read as.
+const TYPELESS_AS_UNORM: [(u32, u32, &str); 7] = [
+    (70, 71, "BC1"),
+    (73, 74, "BC2"),
+    (76, 77, "BC3"),
+    (79, 80, "BC4"),
+    (82, 83, "BC5"),
+    (94, 95, "BC6H"),
+    (97, 98, "BC7"),
+];
+
+/// A DX10 header as loose writers leave it, made what it means: an array size of 0 (Pillow
+/// writes it so) is one texture, and a typeless block format is its UNORM twin. Returns what
+/// it changed, in words; anything else that cannot be one 2D map is still refused by the
+/// decoder's layout.
+fn lenient_dx10_header(bytes: &mut [u8]) -> Vec<String> {
+    let mut notes = Vec::new();
+    if bytes.len() < ARRAY_SIZE + 4 || &bytes[FOURCC..FOURCC + 4] != b"DX10" {
+        return notes;
+    }
+    let field = |b: &[u8], at: usize| u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]);
+    if field(bytes, ARRAY_SIZE) == 0 {
+        bytes[ARRAY_SIZE..ARRAY_SIZE + 4].copy_from_slice(&1u32.to_le_bytes());
+        notes.push("DX10 header's array size 0 read as 1 (one texture)".to_string());
+    }
+    let format = field(bytes, DXGI_FORMAT);
+    if let Some((_, unorm, name)) = TYPELESS_AS_UNORM.iter().find(|(t, ..)| *t == format) {
+        bytes[DXGI_FORMAT..DXGI_FORMAT + 4].copy_from_slice(&unorm.to_le_bytes());
+        notes.push(format!("DXGI format {name}_TYPELESS read as {name}_UNORM"));
+    }
+    notes
 }
 
 /// The stored z of a unit normal whose stored x and y are `r` and `g`.
@@ -338,7 +381,7 @@ mod tests {
     /// Every level of a DDS texture, decoded as RGBA.
     fn levels(path: &Path) -> Vec<Map> {
         let file = std::fs::File::open(path).unwrap();
-        let mut decoder = Decoder::new(BufReader::new(file)).unwrap();
+        let mut decoder = Decoder::new(std::io::BufReader::new(file)).unwrap();
         let mut out = Vec::new();
         while let Some(info) = decoder.surface_info() {
             let size = info.size();
@@ -589,5 +632,36 @@ mod tests {
             error.contains("cut.dds") && error.contains("cannot decode"),
             "{error}"
         );
+    }
+
+    #[test]
+    fn a_loose_dx10_header_reads_as_what_it_means_and_says_so() {
+        // Pillow writes BC5 normals with an array size of 0 and BC5_TYPELESS.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("normal.dds");
+        let normal = Stored::Normal(NormalConvention::OpenGl);
+        let map = image(3, 16);
+        write(&path, &map, format("dds-bc5"), vec![normal; 3]);
+        let strict = read_image(&path, u64::MAX).unwrap();
+        assert!(strict.notes.is_empty());
+        let mut bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[FOURCC..FOURCC + 4], b"DX10");
+        bytes[ARRAY_SIZE..ARRAY_SIZE + 4].copy_from_slice(&0u32.to_le_bytes());
+        bytes[DXGI_FORMAT..DXGI_FORMAT + 4].copy_from_slice(&82u32.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let loose = read_image(&path, u64::MAX).unwrap();
+        assert!(loose.map == strict.map, "the same texture");
+        assert_eq!(
+            loose.notes,
+            [
+                "DX10 header's array size 0 read as 1 (one texture)",
+                "DXGI format BC5_TYPELESS read as BC5_UNORM"
+            ]
+        );
+        // An array of two is still refused, by the header's field.
+        bytes[ARRAY_SIZE..ARRAY_SIZE + 4].copy_from_slice(&2u32.to_le_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let e = read_image(&path, u64::MAX).err().unwrap().to_string();
+        assert!(e.contains("a texture array"), "{e}");
     }
 }

@@ -141,7 +141,15 @@ pub const ROLE_WORDS: &[(Role, &[&str])] = &[
     (Role::Metallic, &["metallic", "metalness", "metal", "mtl"]),
     (
         Role::Height,
-        &["height", "heightmap", "displacement", "disp", "parallax"],
+        &[
+            "height",
+            "heightmap",
+            "displacement",
+            "disp",
+            "parallax",
+            // Games' suffix (`rock01_h.dds`), beside _d, _n and _s.
+            "h",
+        ],
     ),
     (Role::Bump, &["bump"]),
     (Role::Anisotropy, &["anisotropy", "aniso"]),

@@ -2,7 +2,8 @@
 //! and float, TGA, BMP, WebP, DDS): formats live at this edge; everything inside is a planar f32
 //! [`Map`].
 
-use std::io::Cursor;
+use std::fs::File;
+use std::io::{Cursor, Read};
 use std::path::Path;
 
 use exr::prelude as ex;
@@ -19,6 +20,8 @@ use crate::{Error, Result};
 pub struct ImageFile {
     pub map: Map,
     pub format: FileFormat,
+    /// What was read leniently, for the run's notes (a DDS header written loosely).
+    pub notes: Vec<String>,
 }
 
 /// The file extensions matup reads.
@@ -129,6 +132,7 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
         Some(ImageFormat::Jpeg) => FileFormat::Jpeg,
         Some(ImageFormat::Png) if sixteen => FileFormat::Png16,
         Some(ImageFormat::Png) => FileFormat::Png8,
+        Some(ImageFormat::Tga) if tga_is_run_length_encoded(path)? => FileFormat::TgaRle,
         Some(ImageFormat::Tga) => FileFormat::Tga,
         Some(ImageFormat::Bmp) => FileFormat::Bmp,
         other => {
@@ -161,11 +165,25 @@ fn read_with_image_crate(path: &Path, max_texels: u64) -> Result<ImageFile> {
     let map = Map::from_fn(w, h, channels, |c, y, x| {
         interleaved[(y * w + x) * channels + c]
     });
-    Ok(ImageFile { map, format })
+    Ok(ImageFile {
+        map,
+        format,
+        notes: Vec::new(),
+    })
 }
 
 /// Whether a BMP file's colour table is all grey (R = G = B in every entry): an 8-bit grey
 /// map, which the image crate decodes through its palette to RGB.
+/// Whether a TGA file's image type (its header's third byte: 9, 10 or 11) is run-length
+/// encoded, so that it is written back so.
+fn tga_is_run_length_encoded(path: &Path) -> Result<bool> {
+    let mut header = [0u8; 3];
+    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
+    file.read_exact(&mut header)
+        .map_err(|e| Error::io(path, e))?;
+    Ok(matches!(header[2], 9..=11))
+}
+
 fn has_grey_palette(path: &Path) -> Result<bool> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let decoder = image::codecs::bmp::BmpDecoder::new(std::io::BufReader::new(file))
@@ -216,7 +234,11 @@ fn read_webp(path: &Path, max_texels: u64) -> Result<ImageFile> {
     let map = Map::from_fn(w, h, channels, |c, y, x| {
         samples[(y * w + x) * channels + c] as f32 / 255.0
     });
-    Ok(ImageFile { map, format })
+    Ok(ImageFile {
+        map,
+        format,
+        notes: Vec::new(),
+    })
 }
 
 fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
@@ -288,19 +310,21 @@ fn read_exr(path: &Path, max_texels: u64) -> Result<ImageFile> {
         } else {
             FileFormat::ExrFloat
         },
+        notes: Vec::new(),
     })
 }
 
 /// DDS through [`super::dds_file`], its float formats checked for non-finite values.
 fn read_dds(path: &Path, max_texels: u64) -> Result<ImageFile> {
-    let (map, dds) = super::dds_file::read_dds(path, |w, h| check_size(path, w, h, max_texels))?;
+    let (map, dds, notes) =
+        super::dds_file::read_dds(path, |w, h| check_size(path, w, h, max_texels))?;
     let format = FileFormat::Dds(dds);
     if format.is_float() {
         for c in 0..map.channels() {
             check_finite(path, map.plane(c), map.width(), 1, &format!("channel {c}"))?;
         }
     }
-    Ok(ImageFile { map, format })
+    Ok(ImageFile { map, format, notes })
 }
 
 /// Refuses `values` (`channels` interleaved, rows `width` texels long) if one is NaN or
@@ -403,7 +427,11 @@ fn read_tiff(path: &Path, max_texels: u64) -> Result<ImageFile> {
         let i = y * w + x;
         values[if planar { c * n + i } else { i * channels + c }]
     });
-    Ok(ImageFile { map, format })
+    Ok(ImageFile {
+        map,
+        format,
+        notes: Vec::new(),
+    })
 }
 
 /// Writes a grey or RGB map, either with alpha (values already in the file's encoding: [0, 1] for integer

@@ -214,6 +214,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         ));
     };
     reader.check_sizes(&origin_folder)?;
+    notes.append(&mut reader.notes);
 
     let height = reader.map(MapKind::Height);
     let mut normal = reader.map(MapKind::Normal);

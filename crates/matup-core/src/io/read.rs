@@ -33,6 +33,8 @@ pub(crate) struct Reader {
     sizes: Vec<(PathBuf, usize, usize)>,
     /// Carried files of another size than the maps, set aside.
     pub other_sizes: Vec<OtherSizeFile>,
+    /// What files were read leniently, each note naming its file.
+    pub notes: Vec<String>,
 }
 
 /// How many components a map of `kind` has.
@@ -59,6 +61,8 @@ impl Reader {
     /// Reads `path`, which holds what `role` says, recognised as `recognised_as`.
     pub fn read(&mut self, path: &Path, role: &FileRole, recognised_as: &str) -> Result<()> {
         let file = read_image(path, self.max_texels)?;
+        let name = file_stem(path);
+        (self.notes).extend(file.notes.iter().map(|n| format!("{name}: {n}")));
         let size = (file.map.width(), file.map.height());
         if let FileRole::Carried { data } = role {
             if *self.size.get_or_insert(size) != size {
@@ -86,13 +90,18 @@ impl Reader {
                 }
             }
             FileRole::Packed(packing) => {
-                if file.map.channels() < packing.channels.len().min(3) {
+                // Letters spelled each name a channel; a table row's last may be missing.
+                let needed = match packing.spelled {
+                    true => packing.channels.len(),
+                    false => packing.channels.len().min(3),
+                };
+                if file.map.channels() < needed {
                     return Err(Error::file(
                         path,
                         format!(
                             "a {} file needs {} channels, this one has {}",
                             packing.name,
-                            packing.channels.len(),
+                            needed,
                             file.map.channels()
                         ),
                     ));

@@ -222,6 +222,7 @@ impl ImageWriter {
             }
             FileFormat::Jpeg
             | FileFormat::Tga
+            | FileFormat::TgaRle
             | FileFormat::Bmp
             | FileFormat::Tiff8
             | FileFormat::WebpLossy
@@ -575,7 +576,10 @@ fn encode_whole(
                 hints.block_quality,
             );
         }
-        (FileFormat::Jpeg | FileFormat::Tga | FileFormat::Bmp, Samples::U8(raw)) => {
+        (
+            FileFormat::Jpeg | FileFormat::Tga | FileFormat::TgaRle | FileFormat::Bmp,
+            Samples::U8(raw),
+        ) => {
             // The image crate's BMP encoder drops grey's alpha: grey + alpha goes as RGBA.
             let (channels, raw) = match (format, channels) {
                 (FileFormat::Bmp, 2) => (4, as_rgba(2, raw)),
@@ -589,8 +593,10 @@ fn encode_whole(
             };
             return match format {
                 FileFormat::Tga => {
-                    image.write_with_encoder(image::codecs::tga::TgaEncoder::new(out))
+                    let tga = image::codecs::tga::TgaEncoder::new(out).disable_rle();
+                    image.write_with_encoder(tga)
                 }
+                FileFormat::TgaRle => write_tga_rle(out, &image),
                 FileFormat::Bmp => {
                     image.write_with_encoder(image::codecs::bmp::BmpEncoder::new(out))
                 }
@@ -608,6 +614,30 @@ fn encode_whole(
         _ => unreachable!("ImageWriter::create gathers each format at its own depth"),
     };
     written.map_err(|e| e.to_string())
+}
+
+/// A run-length encoded TGA whose packets never cross a scanline, as TGA 2.0 requires (the
+/// image crate's encoder runs them on across rows, which Pillow refuses as a buffer overrun):
+/// each row encoded alone by the image crate's encoder, its packets kept, under one header
+/// for the whole image, which is the first row's with the height set.
+fn write_tga_rle(out: &mut BufWriter<File>, image: &DynamicImage) -> image::ImageResult<()> {
+    const HEADER: usize = 18;
+    const HEIGHT: usize = 14;
+    let mut data = Vec::new();
+    for y in 0..image.height() {
+        let mut row = Vec::new();
+        let encoder = image::codecs::tga::TgaEncoder::new(&mut row);
+        image
+            .crop_imm(0, y, image.width(), 1)
+            .write_with_encoder(encoder)?;
+        if y == 0 {
+            row[HEIGHT..HEIGHT + 2].copy_from_slice(&(image.height() as u16).to_le_bytes());
+            data.extend_from_slice(&row);
+        } else {
+            data.extend_from_slice(&row[HEADER..]);
+        }
+    }
+    out.write_all(&data).map_err(image::ImageError::IoError)
 }
 
 /// Lossy WebP's quality: JPEG's number. Its half-resolution colour still costs a normal map
@@ -809,6 +839,7 @@ mod tests {
             FileFormat::Tiff16,
             FileFormat::TiffFloat,
             FileFormat::Tga,
+            FileFormat::TgaRle,
             FileFormat::Bmp,
             FileFormat::WebpLossy,
             FileFormat::WebpLossless,
@@ -860,6 +891,7 @@ mod tests {
                     FileFormat::Png8
                     | FileFormat::Tiff8
                     | FileFormat::Tga
+                    | FileFormat::TgaRle
                     | FileFormat::Bmp
                     | FileFormat::WebpLossless => 0.5 / 255.0,
                     FileFormat::Png16 | FileFormat::Tiff16 => 0.5 / 65535.0,
@@ -906,5 +938,69 @@ mod tests {
         }
         // Nor any temporary file.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    /// The packets of a run-length encoded TGA's pixel data, each as (first pixel, pixels).
+    fn tga_packets(bytes: &[u8], bytes_per_pixel: usize) -> Vec<(usize, usize)> {
+        let (mut at, mut pixel, mut packets) = (18 + bytes[0] as usize, 0, Vec::new());
+        while at < bytes.len() {
+            let count = (bytes[at] & 0x7f) as usize + 1;
+            let run = bytes[at] & 0x80 != 0;
+            at += 1 + if run {
+                bytes_per_pixel
+            } else {
+                count * bytes_per_pixel
+            };
+            packets.push((pixel, count));
+            pixel += count;
+        }
+        packets
+    }
+
+    #[test]
+    fn a_run_length_encoded_tga_keeps_its_packets_within_scanlines() {
+        // Rows of one colour run past the row's end in the image crate's own encoder; an
+        // uncompressed TGA is written uncompressed.
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (37, 5);
+        for channels in 1..=4 {
+            let map = Map::from_fn(w, h, channels, |c, y, x| {
+                if x < 30 {
+                    (y * 40 + c * 10) as f32 / 255.0
+                } else {
+                    (x * 3) as f32 / 255.0
+                }
+            });
+            let rle = dir.path().join(format!("rle{channels}.tga"));
+            write_whole(&rle, &map, FileFormat::TgaRle).unwrap();
+            let bytes = std::fs::read(&rle).unwrap();
+            assert_eq!(
+                bytes[2],
+                if channels <= 2 { 11 } else { 10 },
+                "a run-length type"
+            );
+            assert_eq!(u16::from_le_bytes([bytes[14], bytes[15]]) as usize, h);
+            let bytes_per_pixel = [1, 2, 3, 4][channels - 1];
+            let packets = tga_packets(&bytes, bytes_per_pixel);
+            for (first, count) in &packets {
+                assert_eq!(
+                    first / w,
+                    (first + count - 1) / w,
+                    "{channels}: a packet crosses a row"
+                );
+            }
+            assert_eq!(packets.iter().map(|p| p.1).sum::<usize>(), w * h);
+            let back = read_image(&rle, u64::MAX).unwrap();
+            assert_eq!(back.format, FileFormat::TgaRle);
+            let worst = (back.map.data().iter().zip(map.data()))
+                .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(worst <= 0.5 / 255.0, "{channels}: {worst}");
+            let plain = dir.path().join(format!("plain{channels}.tga"));
+            write_whole(&plain, &map, FileFormat::Tga).unwrap();
+            assert_eq!(
+                std::fs::read(&plain).unwrap()[2],
+                if channels <= 2 { 3 } else { 2 }
+            );
+        }
     }
 }

@@ -35,6 +35,9 @@ pub struct MaterialWriter {
 struct PlannedFile {
     stem: String,
     format: FileFormat,
+    /// The file it comes back as, whose extension's spelling (`.tiff`, `.TGA`, `.jpeg`) the
+    /// output keeps where it writes the same format.
+    source: Option<PathBuf>,
     channels: Vec<Channel>,
     /// A map the input did not have is written only if it differs from its stand-in.
     stand_in: Option<(MapKind, &'static [f32])>,
@@ -208,6 +211,7 @@ impl MaterialWriter {
                 PlannedFile {
                     stem: self.retagged(&file_stem(&file.path)),
                     format,
+                    source: Some(file.path.clone()),
                     channels,
                     stand_in: None,
                 }
@@ -256,6 +260,7 @@ impl MaterialWriter {
             files.push(PlannedFile {
                 stem: kind.file_stem().to_string(),
                 format,
+                source: source(kind).map(|f| f.path.clone()),
                 channels,
                 stand_in: (!had_source)
                     .then(|| kind.stand_in().map(|v| (kind, v)))
@@ -288,6 +293,7 @@ impl MaterialWriter {
             files.push(PlannedFile {
                 stem: self.retagged(&extra.name),
                 format,
+                source: Some(extra.source.clone()),
                 channels,
                 stand_in: None,
             });
@@ -314,8 +320,8 @@ impl MaterialWriter {
         let [w, h] = self.size;
         let mut paths: Vec<PathBuf> = Vec::new();
         for planned in plan {
-            let path =
-                (self.out_dir).join(format!("{}.{}", planned.stem, planned.format.extension()));
+            let extension = planned.format.extension_as(planned.source.as_deref());
+            let path = (self.out_dir).join(format!("{}.{extension}", planned.stem));
             if paths.contains(&path) {
                 return Err(Error::file(&path, TWO_FILES_IN_ONE));
             }
