@@ -16,13 +16,15 @@ use matup::progress::Silent;
 use matup::{load_material, save_material, LoadOptions, SaveOptions};
 use rand::{Rng, SeedableRng};
 
-const FORMATS: [FileFormat; 8] = [
+const FORMATS: [FileFormat; 9] = [
     FileFormat::Png8,
     FileFormat::Jpeg,
     FileFormat::WebpLossy,
     FileFormat::ExrHalf,
     FileFormat::Tiff16,
     FileFormat::Tga,
+    // Run-length packets are where a damaged TGA's lengths lie.
+    FileFormat::TgaRle,
     FileFormat::Bmp,
     // `--format dds`: BC7 colour, BC5 normals, BC4 grey, with mip chains.
     FileFormat::Dds(DdsFormat {
