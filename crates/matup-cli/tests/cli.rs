@@ -191,7 +191,7 @@ fn upscale_error_paths_are_clear() {
     let cases: &[(&[&str], &str)] = &[
         (
             &["--upsampler", "esrgan"],
-            "unknown upsampler 'esrgan'; known: bicubic, bilinear, lanczos3, onnx",
+            "unknown upsampler 'esrgan'; known: bicubic, bilinear, callable, lanczos3, onnx",
         ),
         (
             &["--shading", "phong"],

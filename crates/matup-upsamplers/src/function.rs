@@ -316,12 +316,13 @@ mod tests {
         let e = matup_core::upsampler(&"callable:test-bicubic".parse().unwrap());
         assert!(e.err().unwrap().to_string().contains("no function"));
 
-        // A function that returns the wrong size is refused with what it returned.
+        // A function that returns the wrong size is refused with what it returned: one tile
+        // of the 50×37 image with 16 texels of context around it.
         let half = |tiles: &[Vec<f32>], [h, w]: [usize; 2]| -> Result<Vec<Map>> {
             Ok(vec![Map::filled(w, h, 3, 0.0); tiles.len()])
         };
         let wrong = FunctionUpsampler::new("wrong", tiles, Box::new(half)).unwrap();
         let e = wrong.upsample(&[image()], 2, Border::Wrap).unwrap_err();
-        assert!(e.to_string().contains("it returned a 37×50×3 image"), "{e}");
+        assert!(e.to_string().contains("it returned a 69×82×3 image"), "{e}");
     }
 }

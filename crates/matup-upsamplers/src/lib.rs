@@ -173,7 +173,8 @@ mod tests {
         assert!(e.to_string().contains("valid options: a"), "{e}");
         let e = upsampler(&"lanczos9".parse().unwrap()).err().unwrap();
         assert!(
-            e.to_string().contains("known: bicubic, bilinear, lanczos3"),
+            e.to_string()
+                .contains("known: bicubic, bilinear, callable, lanczos3"),
             "{e}"
         );
     }
