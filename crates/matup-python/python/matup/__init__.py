@@ -421,7 +421,12 @@ def upscale(
             **settings,
         )
         if isinstance(maps, Material):
-            return read_material(out, normal_convention=normal_convention, _files_of=maps)
+            # The input's files come back under their names; the run's preview is not one.
+            result = read_material(out, normal_convention=normal_convention)
+            stems = {Path(name).stem.lower() for name in maps.files}
+            result.files = {n: a for n, a in result.files.items() if Path(n).stem.lower() in stems}
+            result.formats = {n: f for n, f in result.formats.items() if n in result.files}
+            return result
         by_stem = {p.stem.lower(): p for p in out.iterdir() if p.suffix in (".png", ".exr")}
         result = {}
         for key, stem in files.items():
@@ -456,20 +461,15 @@ class Material:
     stand_ins: List[str] = field(default_factory=_list)
 
 
-def read_material(
-    path: PathLike, normal_convention: Optional[str] = None, *, _files_of: Optional[Material] = None
-) -> Material:
+def read_material(path: PathLike, normal_convention: Optional[str] = None) -> Material:
     """Reads the material in the folder ``path`` as ``matup upscale`` would: any layout matup
     knows (exporters' names, packed channels, gloss, DirectX or OpenGL normals)."""
     text, arrays = _matup.read_material(os.fspath(path), normal_convention)
     description = json.loads(text)
     folder = Path(path)
     files, formats = {}, {}
-    wanted = None if _files_of is None else {Path(n).stem.lower() for n in _files_of.files}
     for entry in sorted(folder.iterdir()):
         if not entry.is_file() or entry.name in ("preview.png", "run.json"):
-            continue
-        if wanted is not None and entry.stem.lower() not in wanted:
             continue
         try:
             files[entry.name], formats[entry.name] = _matup.read_image(os.fspath(entry))
