@@ -356,6 +356,9 @@ fn interleave(map: &Map) -> Vec<f32> {
     out
 }
 
+/// Arrays by name, in the order matup holds them.
+type NamedArrays<'py> = Vec<(String, Bound<'py, PyAny>)>;
+
 /// A material folder as matup reads it, as JSON: its size, each map in matup's working
 /// encoding (linear base colour, unit OpenGL normals, roughness, metallic; as `maps` arrays),
 /// the layout it was read from and the normal convention with its evidence.
@@ -365,7 +368,7 @@ fn read_material<'py>(
     py: Python<'py>,
     path: PathBuf,
     normal_convention: Option<&str>,
-) -> PyResult<(String, Vec<(String, Bound<'py, PyAny>)>)> {
+) -> PyResult<(String, NamedArrays<'py>)> {
     let load = load_options(py, normal_convention)?;
     let raised = Raised::default();
     let material = detached(py, &raised, || load_material(Some(&path), &load))?;
