@@ -29,6 +29,23 @@ use matup::method::bands::default_memory_limit;
 use network::Network;
 use progress::{PyProgress, Raised};
 
+// matup's own allocations through mimalloc, as in the CLI (matup-cli/src/lib.rs says why:
+// training's buffers and the per-map path's output-sized maps, page-faulted anew under
+// glibc's malloc). Python's objects keep Python's allocator.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// mimalloc's `purge_delay` option (mimalloc.h, v3): freed memory is kept a second before it
+/// goes back to the system, unless `MIMALLOC_PURGE_DELAY` says otherwise, as the CLI sets it.
+const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+
+fn keep_freed_memory_a_while() {
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: sets one of mimalloc's integer options, which it reads at its next purge.
+        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, 1000) };
+    }
+}
+
 /// What the Python side asked to stop, or raised in a callback: the first such exception
 /// wins over the error the run then returns, so the caller sees its own traceback.
 fn finish<T>(
@@ -506,6 +523,7 @@ fn plugins(py: Python<'_>) -> PyResult<String> {
 
 #[pymodule]
 fn _matup(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    keep_freed_memory_a_while();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<Network>()?;
     for f in [
