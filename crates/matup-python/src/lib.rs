@@ -352,22 +352,33 @@ fn map_of(py: Python<'_>, array: &Bound<'_, PyAny>) -> PyResult<(Map, SampleDept
     if h == 0 || w == 0 {
         return Err(bad(format!("shape {shape:?} holds no texels")));
     }
-    let mut planar = vec![0f32; values.len()];
-    for (i, texel) in values.chunks_exact(c).enumerate() {
-        for (k, v) in texel.iter().enumerate() {
-            planar[k * h * w + i] = *v;
-        }
-    }
-    Ok((Map::from_planar(w, h, c, planar), depth))
+    Ok((Map::from_planar(w, h, c, planar(&values, c)), depth))
 }
 
 /// A map's samples texel by texel (H×W×C order).
 fn interleave(map: &Map) -> Vec<f32> {
-    let (n, c) = (map.width() * map.height(), map.channels());
-    let mut out = vec![0f32; n * c];
-    for k in 0..c {
-        for (i, v) in map.plane(k).iter().enumerate() {
-            out[i * c + k] = *v;
+    interleaved(map.data(), map.channels())
+}
+
+/// `channels` planes, one after another, as samples texel by texel (H×W×C order).
+pub(crate) fn interleaved(planes: &[f32], channels: usize) -> Vec<f32> {
+    let n = planes.len() / channels;
+    let mut out = vec![0f32; planes.len()];
+    for (k, plane) in planes.chunks_exact(n).enumerate() {
+        for (i, v) in plane.iter().enumerate() {
+            out[i * channels + k] = *v;
+        }
+    }
+    out
+}
+
+/// Samples texel by texel (H×W×C order) as `channels` planes, one after another.
+pub(crate) fn planar(interleaved: &[f32], channels: usize) -> Vec<f32> {
+    let n = interleaved.len() / channels;
+    let mut out = vec![0f32; interleaved.len()];
+    for (i, texel) in interleaved.chunks_exact(channels).enumerate() {
+        for (k, v) in texel.iter().enumerate() {
+            out[k * n + i] = *v;
         }
     }
     out
@@ -417,6 +428,17 @@ fn read_material<'py>(
     Ok((json_text(py, &description)?, arrays))
 }
 
+/// `count` held-out lights (the set `matup eval` judges under) and the shading model `shading`
+/// names, as `evaluate` and `render` take them.
+fn held_out(py: Python<'_>, count: usize, shading: &str) -> PyResult<(LightSetSpec, PluginSpec)> {
+    if count == 0 {
+        let message = "lights must be at least 1".to_string();
+        return Err(exception(py, "InvalidInput", message));
+    }
+    let spec = parsed(py, "shading", Some(shading))?.expect("given");
+    Ok((LightSetSpec::held_out(count), spec))
+}
+
 /// Render PSNR, FLIP and the per-map errors of the material in `candidate` against the one in
 /// `reference` under `lights` held-out lights, as `matup eval` measures them (JSON).
 #[pyfunction]
@@ -429,14 +451,7 @@ fn evaluate(
     lights: usize,
     shading: &str,
 ) -> PyResult<String> {
-    if lights == 0 {
-        return Err(exception(
-            py,
-            "InvalidInput",
-            "lights must be at least 1".into(),
-        ));
-    }
-    let spec: PluginSpec = parsed(py, "shading", Some(shading))?.expect("given");
+    let (lights, spec) = held_out(py, lights, shading)?;
     let raised = Raised::default();
     let evaluation = detached(py, &raised, || {
         let load = |p: &Path| load_material(Some(p), &LoadOptions::default());
@@ -447,7 +462,7 @@ fn evaluate(
             &candidate,
             scale.max(1),
             model.as_ref(),
-            &LightSetSpec::held_out(lights),
+            &lights,
         )
     })?;
     json_text(py, &evaluation)
@@ -463,19 +478,12 @@ fn render<'py>(
     lights: usize,
     shading: &str,
 ) -> PyResult<Bound<'py, PyAny>> {
-    if lights == 0 {
-        return Err(exception(
-            py,
-            "InvalidInput",
-            "lights must be at least 1".into(),
-        ));
-    }
-    let spec: PluginSpec = parsed(py, "shading", Some(shading))?.expect("given");
+    let (lights, spec) = held_out(py, lights, shading)?;
     let raised = Raised::default();
     let renders = detached(py, &raised, || {
         let material = load_material(Some(&path), &LoadOptions::default())?;
         let model = shading_model(&spec)?;
-        let set = LightSetSpec::held_out(lights).build();
+        let set = lights.build();
         Ok(matup::core::render(
             &material,
             model.as_ref(),

@@ -12,7 +12,7 @@ use matup::core::{Error, Map};
 use matup::upsamplers::function::{register, FunctionTiles, FunctionUpsampler, Registered};
 
 use crate::progress::Raised;
-use crate::to_python;
+use crate::{interleaved, planar, to_python};
 
 /// Registrations made in this process: each run's name is made unique with the count.
 static RUNS: AtomicUsize = AtomicUsize::new(0);
@@ -106,16 +106,7 @@ fn call(
     [h, w]: [usize; 2],
 ) -> PyResult<matup::core::Result<Vec<Map>>> {
     let n = tiles.len();
-    let texels = h * w;
-    let mut batch = vec![0f32; n * texels * 3];
-    for (k, tile) in tiles.iter().enumerate() {
-        let out = &mut batch[k * texels * 3..(k + 1) * texels * 3];
-        for c in 0..3 {
-            for (i, v) in tile[c * texels..(c + 1) * texels].iter().enumerate() {
-                out[i * 3 + c] = *v;
-            }
-        }
-    }
+    let batch: Vec<f32> = tiles.iter().flat_map(|tile| interleaved(tile, 3)).collect();
     let input = PyArray1::from_vec(py, batch).reshape([n, h, w, 3])?;
     let output = function.call1(py, (input,))?;
     // Whatever array-like it returns (a NumPy array, a CPU tensor), as float32 texels.
@@ -129,6 +120,11 @@ fn call(
             [n, h, w, 3]
         ))));
     };
+    if oh == 0 || ow == 0 {
+        return Ok(Err(Error::Invalid(format!(
+            "the callable returned shape {shape:?}, which holds no texels"
+        ))));
+    }
     if count != n {
         return Ok(Err(Error::Invalid(format!(
             "the callable returned {count} images for a batch of {n}"
@@ -140,17 +136,7 @@ fn call(
             "the callable returned NaN or infinity".into(),
         )));
     }
-    let out_texels = oh * ow;
-    Ok(Ok((0..n)
-        .map(|k| {
-            let image = &values[k * out_texels * 3..(k + 1) * out_texels * 3];
-            let mut planar = vec![0f32; out_texels * 3];
-            for (i, texel) in image.chunks_exact(3).enumerate() {
-                for c in 0..3 {
-                    planar[c * out_texels + i] = texel[c];
-                }
-            }
-            Map::from_planar(ow, oh, 3, planar)
-        })
+    Ok(Ok((values.chunks_exact(oh * ow * 3))
+        .map(|image| Map::from_planar(ow, oh, 3, planar(image, 3)))
         .collect()))
 }

@@ -209,6 +209,22 @@ def _settings_json(settings: Dict[str, Any], **given: Any) -> str:
         raise InvalidInput(f"settings: {e}") from None
 
 
+def _run_settings(
+    settings: Dict[str, Any], scale: Any, size: Any, tileable: Any, device: Any, upsampler: Any
+) -> tuple:
+    """A run's native network (or None, for a named upsampler) and its settings as JSON."""
+    network = _as_network(upsampler)
+    text = _settings_json(
+        settings,
+        scale=scale,
+        size=None if size is None else str(size),
+        tileable=tileable,
+        device=device,
+        upsampler=None if network else upsampler,
+    )
+    return (network._native if network else None), text
+
+
 def settings(**settings: Any) -> str:
     """The configuration a run would use, as TOML: matup's defaults with ``settings`` over
     them (the keywords :func:`upscale` takes)."""
@@ -245,21 +261,13 @@ def upscale_folder(
     ``memory_limit`` is in bytes. ``progress``: a callback, ``False`` for none, or by default
     tqdm's bars when tqdm is installed.
     """
-    network = _as_network(upsampler)
-    text = _settings_json(
-        settings,
-        scale=scale,
-        size=None if size is None else str(size),
-        tileable=tileable,
-        device=device,
-        upsampler=None if network else upsampler,
-    )
+    network, text = _run_settings(settings, scale, size, tileable, device, upsampler)
     with _Progress(progress) as callback:
         report = _matup.upscale_folder(
             os.fspath(src),
             os.fspath(out),
             text,
-            network=network._native if network else None,
+            network=network,
             format=format,
             names=names,
             block_quality=block_quality,
@@ -290,21 +298,13 @@ def upscale_model(
     """Upscales every texture of a glTF model (``.gltf`` or ``.glb``) into ``out`` in its role,
     as ``matup upscale MODEL -o OUT`` does; the model is written beside them with its geometry
     as it was. Returns ``{"materials": {label: report}, "notes": [...], "written": [...]}``."""
-    network = _as_network(upsampler)
-    text = _settings_json(
-        settings,
-        scale=scale,
-        size=None if size is None else str(size),
-        tileable=tileable,
-        device=device,
-        upsampler=None if network else upsampler,
-    )
+    network, text = _run_settings(settings, scale, size, tileable, device, upsampler)
     with _Progress(progress) as callback:
         report = _matup.upscale_model(
             os.fspath(path),
             os.fspath(out),
             text,
-            network=network._native if network else None,
+            network=network,
             format=format,
             names=names,
             block_quality=block_quality,
