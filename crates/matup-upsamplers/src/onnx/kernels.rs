@@ -4,6 +4,7 @@
 
 use rayon::prelude::*;
 
+use matup_kernels::denormals::flushing_denormals;
 use matup_kernels::simd::fast_exp;
 use matup_kernels::with_avx2;
 
@@ -162,8 +163,10 @@ pub(super) fn in_row_blocks<S: Default + Send>(
     data.par_chunks_mut(rows_per_block * width * channels)
         .enumerate()
         .for_each_init(S::default, |scratch, (block, out)| {
-            compute(scratch, block * rows_per_block, out);
-            then.iter().for_each(|op| op.apply(out, channels));
+            flushing_denormals(|| {
+                compute(scratch, block * rows_per_block, out);
+                then.iter().for_each(|op| op.apply(out, channels));
+            })
         });
     Features {
         height,
