@@ -49,11 +49,7 @@ pub fn model_files(path: &Path) -> Result<Vec<PathBuf>> {
     for key in ["images", "buffers"] {
         for entry in model.array(key) {
             if let Some(uri) = entry["uri"].as_str().filter(|u| !u.starts_with("data:")) {
-                files.push(
-                    model
-                        .folder
-                        .join(relative_path(uri).map_err(|e| model.bad(e))?),
-                );
+                files.push(model.file_of(uri)?);
             }
         }
     }
@@ -424,6 +420,23 @@ impl Model {
         }
     }
 
+    /// The file a (non-data) URI names, inside the model's folder: by its path, and where
+    /// symbolic links lead (a link out of the folder could read any file of the user's).
+    fn file_of(&self, uri: &str) -> Result<PathBuf> {
+        let file = self
+            .folder
+            .join(relative_path(uri).map_err(|e| self.bad(e))?);
+        let folder = self.folder.canonicalize();
+        match (folder, file.canonicalize()) {
+            (Ok(folder), Ok(target)) if !target.starts_with(&folder) => Err(self.bad(format!(
+                "URI '{uri}' is a link to {}, outside the model's folder; matup reads only inside it",
+                target.display()
+            ))),
+            // A file that does not exist is reported where it is read.
+            _ => Ok(file),
+        }
+    }
+
     fn uri_bytes(&self, uri: &str) -> Result<Vec<u8>> {
         if let Some(data) = uri.strip_prefix("data:") {
             let (_, encoded) = data
@@ -433,9 +446,7 @@ impl Model {
                 .decode(encoded)
                 .map_err(|e| self.bad(format!("a data URI that does not decode: {e}")));
         }
-        let file = self
-            .folder
-            .join(relative_path(uri).map_err(|e| self.bad(e))?);
+        let file = self.file_of(uri)?;
         std::fs::read(&file).map_err(|e| {
             self.bad(format!(
                 "'{uri}', which the model names, cannot be read at {}: {e}",
@@ -1044,6 +1055,29 @@ mod tests {
             PathBuf::from("textures/a b.png")
         );
         assert!(relative_path("../a.png").is_err());
+        assert!(relative_path("%2e%2e/a.png").is_err());
         assert!(relative_path("/etc/a.png").is_err());
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_link_out_of_the_folder_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let (model, outside) = (dir.path().join("model"), dir.path().join("secret.png"));
+        std::fs::create_dir(&model).unwrap();
+        std::fs::write(&outside, b"not the model's").unwrap();
+        std::fs::write(model.join("inside.png"), b"the model's").unwrap();
+        std::os::unix::fs::symlink(&outside, model.join("link.png")).unwrap();
+        std::os::unix::fs::symlink(model.join("inside.png"), model.join("near.png")).unwrap();
+        let gltf = model.join("m.gltf");
+        std::fs::write(&gltf, r#"{"asset": {"version": "2.0"}}"#).unwrap();
+        let m = Model::read(&gltf).unwrap();
+        let err = m.uri_bytes("link.png").unwrap_err().to_string();
+        assert!(
+            err.contains("outside the model's folder") && err.contains("link.png"),
+            "{err}"
+        );
+        assert_eq!(m.uri_bytes("near.png").unwrap(), b"the model's");
+        assert_eq!(m.uri_bytes("inside.png").unwrap(), b"the model's");
     }
 }
