@@ -467,7 +467,7 @@ fn every_scale_runs_the_tuned_network_through_its_own_scale() {
         assert_eq!(report.upsampler_used, "onnx:span_x4_materials");
         let route = &report.levels[0].route;
         let through = if scale == 2 {
-            "at ×4, then ÷2 by area (2 passes) on the normal map, lanczos3 on the others"
+            "at ×4, then ÷2 by area (2 passes), back-projected"
         } else {
             "at ×4, then area-shrunk to ×3"
         };

@@ -122,9 +122,9 @@ pub struct SettingsArgs {
     /// The maps the self-ensemble covers: all, or normal (the normal map alone).
     #[arg(long, value_name = "MAPS")]
     pub self_ensemble_maps: Option<EnsembleMaps>,
-    /// The maps the upsampler runs on, the others through Lanczos-3: all, normal, or auto (the
-    /// default: the normal map alone at ×2 where the upsampler is a network, every map
-    /// otherwise).
+    /// The maps the upsampler runs on, the others through Lanczos-3: all, normal (the normal
+    /// map alone, in about a quarter of a network's time), or auto (the default: every map, but
+    /// the normal map alone at ×8's ×2 level where the upsampler is a network).
     #[arg(long, value_name = "MAPS")]
     pub upsampled_maps: Option<UpsampledMaps>,
     /// Learning rate.

@@ -104,7 +104,7 @@ pub fn describe_carried(
     how: CarriedUpsampling,
 ) -> Vec<String> {
     // What upsamples a map the upsampler would see as `kind`, its passes named.
-    let by = |kind| how.passes.by(kind, upsampler, how.upsampler, how.scale);
+    let by = |kind| how.passes.by(kind, upsampler);
     let projected = if how.back_project {
         ", back-projected"
     } else {

@@ -393,8 +393,8 @@ pub struct FilterConfig {
     /// The maps the self-ensemble covers: "all", or "normal" (the normal map alone).
     pub self_ensemble_maps: EnsembleMaps,
     /// The maps an `upsampler` residual base runs through the upsampler, the others through
-    /// Lanczos-3: "all", "normal", or "auto" (the normal map alone at ×2 where the upsampler
-    /// is a network, every map otherwise).
+    /// Lanczos-3: "all", "normal" (the normal map alone), or "auto" (every map, but the normal
+    /// map alone at ×8's ×2 level where the upsampler is a network).
     pub upsampled_maps: UpsampledMaps,
     /// Where an `upsampler` residual base's base colour takes its chroma from: "upsampler",
     /// or a kernel ("bilinear", "bicubic", "lanczos3") on the LR colour, the upsampler's
@@ -875,6 +875,15 @@ impl Config {
     /// The scale of each level: `[4, 4]` for ×16, `[4, 2]` for ×8, `[s]` otherwise.
     pub fn levels(&self) -> Vec<usize> {
         levels_of(self.scale)
+    }
+
+    /// These settings as level `level` (0 for the first) of ×`scale` runs them with an
+    /// upsampler of `native_scale`: the maps it upsamples decided ([`UpsampledMaps::at_level`]).
+    pub fn at_level(&self, level: usize, scale: usize, native_scale: Option<usize>) -> Config {
+        let mut config = self.clone();
+        let maps = &mut config.filter.upsampled_maps;
+        *maps = maps.at_level(level, scale, native_scale);
+        config
     }
 
     /// Rejects values the method cannot run with, saying which and why.

@@ -29,11 +29,13 @@ pub struct RunOptions {
     pub memory_limit: Option<u64>,
 }
 
-/// Everything a level needs that stays the same across levels.
+/// Everything a level needs: the run's, with the settings as that level runs them
+/// ([`Config::at_level`]).
+#[derive(Clone)]
 pub(crate) struct Context<'a> {
     pub(crate) config: &'a Config,
     pub(crate) model: Arc<dyn ShadingModel>,
-    pub(crate) upsampler: Box<dyn RgbUpsampler + 'a>,
+    pub(crate) upsampler: &'a (dyn RgbUpsampler + 'a),
     /// The upsampler's name, as the run reports it.
     pub(crate) upsampler_name: &'a str,
     pub(crate) lights: Vec<Light>,

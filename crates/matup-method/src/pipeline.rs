@@ -197,16 +197,18 @@ pub fn upscale_streamed(
     }
     // Each level may upsample them differently (×8: the network at ×4, Lanczos-3 at ×2).
     let carried_plan = CarriedPlan::of(&material.carried);
-    let describe_at = |scale| {
+    let describe_at = |(level, scale)| {
         let how = carried_upsampling(
-            config,
+            &config.at_level(level, scale, upsampler.native_scale()),
             upsampler.as_ref(),
             scale,
             Border::for_tiling(tileable),
         );
         describe_carried(material, &carried_plan, &upsampler_used, how)
     };
-    let by_level: Vec<Vec<String>> = config.levels().into_iter().map(describe_at).collect();
+    let by_level: Vec<Vec<String>> = (config.levels().into_iter().enumerate())
+        .map(describe_at)
+        .collect();
     let carried = if by_level.iter().all(|d| *d == by_level[0]) {
         by_level[0].clone()
     } else {
@@ -215,13 +217,14 @@ pub fn upscale_streamed(
             .collect()
     };
     let lights = config.lights.build();
+    let stopping = StopsOnRequest {
+        inner: upsampler,
+        progress,
+    };
     let ctx = Context {
         config,
         model,
-        upsampler: Box::new(StopsOnRequest {
-            inner: upsampler,
-            progress,
-        }),
+        upsampler: &stopping,
         upsampler_name: &upsampler_used,
         lights,
         border: Border::for_tiling(tileable),
@@ -313,6 +316,13 @@ fn run_level(
     skipped: &mut Vec<String>,
     emit: &mut dyn FnMut(usize, &OutputBand) -> Result<()>,
 ) -> Result<LevelReport> {
+    let level_config = ctx
+        .config
+        .at_level(level, scale, ctx.upsampler.native_scale());
+    let ctx = &Context {
+        config: &level_config,
+        ..ctx.clone()
+    };
     let config = ctx.config;
     let tag = |stage: &str| format!("level {}: {stage}", level + 1);
     let reuse = config.chain == Chain::Single && level > 0 && single_filter.is_some();
@@ -339,7 +349,7 @@ fn run_level(
         None => single_filter.as_ref().expect("level 1 trained a filter"),
     };
 
-    let context = residual::context(&config.filter, ctx.upsampler.as_ref())
+    let context = residual::context(&config.filter, ctx.upsampler)
         + band_margin(scale).div_ceil(scale)
         + if filter.filter.is_some() {
             config.filter.window.div_ceil(2 * scale) + 2
@@ -386,7 +396,7 @@ fn run_level(
     )?;
     // Where the residual base is made on a GPU, a band must also fit a quarter of its free
     // memory: the network's batches take up to half (`onnx`'s `tiles_per_call`).
-    let on_device = residual::device_for(&config.filter, ctx.upsampler.as_ref());
+    let on_device = residual::device_for(&config.filter, ctx.upsampler);
     let free = match &on_device {
         Some(device) => matup_core::device_maps::free_memory(device)?,
         None => None,
@@ -447,7 +457,7 @@ fn run_level(
                         residual::residual_base_on_device(
                             lr_band,
                             &config.filter,
-                            ctx.upsampler.as_ref(),
+                            ctx.upsampler,
                             device,
                             scale,
                             ctx.border,
@@ -513,7 +523,7 @@ fn run_level(
             inner.advance(1, None);
         }
         if !lr_band.carried.is_empty() {
-            let how = carried_upsampling(config, ctx.upsampler.as_ref(), scale, ctx.border);
+            let how = carried_upsampling(config, ctx.upsampler, scale, ctx.border);
             hr.carried = timed(timings, tag("carried maps"), || {
                 upscale_carried(&lr_band.carried, &carried_plan, how)
             })?;
@@ -550,13 +560,7 @@ fn host_residual_base(
 ) -> Result<Map> {
     let config = ctx.config;
     let mut base = timed(timings, tag("residual base"), || {
-        upsampled_base(
-            lr_band,
-            &config.filter,
-            ctx.upsampler.as_ref(),
-            scale,
-            ctx.border,
-        )
+        upsampled_base(lr_band, &config.filter, ctx.upsampler, scale, ctx.border)
     })?;
     timed(timings, tag("back-projection"), || {
         project_onto_input(&mut base, lr_band, &config.filter, scale, ctx.border);
@@ -593,8 +597,8 @@ fn level_route(ctx: &Context, scale: usize) -> String {
     match filter.residual_base {
         ResidualBase::Upsampler => format!(
             "×{scale} by {}{}{}{}",
-            passes.by(MapKind::Normal, &upsampler, ctx.upsampler.as_ref(), scale),
-            if (passes.upsampled).includes(MapKind::BaseColor, ctx.upsampler.as_ref(), scale) {
+            passes.by(MapKind::Normal, &upsampler),
+            if passes.upsampled.includes(MapKind::BaseColor) {
                 String::new()
             } else {
                 format!(" on the normal map, {LEFT_OUT} on the others")
