@@ -362,23 +362,22 @@ fn interleave(map: &Map) -> Vec<f32> {
 
 /// `channels` planes, one after another, as samples texel by texel (H×W×C order).
 pub(crate) fn interleaved(planes: &[f32], channels: usize) -> Vec<f32> {
-    let n = planes.len() / channels;
-    let mut out = vec![0f32; planes.len()];
-    for (k, plane) in planes.chunks_exact(n).enumerate() {
-        for (i, v) in plane.iter().enumerate() {
-            out[i * channels + k] = *v;
-        }
-    }
-    out
+    transposed(planes, channels)
 }
 
 /// Samples texel by texel (H×W×C order) as `channels` planes, one after another.
 pub(crate) fn planar(interleaved: &[f32], channels: usize) -> Vec<f32> {
-    let n = interleaved.len() / channels;
-    let mut out = vec![0f32; interleaved.len()];
-    for (i, texel) in interleaved.chunks_exact(channels).enumerate() {
-        for (k, v) in texel.iter().enumerate() {
-            out[k * n + i] = *v;
+    transposed(interleaved, interleaved.len() / channels.max(1))
+}
+
+/// `data` read as `rows` rows, written column by column: planes and texels are each other's
+/// transpose.
+fn transposed(data: &[f32], rows: usize) -> Vec<f32> {
+    let columns = data.len() / rows.max(1);
+    let mut out = vec![0f32; data.len()];
+    for (r, row) in data.chunks_exact(columns.max(1)).enumerate() {
+        for (c, v) in row.iter().enumerate() {
+            out[c * rows + r] = *v;
         }
     }
     out
