@@ -1,6 +1,8 @@
 //! The workspace's layering: within each crate, no two source files import each other,
 //! directly or around a circle (issue "One crate per concern"). Between crates cargo already
-//! forbids cycles.
+//! forbids cycles. A module file that re-exports or uses its children (`pub use write::…` in
+//! `io/mod.rs`) depends on them, and a file that imports through it (`crate::io::Samples`)
+//! depends on it: a façade is a file like any other.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -34,26 +36,26 @@ fn module_of(src: &Path, file: &Path) -> String {
     parts.join("::")
 }
 
-/// The paths a file's code names (`crate::…`, `super::…`), tests and comments left out, as
-/// lists of segments with `super` resolved against the file's module.
+/// The paths a file's code names (`crate::…`, `super::…`, `self::…` and paths that start at a
+/// child module: `write::…` in `io/mod.rs`), tests and comments left out, as lists of
+/// segments from the crate root. A path that starts with any other name (`std::…`, a type's
+/// `Map::new`) is the child path `module::name::…`, which names no file unless `name` is a
+/// child module.
 fn named_paths(module: &str, text: &str) -> Vec<Vec<String>> {
     // A file's tests may reach anywhere (and their `super` is the file itself).
     let code = text.split("#[cfg(test)]").next().unwrap_or("");
     let mut paths = Vec::new();
     for line in code.lines() {
         let line = line.split("//").next().unwrap_or("");
-        for (start, _) in line
-            .match_indices("crate::")
-            .chain(line.match_indices("super::"))
-        {
-            let preceded = line[..start]
-                .chars()
-                .last()
-                .is_some_and(|c| c.is_alphanumeric() || c == '_' || c == ':');
-            if preceded {
-                continue; // `matup_core::…` or the middle of `super::super::…`
+        // Each path: a name followed by `::`, not itself the middle of a path.
+        for (start, _) in line.match_indices("::") {
+            let head_start = line[..start]
+                .rfind(|c: char| !(c.is_alphanumeric() || c == '_'))
+                .map_or(0, |i| i + 1);
+            if head_start == start || line[..head_start].ends_with("::") {
+                continue; // `::std` or the middle of `a::b::c`
             }
-            let tail: String = line[start..]
+            let tail: String = line[head_start..]
                 .chars()
                 .take_while(|c| c.is_alphanumeric() || *c == '_' || *c == ':')
                 .collect();
@@ -71,6 +73,9 @@ fn named_paths(module: &str, text: &str) -> Vec<Vec<String>> {
                     .map(str::to_string)
                     .collect()
             };
+            if segments[0] == "self" {
+                segments.remove(0);
+            }
             while segments.first().is_some_and(|s| s == "super") {
                 segments.remove(0);
                 base.pop();
@@ -176,6 +181,19 @@ fn the_checker_sees_a_circle_and_resolves_super() {
         "use super::winograd;\nuse crate::map::Map; // crate::gone\n#[cfg(test)]\nuse super::x;",
     );
     assert_eq!(paths, [vec!["onnx", "winograd"], vec!["map", "Map"]]);
+    // A module file's own children, re-exported or used, and other names as child paths.
+    let paths = named_paths(
+        "io",
+        "pub use write::{retag, MaterialWriter};\nlet r = read::Reader::new(std::f32::MAX);",
+    );
+    assert_eq!(
+        paths,
+        [
+            vec!["io", "write"],
+            vec!["io", "read", "Reader", "new"],
+            vec!["io", "std", "f32", "MAX"],
+        ]
+    );
 }
 
 #[test]

@@ -6,7 +6,7 @@
 
 use candle_core::{DType, Device, Tensor};
 
-use crate::io::Samples;
+use crate::io::stream::Samples;
 use crate::layout::Stored;
 use crate::map::{Dihedral, Map};
 use crate::material::SampleDepth;

@@ -8,6 +8,7 @@
 
 pub mod claim;
 pub mod library;
+mod records;
 pub mod shard;
 pub mod summary;
 
@@ -17,13 +18,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::ScopedJoinHandle;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
-use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 pub use claim::{ClaimTiming, Holder};
 pub use library::{find_materials, material_name, Library};
 pub use shard::Shard;
 pub use summary::{Row, Status};
+
+use records::{read_failure, read_result, unix_seconds, Failure, FAILURE_FILE};
 
 use crate::folder::upscale_to_folder;
 use crate::model::{is_model_file, model_files, upscale_model};
@@ -420,58 +422,6 @@ impl Progress for ClaimWatch<'_> {
     }
 }
 
-/// The record of a failed material, `error.json` in its output folder.
-const FAILURE_FILE: &str = "error.json";
-
-#[derive(Serialize, Deserialize)]
-struct Failure {
-    error: String,
-    settings_fingerprint: Option<String>,
-    /// Seconds since the Unix epoch, to the microsecond: a rerun that begins within the second
-    /// its run failed in must still read the failure as its run's, not one of its own batch's.
-    /// (Whole seconds, as earlier records hold, read as they are.)
-    failed_at: f64,
-}
-
-impl Failure {
-    /// Whether another worker of the batch that began at `began` recorded it.
-    fn failed_since(&self, began: SystemTime) -> bool {
-        self.failed_at >= unix_seconds(began)
-    }
-}
-
-fn unix_seconds(t: SystemTime) -> f64 {
-    t.duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// The failure recorded in `folder` for these settings.
-fn read_failure(folder: &Path, fingerprint: &str) -> Option<Failure> {
-    let text = std::fs::read_to_string(folder.join(FAILURE_FILE)).ok()?;
-    let failure: Failure = serde_json::from_str(&text).ok()?;
-    (failure.settings_fingerprint.as_deref() == Some(fingerprint)).then_some(failure)
-}
-
-/// What the summary reads from a finished run's `run.json`.
-#[derive(Deserialize)]
-struct Finished {
-    settings_fingerprint: Option<String>,
-    total_seconds: Option<f64>,
-    final_loss: Option<f64>,
-    #[serde(default)]
-    skipped: Vec<String>,
-    tileable: Option<bool>,
-    input_size: Option<[usize; 2]>,
-    output_size: Option<[usize; 2]>,
-}
-
-/// The finished run in `folder`, when it ran with these settings.
-fn read_result(folder: &Path, fingerprint: &str) -> Option<Finished> {
-    let text = std::fs::read_to_string(folder.join("run.json")).ok()?;
-    let finished: Finished = serde_json::from_str(&text).ok()?;
-    (finished.settings_fingerprint.as_deref() == Some(fingerprint)).then_some(finished)
-}
-
 /// A digest of what a material's (or model's) result depends on: matup's version, the
 /// settings, how it is loaded and saved, and its files (names, sizes, modification times, so an
 /// edited map is upscaled again).
@@ -511,35 +461,4 @@ pub fn settings_fingerprint(folder: &Path, options: &BatchOptions) -> Result<Str
     }
     let digest = h.finalize();
     Ok(digest[..8].iter().map(|b| format!("{b:02x}")).collect())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use std::time::Duration;
-
-    #[test]
-    fn a_failure_in_the_second_a_rerun_begins_is_the_earlier_runs() {
-        let at = |ms: u64| UNIX_EPOCH + Duration::from_millis(ms);
-        let failure = |failed_at| Failure {
-            error: "bad".into(),
-            settings_fingerprint: Some("f".into()),
-            failed_at,
-        };
-        let recorded = failure(unix_seconds(at(1_700_000_000_300)));
-        assert!(!recorded.failed_since(at(1_700_000_000_600)));
-        assert!(recorded.failed_since(at(1_700_000_000_100)));
-        // Through its file, and a record of whole seconds as earlier versions wrote.
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join(FAILURE_FILE);
-        std::fs::write(&path, serde_json::to_vec(&recorded).unwrap()).unwrap();
-        let read = read_failure(dir.path(), "f").unwrap();
-        assert!(!read.failed_since(at(1_700_000_000_600)));
-        let whole = r#"{"error": "bad", "settings_fingerprint": "f", "failed_at": 1700000000}"#;
-        std::fs::write(&path, whole).unwrap();
-        assert_eq!(
-            read_failure(dir.path(), "f").unwrap().failed_at,
-            1_700_000_000.0
-        );
-    }
 }

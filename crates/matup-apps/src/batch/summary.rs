@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use super::claim::{live_claim, ClaimTiming};
 use super::library::{material_name, Library};
-use super::{read_failure, read_result};
+use super::records::{read_failure, read_result};
 use crate::html::{escape, href};
 use matup_core::io::write_atomic;
 use matup_core::{Error, Result};

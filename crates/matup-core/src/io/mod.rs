@@ -6,7 +6,8 @@ mod dds_file;
 mod discover;
 mod image_file;
 mod read;
-mod stream;
+// The crate's device maps name `stream::Samples` where it is defined, not through this file.
+pub(crate) mod stream;
 mod write;
 
 use std::borrow::Cow;
@@ -17,14 +18,13 @@ pub use image_file::{
     encoded_size, is_image_file, read_image, write_atomic, write_image, ImageFile, IMAGE_EXTENSIONS,
 };
 pub use stream::{ChannelRows, ImageWriter, Samples, WriteHints};
-pub use write::{check_output_folder, retag, MaterialWriter};
+pub use write::{check_output_folder, retag, MaterialWriter, Names, SaveOptions};
 
 use crate::convention;
 use crate::layout::{Packing, Stored};
 use crate::map::Map;
 use crate::material::{
-    normalize_normals, BlockQuality, Carried, FileFormat, MapKind, Material, MaterialOrigin,
-    NormalConvention,
+    normalize_normals, Carried, FileFormat, MapKind, Material, MaterialOrigin, NormalConvention,
 };
 use crate::{Error, Result};
 pub use image_file::encode_png8;
@@ -339,39 +339,6 @@ pub fn decode_normals(normal: &mut Map, convention: NormalConvention) {
     }
     normalize_normals(normal);
 }
-
-/// How to save a material.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct SaveOptions {
-    /// Format of every map; by default each map keeps the format it was loaded from (PNG 8-bit
-    /// for maps with no source).
-    pub format: Option<FileFormat>,
-    /// Convention of the written normal map; by default the input's.
-    pub normal_convention: Option<NormalConvention>,
-    /// The names the maps are written under.
-    pub names: Names,
-    /// How hard DDS files' block encoders search.
-    pub block_quality: BlockQuality,
-}
-
-/// The names a material's maps are written under.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Names {
-    /// The input's own file names (a resolution tag such as `_1K` rewritten to the output's
-    /// size), so the output folder drops in where the input was, as per-map upscalers do; a
-    /// packed occlusion/roughness/metallic file comes back packed, a gloss map as gloss.
-    #[default]
-    Keep,
-    /// matup's: `baseColor`, `normal`, `roughness`, `metallic`, `height` (packed and gloss
-    /// inputs unpacked and converted); other maps keep theirs.
-    Matup,
-}
-
-serde_plain::derive_display_from_serialize!(Names);
-serde_plain::derive_fromstr_from_deserialize!(Names, |e| -> Error {
-    Error::Invalid(format!("names: {e}"))
-});
 
 /// Saves every map of `material` into `out_dir` (created if needed), each with its alpha
 /// channel if its input had one, under the input's names or matup's ([`Names`]), the carried

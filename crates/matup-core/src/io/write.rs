@@ -9,12 +9,46 @@ use rayon::prelude::*;
 
 use super::read::file_stem;
 use super::stream::{ChannelRows, ImageWriter, Samples, WriteHints};
-use super::{Names, SaveOptions};
 use crate::device_maps::stored_samples;
 use crate::layout::{Channel, Holds, Stored};
-use crate::material::{FileFormat, MapKind, Material, MaterialOrigin};
+use crate::material::{
+    BlockQuality, FileFormat, MapKind, Material, MaterialOrigin, NormalConvention,
+};
 use crate::output_band::OutputBand;
 use crate::{Error, Result};
+
+/// How to save a material.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SaveOptions {
+    /// Format of every map; by default each map keeps the format it was loaded from (PNG 8-bit
+    /// for maps with no source).
+    pub format: Option<FileFormat>,
+    /// Convention of the written normal map; by default the input's.
+    pub normal_convention: Option<NormalConvention>,
+    /// The names the maps are written under.
+    pub names: Names,
+    /// How hard DDS files' block encoders search.
+    pub block_quality: BlockQuality,
+}
+
+/// The names a material's maps are written under.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Names {
+    /// The input's own file names (a resolution tag such as `_1K` rewritten to the output's
+    /// size), so the output folder drops in where the input was, as per-map upscalers do; a
+    /// packed occlusion/roughness/metallic file comes back packed, a gloss map as gloss.
+    #[default]
+    Keep,
+    /// matup's: `baseColor`, `normal`, `roughness`, `metallic`, `height` (packed and gloss
+    /// inputs unpacked and converted); other maps keep theirs.
+    Matup,
+}
+
+serde_plain::derive_display_from_serialize!(Names);
+serde_plain::derive_fromstr_from_deserialize!(Names, |e| -> Error {
+    Error::Invalid(format!("names: {e}"))
+});
 
 /// Writes a material's maps a band of rows at a time, top to bottom, as [`super::save_material`]
 /// writes a whole one (which is one band): the same files, formats and encodings, for outputs

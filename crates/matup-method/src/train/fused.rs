@@ -9,7 +9,8 @@ use std::sync::{Arc, Mutex};
 use candle_core::{CpuStorage, Device, InplaceOp1, Layout, Tensor, Var};
 use rayon::prelude::*;
 
-use super::{CrossBatch, Examples, LossTerms, Shading, Stepper};
+use super::examples::Examples;
+use super::stepper::{CrossBatch, LossTerms, Shading, Stepper};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES};
 use crate::op::{contiguous_f32, storage_f32, TexelLossOp, TexelObjective};

@@ -1,11 +1,14 @@
-//! Training the filter: examples, the epoch loop with early stopping, checkpoints; the steps
-//! themselves in [`fused`] (CPU kernels) or [`tensor`] (candle operations, any device).
+//! Training the filter: the epoch loop with early stopping, and checkpoints. Its examples are
+//! in [`examples`]; the steps themselves in [`fused`] (CPU kernels) or [`tensor`] (candle
+//! operations, any device), behind [`stepper`]'s interface.
 
+mod examples;
 mod fused;
+mod stepper;
 mod tensor;
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use candle_core::{Device, Tensor};
@@ -15,119 +18,15 @@ use rand::SeedableRng;
 use serde::{Deserialize, Serialize};
 
 use crate::config::{Backend, EarlyStopConfig, Schedule, TrainConfig, FUSED_ONLY_TERMS};
-use crate::filter::input::UpsampledInput;
 use crate::filter::{Filter, FEATURES};
-use crate::targets::Targets;
-use matup_core::lights::Light;
-use matup_core::loss::LossNorm;
-use matup_core::map::Map;
 use matup_core::progress::Progress;
-use matup_core::resample::Border;
 use matup_core::shading::ShadingModel;
 use matup_core::tensor::parse_device;
 use matup_core::{Error, Result};
 
-/// Training examples at one scale: the filter's inputs and what its answers are judged by.
-pub struct Examples {
-    /// The 7 features of the input material (the LR-consistency term's reference).
-    pub features: Map,
-    /// The filter's input features upsampled to the output size (its windows are read here).
-    pub input: UpsampledInput,
-    /// Output size.
-    pub width: usize,
-    pub height: usize,
-    /// The 7 features at the output size that residuals are added to, and that the prior
-    /// pulls toward.
-    pub residual_base: Arc<Map>,
-    /// Output-size height, if the material has one (displaces the shading points).
-    pub heights: Option<Map>,
-    pub targets: Targets,
-}
-
-impl Examples {
-    /// The examples of `filter` on input `features`: its windows read from `features`
-    /// upsampled as the filter says, its answers added to `residual_base`, the shading points
-    /// displaced by `heights` (output size), judged against `targets`.
-    pub fn new(
-        features: &Map,
-        residual_base: Arc<Map>,
-        heights: Option<Map>,
-        targets: Targets,
-        filter: &Filter,
-        border: Border,
-    ) -> Examples {
-        let scale = filter.geometry().scale;
-        Examples {
-            input: UpsampledInput::new(features, &filter.input_channels, border, filter.geometry()),
-            width: features.width() * scale,
-            height: features.height() * scale,
-            features: features.clone(),
-            residual_base,
-            heights,
-            targets,
-        }
-    }
-
-    pub fn texels(&self) -> usize {
-        self.width * self.height
-    }
-
-    /// The filter's input windows (`[B][N·N·C]`) of output texels `batch`.
-    pub fn windows(&self, batch: &[usize]) -> Vec<f32> {
-        let mut windows = Vec::with_capacity(batch.len() * self.input.window_len());
-        for &t in batch {
-            self.input
-                .push_window(t / self.width, t % self.width, &mut windows);
-        }
-        windows
-    }
-
-    /// The scale from the input features to the output.
-    fn scale(&self) -> usize {
-        self.width / self.features.width()
-    }
-
-    /// The `scale²` output texels covering each of the input texels `parents`, a group per
-    /// parent, row by row.
-    fn children(&self, parents: &[usize]) -> Vec<usize> {
-        let s = self.scale();
-        let lw = self.features.width();
-        let mut out = Vec::with_capacity(parents.len() * s * s);
-        for &p in parents {
-            let (py, px) = (p / lw, p % lw);
-            for dy in 0..s {
-                for dx in 0..s {
-                    out.push((py * s + dy) * self.width + px * s + dx);
-                }
-            }
-        }
-        out
-    }
-
-    /// `units` as output texels: themselves for groups of 1, else the children of each
-    /// input texel.
-    fn children_of(&self, units: &[usize], group: usize) -> Vec<usize> {
-        if group > 1 {
-            self.children(units)
-        } else {
-            units.to_vec()
-        }
-    }
-
-    /// The input texel an output texel lies in.
-    fn parent(&self, texel: usize) -> usize {
-        let s = self.scale();
-        (texel / self.width / s) * self.features.width() + (texel % self.width) / s
-    }
-}
-
-/// What the renders are compared with, and how.
-#[derive(Clone)]
-pub struct Shading {
-    pub model: Arc<dyn ShadingModel>,
-    pub lights: Arc<[Light]>,
-    pub norm: LossNorm,
-}
+pub use examples::Examples;
+pub use stepper::Shading;
+use stepper::{CrossBatch, LossTerms, Stepper};
 
 /// Where a run keeps its per-epoch checkpoint, and whether to continue from it.
 #[derive(Clone, Debug)]
@@ -256,26 +155,6 @@ impl Validation {
     }
 }
 
-/// How training steps are computed: the fused CPU kernels ([`fused`]) or candle tensor
-/// operations on any device ([`tensor`]). The epoch loop, early stopping and checkpoints
-/// are the same for both.
-trait Stepper {
-    /// One optimiser step at learning rate `lr` on the main texels `indices` (whole groups of
-    /// `group` texels) and, with its weight, the cross-scale texels `cross`; the batch's loss.
-    fn step(&mut self, indices: &[usize], cross: Option<CrossBatch>, lr: f64) -> Result<f64>;
-    /// The objective's mean over `texels` (whole groups), no gradient kept.
-    fn objective(&self, texels: &[usize]) -> Result<f64>;
-    /// Optimiser steps taken.
-    fn steps(&self) -> u64;
-    /// The weights (named as [`Filter::named_tensors`]) and the optimiser's state.
-    fn state(&self) -> Result<HashMap<String, Tensor>>;
-    /// Restores [`state`](Self::state) saved after `steps` steps.
-    fn restore(&mut self, state: &HashMap<String, Tensor>, steps: u64, origin: &Path)
-        -> Result<()>;
-    /// Leaves the trained weights in the filter.
-    fn finish(&self) -> Result<()>;
-}
-
 /// The backend that trains `model` on `device` as `config` asks: `auto` is the fused backend
 /// on the CPU when the model has a Jacobian of its own, the tensor backend otherwise.
 fn training_backend(
@@ -299,13 +178,6 @@ fn training_backend(
         return Err(Error::Invalid(FUSED_ONLY_TERMS.into()));
     }
     Ok(backend)
-}
-
-/// A step's cross-scale part: its examples, weight and texels.
-struct CrossBatch<'a> {
-    examples: &'a Arc<Examples>,
-    weight: f32,
-    texels: Vec<usize>,
 }
 
 /// Trains `filter` on `main` (and, with weight `cross_weight`, on `cross`): METHOD.md's loop,
@@ -515,14 +387,6 @@ fn split_validation(units: usize, wanted: usize, seed: u64) -> (Vec<usize>, Vec<
     }
     let rest = (0..units).filter(|&u| !is_held[u]).collect();
     (picked, rest)
-}
-
-/// What a batch's loss is made of besides its examples and texels.
-struct LossTerms<'a> {
-    shading: &'a Shading,
-    fixed: [Option<f32>; FEATURES],
-    /// The prior's weight per feature.
-    prior: [f32; FEATURES],
 }
 
 #[cfg(test)]

@@ -11,7 +11,8 @@ use std::sync::Arc;
 use candle_core::{Device, Tensor, Var};
 use candle_nn::{AdamW, Linear, Module, Optimizer, ParamsAdamW, VarMap};
 
-use super::{CrossBatch, Examples, LossTerms, Stepper};
+use super::examples::Examples;
+use super::stepper::{CrossBatch, LossTerms, Stepper};
 use crate::config::{Activation, FUSED_ONLY_TERMS};
 use crate::filter::decode::decode_tensors;
 use crate::filter::{tensor_name, Filter, FEATURES};

@@ -30,7 +30,6 @@ use matup_core::plugin::{option_value, parse_options, PluginOption};
 use matup_core::resample::Border;
 use matup_core::upsample::{RgbUpsampler, UpsamplerRegistration};
 use matup_core::{Error, Map, Result};
-use serde::Deserialize;
 use tract_linalg::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::prelude::*;
 
@@ -40,51 +39,13 @@ pub use convnet::{Graph, Op, RawConv, Step, Unsupported};
 use kernels::Features;
 pub use kernels::{Arith, Padding, PerTexel};
 pub use source::{
-    available_models, model_dirs, read_sidecar, read_sidecar_file, resolve, BuiltIn, ModelSource,
-    BUILT_IN,
+    available_models, model_dirs, read_sidecar, read_sidecar_file, resolve, BuiltIn, ModelInfo,
+    ModelSource, BUILT_IN,
 };
 pub use tensors::{
     depth_to_space, in_channel_order, per_texel, run_steps, unit_rgb, Precision, TensorNet,
 };
 pub use tract_onnx::pb::ModelProto;
-
-/// What a sidecar `NAME.toml` says about `NAME.onnx`.
-#[derive(Clone, Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModelInfo {
-    pub scale: usize,
-    #[serde(default = "unit_range")]
-    pub input_range: [f32; 2],
-    #[serde(default = "unit_range")]
-    pub output_range: [f32; 2],
-    #[serde(default = "rgb")]
-    pub channel_order: String,
-    #[serde(default = "default_tile")]
-    pub tile: usize,
-    #[serde(default)]
-    pub overlap: usize,
-    #[serde(default = "default_batch")]
-    pub batch: usize,
-    #[serde(default)]
-    pub licence: String,
-    #[serde(default)]
-    pub source: String,
-    #[serde(default)]
-    pub description: String,
-}
-
-fn unit_range() -> [f32; 2] {
-    [0.0, 1.0]
-}
-fn rgb() -> String {
-    "rgb".into()
-}
-fn default_tile() -> usize {
-    128
-}
-fn default_batch() -> usize {
-    4
-}
 
 type Plan = Arc<TypedRunnableModel>;
 

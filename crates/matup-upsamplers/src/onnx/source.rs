@@ -8,8 +8,46 @@ use std::path::{Path, PathBuf};
 use matup_core::{Error, Result};
 use tract_onnx::prelude::*;
 
-use super::ModelInfo;
+use serde::Deserialize;
 use tract_onnx::pb::ModelProto;
+
+/// What a sidecar `NAME.toml` says about `NAME.onnx`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelInfo {
+    pub scale: usize,
+    #[serde(default = "unit_range")]
+    pub input_range: [f32; 2],
+    #[serde(default = "unit_range")]
+    pub output_range: [f32; 2],
+    #[serde(default = "rgb")]
+    pub channel_order: String,
+    #[serde(default = "default_tile")]
+    pub tile: usize,
+    #[serde(default)]
+    pub overlap: usize,
+    #[serde(default = "default_batch")]
+    pub batch: usize,
+    #[serde(default)]
+    pub licence: String,
+    #[serde(default)]
+    pub source: String,
+    #[serde(default)]
+    pub description: String,
+}
+
+fn unit_range() -> [f32; 2] {
+    [0.0, 1.0]
+}
+fn rgb() -> String {
+    "rgb".into()
+}
+fn default_tile() -> usize {
+    128
+}
+fn default_batch() -> usize {
+    4
+}
 
 /// A network compiled into matup: its ONNX bytes and its sidecar's text.
 #[derive(Debug)]

@@ -7,7 +7,7 @@ use candle_core::{DType, Device, Tensor};
 
 use super::convnet::{last_uses, Graph, Op, Step};
 use super::kernels::{Arith, Padding, PerTexel};
-use super::ModelInfo;
+use super::source::ModelInfo;
 
 /// Runs `steps` on `input`, the network's input values (slot 0) as `[B, C, H, W]`;
 /// `convolve(index, x)` computes step `index`'s convolution (the caller holds the weights:
