@@ -7,6 +7,20 @@ use serde::{Deserialize, Serialize};
 
 use crate::data::Shares;
 
+/// Which of the network's tensors a run trains; the others keep the base model's values.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Trained {
+    /// Every convolution's weights and biases.
+    #[default]
+    All,
+    /// The biases alone: the smallest change that still moves every layer (a fine-tune that
+    /// stays near its start, as per-material adaptation wants).
+    Biases,
+    /// The last convolution's weights and bias (the one that draws the output's texels).
+    LastLayer,
+}
+
 /// What the network learns to upsample.
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
@@ -96,6 +110,9 @@ pub struct LearnConfig {
     /// learned while training rather than chosen after; 0: none.
     #[serde(default)]
     pub anchor_weight: f64,
+    /// Which tensors learn: `all`, `biases` or `last-layer`.
+    #[serde(default)]
+    pub trained: Trained,
     /// Steps between checkpoints.
     #[serde(default = "default_checkpoint_every")]
     pub checkpoint_every: usize,

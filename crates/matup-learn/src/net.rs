@@ -14,6 +14,8 @@ use matup_upsamplers::onnx::{
 use prost::Message;
 use tract_onnx::pb::tensor_proto::DataType;
 
+use crate::config::Trained;
+
 /// One convolution's trainable weights.
 struct ConvWeights {
     /// `[cout, kh·kw·cin]`, column `(ky·kw + kx)·cin + ci`: the layout of the unfolded input.
@@ -130,6 +132,24 @@ impl TrainableNet {
     /// Whether the network reads a height map beside its RGB input.
     pub fn has_height_guide(&self) -> bool {
         self.height_guide.is_some()
+    }
+
+    /// The tensors a run that trains only `trained` keeps as they are.
+    pub fn frozen_vars(&self, trained: Trained) -> Vec<Var> {
+        let convs: Vec<&ConvWeights> = self.convs.iter().flatten().collect();
+        match trained {
+            Trained::All => Vec::new(),
+            Trained::Biases => (convs.iter().map(|c| c.weights.clone()))
+                .chain(self.height_guide.as_ref().map(|(_, w)| w.weights.clone()))
+                .collect(),
+            Trained::LastLayer => {
+                let last = convs.len().saturating_sub(1);
+                (convs.iter().take(last).copied())
+                    .chain(self.height_guide.as_ref().map(|(_, w)| w))
+                    .flat_map(|c| std::iter::once(c.weights.clone()).chain(c.bias.clone()))
+                    .collect()
+            }
+        }
     }
 
     /// The trainable tensors, in a fixed order (checkpoints and the optimiser use it).

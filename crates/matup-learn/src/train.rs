@@ -836,6 +836,7 @@ pub fn train(
         dir: dir.to_path_buf(),
     };
     let vars = trainer.net.vars();
+    let frozen = trainer.net.frozen_vars(config.trained);
     let mut adam = Adam::new(&vars, config.learning_rate, config.anchor_weight)?;
     let info = load_checkpoint(&files, &vars, &mut adam, config, device)?;
     let resumed_from = info.as_ref().map(|i| i.iteration);
@@ -909,7 +910,11 @@ pub fn train(
                 dir.display()
             )));
         }
-        let grads = loss.backward()?;
+        let mut grads = loss.backward()?;
+        // A frozen tensor has no gradient, so Adam leaves it (and its moments) as they are.
+        for var in &frozen {
+            grads.remove(var.as_tensor());
+        }
         adam.update(&vars, &grads)?;
         iteration += 1;
         append(

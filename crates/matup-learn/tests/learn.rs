@@ -14,7 +14,7 @@ use matup_core::{
     load_material, save_material, Dihedral, LightSetSpec, LoadOptions, Map, Material, PluginSpec,
     SaveOptions,
 };
-use matup_learn::config::Target;
+use matup_learn::config::{Target, Trained};
 use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
 use matup_learn::shipped::{decode_outputs, shown, BackProjection, Route};
@@ -369,6 +369,7 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         context: 0,
         grid_weight: 0.0,
         anchor_weight: 0.0,
+        trained: Trained::All,
         checkpoint_every: 2,
         validate_every: 3,
         val_crop: 32,
@@ -870,6 +871,45 @@ fn an_anchored_run_stays_near_the_network_it_started_from() {
     std::fs::write(&path, toml::to_string(&over).unwrap()).unwrap();
     let error = LearnConfig::load(&path).unwrap_err().to_string();
     assert!(error.contains("anchor_weight"), "{error}");
+}
+
+#[test]
+fn a_run_that_trains_part_of_the_network_leaves_the_rest_as_it_was() {
+    let dir = tempfile::tempdir().unwrap();
+    let device = Device::Cpu;
+    let stock = TrainableNet::load(&tiny_run(dir.path(), 2).base_model, &device).unwrap();
+    let starts: Vec<Vec<f32>> = (stock.vars().iter())
+        .map(|v| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap())
+        .collect();
+    for trained in [Trained::Biases, Trained::LastLayer] {
+        let run = dir.path().join(format!("{trained:?}"));
+        let config = LearnConfig {
+            trained,
+            validate_every: 0,
+            ..tiny_run(dir.path(), 2)
+        };
+        train(&config, &run, &device, &matup_core::progress::Silent).unwrap();
+        let frozen: Vec<Vec<f32>> = (stock.frozen_vars(trained).iter())
+            .map(|v| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap())
+            .collect();
+        let (mut kept, mut moved) = (0, 0);
+        for (i, start) in starts.iter().enumerate() {
+            let (_, now) = (checkpoint_tensors(&run).into_iter())
+                .find(|(k, _)| *k == format!("w{i}"))
+                .unwrap();
+            if frozen.contains(start) {
+                assert_eq!(&now, start, "{trained:?}: frozen tensor {i} changed");
+                kept += 1;
+            } else if now != *start {
+                moved += 1;
+            }
+        }
+        println!("{trained:?}: {kept} tensors kept, {moved} moved");
+        assert!(
+            kept > 0 && moved > 0,
+            "{trained:?}: {kept} kept, {moved} moved"
+        );
+    }
 }
 
 /// Trains the run in `dir` up to `steps` steps of `config` (whose count is larger): the
