@@ -374,6 +374,23 @@ impl Model {
     fn read(path: &Path) -> Result<Model> {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         let (json, bin) = if is_glb(path) {
+            // The `gltf` crate subtracts the header's size from the length the header states
+            // unchecked (a panic where overflow is checked, found by fuzzing): refused first.
+            const HEADER: usize = 12;
+            if let Some(stated) = bytes
+                .get(8..HEADER)
+                .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            {
+                if (stated as usize) < HEADER {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "not a readable GLB file: its header states a length of {stated} \
+                             bytes, less than the header's own {HEADER}"
+                        ),
+                    ));
+                }
+            }
             let glb = gltf::binary::Glb::from_slice(&bytes)
                 .map_err(|e| Error::file(path, format!("not a readable GLB file: {e}")))?;
             (glb.json.into_owned(), glb.bin.map(|b| b.into_owned()))
@@ -1060,6 +1077,23 @@ mod tests {
     }
 
     #[cfg(unix)]
+    #[test]
+    fn a_glb_whose_header_states_less_than_itself_is_refused() {
+        // The fuzzing finding (fuzz/regressions/glb), as a message a user can act on.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("short.glb");
+        let mut bytes = b"glTF".to_vec();
+        bytes.extend(2u32.to_le_bytes());
+        bytes.extend(1u32.to_le_bytes());
+        bytes.extend(b"\xb8\x02\0\0JSON{}");
+        std::fs::write(&path, &bytes).unwrap();
+        let error = Model::read(&path).err().expect("refused").to_string();
+        assert!(
+            error.contains("short.glb") && error.contains("a length of 1 bytes"),
+            "{error}"
+        );
+    }
+
     #[test]
     fn a_link_out_of_the_folder_is_refused() {
         let dir = tempfile::tempdir().unwrap();
