@@ -142,7 +142,8 @@ minimize() {
     local targets=("$@")
     [ ${#targets[@]} -eq 0 ] && targets=("${targets_all[@]}")
     for t in "${targets[@]}"; do
-        (cd fuzz && cargo +nightly fuzz cmin --release "$t" 2> "../fuzz/$t-cmin.log")
+        (cd fuzz && cargo +nightly fuzz cmin --release --debug-assertions "$t" "corpus/$t" \
+            2> "../fuzz/$t-cmin.log")
         echo "$t: $(ls "fuzz/corpus/$t" | wc -l) inputs"
     done
 }
