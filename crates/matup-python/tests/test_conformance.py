@@ -53,7 +53,7 @@ def imagemagick_command():
         command = shutil.which(name)
         if command:
             version = subprocess.run([command, "-version"], capture_output=True, text=True)
-            if "ImageMagick" in version.stdout:
+            if version.stdout.startswith("Version: ImageMagick"):
                 return command
     assert not os.environ.get("MATUP_REQUIRE_IMAGEMAGICK"), "ImageMagick is not installed"
     return None
