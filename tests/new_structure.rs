@@ -3,8 +3,11 @@
 //! with red and green) come back from the defaults with no more new structure than bicubic
 //! draws, and box-filter back to their input.
 
+use std::collections::BTreeMap;
+use std::path::Path;
+
 use matup::config::Config;
-use matup::eval::metrics::new_structure;
+use matup::eval::metrics::{new_structure, NewStructure};
 use matup::per_map::upscale_per_map;
 use matup::progress::Silent;
 use matup::resample::{Border, Kernel};
@@ -79,22 +82,33 @@ fn write_game_texture(folder: &std::path::Path) {
     .unwrap();
 }
 
-#[test]
-fn a_speckled_game_texture_comes_back_with_no_more_new_structure_than_bicubic_draws() {
-    let dir = tempfile::tempdir().unwrap();
-    write_game_texture(dir.path());
-    let lr = load_material(Some(dir.path()), &LoadOptions::default()).unwrap();
+/// The new structure of the defaults' ×4 of the material in `folder`, and of bicubic's as a
+/// user runs it (each map through it on its own), both with mirrored borders (a crop, an
+/// atlas).
+fn defaults_and_bicubic(folder: &Path) -> (Structures, Structures) {
+    let lr = load_material(Some(folder), &LoadOptions::default()).unwrap();
     let config = Config {
         tileable: Some(false),
         seed: 1,
         ..Config::default()
     };
     let (out, _) = matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
-    let defaults = new_structure(&lr, &out, Border::Mirror).unwrap();
-    // Bicubic as a user runs it: each map through it on its own.
     let kernel = KernelUpsampler::new(Kernel::Bicubic { a: -0.5 });
     let plain = upscale_per_map(&lr, &kernel, 4, Border::Mirror).unwrap();
-    let bicubic = new_structure(&lr, &plain, Border::Mirror).unwrap();
+    (
+        new_structure(&lr, &out, Border::Mirror).unwrap(),
+        new_structure(&lr, &plain, Border::Mirror).unwrap(),
+    )
+}
+
+/// Each map's [`NewStructure`], by its file stem.
+type Structures = BTreeMap<String, NewStructure>;
+
+#[test]
+fn a_speckled_game_texture_comes_back_with_no_more_new_structure_than_bicubic_draws() {
+    let dir = tempfile::tempdir().unwrap();
+    write_game_texture(dir.path());
+    let (defaults, bicubic) = defaults_and_bicubic(dir.path());
     for (map, ours) in &defaults {
         let theirs = bicubic[map];
         println!("{map}: defaults {ours:?}\n{map}: bicubic {theirs:?}");
@@ -191,20 +205,10 @@ fn write_atlas(folder: &std::path::Path) {
 fn an_atlas_of_islands_on_black_box_filters_back_block_by_block() {
     let dir = tempfile::tempdir().unwrap();
     write_atlas(dir.path());
-    let lr = load_material(Some(dir.path()), &LoadOptions::default()).unwrap();
-    // A UV atlas is mirrored, not wrapped: islands across its edges are no neighbours.
-    let config = Config {
-        tileable: Some(false),
-        seed: 1,
-        ..Config::default()
-    };
-    let (out, _) = matup::upscale(&lr, &config, &RunOptions::default(), &Silent).unwrap();
-    let defaults = new_structure(&lr, &out, Border::Mirror).unwrap();
+    // Mirrored, as a UV atlas is: islands across its edges are no neighbours.
+    let (defaults, bicubic) = defaults_and_bicubic(dir.path());
     // The measure sees what a plain resampler does at the islands' edges: bicubic's blocks
     // there ring and do not average back to their input.
-    let kernel = KernelUpsampler::new(Kernel::Bicubic { a: -0.5 });
-    let plain = upscale_per_map(&lr, &kernel, 4, Border::Mirror).unwrap();
-    let bicubic = new_structure(&lr, &plain, Border::Mirror).unwrap();
     assert!(
         bicubic["baseColor"].box_back_worst > 4.0,
         "{:?}",
