@@ -9,9 +9,10 @@
 //!
 //! `cargo run --release --example block_edges -- SCALE [--upsampler SPEC] MATERIAL_FOLDER...`
 
-use matup::config::{Config, MATERIAL_NETWORK};
+use matup::config::Config;
 use matup::eval::metrics::block_edge_ratio;
 use matup::per_map::upscale_per_map;
+use matup::plan::MATERIAL_NETWORK;
 use matup::progress::Silent;
 use matup::resample::Border;
 use matup::{load_material, upsampler, Material, RunOptions};

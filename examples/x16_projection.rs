@@ -6,9 +6,10 @@
 //!
 //! `cargo run --release --example x16_projection -- MATERIAL_FOLDER...`
 
-use matup::config::{Config, MATERIAL_NETWORK};
+use matup::config::Config;
 use matup::eval::metrics::block_edge_ratio;
 use matup::features::features;
+use matup::plan::MATERIAL_NETWORK;
 use matup::progress::Silent;
 use matup::resample::Border;
 use matup::residual::project_onto_input;

@@ -429,7 +429,7 @@ fn the_default_network_is_the_one_tuned_for_materials_and_beats_stock_span() {
     let mut unprojected = Config::default();
     unprojected.filter.back_project = false;
     for config in [trained, unprojected] {
-        let (used, _) = matup::config::choose_upsampler(&config).unwrap();
+        let (used, _) = matup::plan::choose_upsampler(&config).unwrap();
         assert_eq!(used, "onnx:span_x4_ch48");
     }
 }

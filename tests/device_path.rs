@@ -281,7 +281,7 @@ fn maps_made_on_the_device_are_written_from_samples_made_there() {
         let mut kinds = Vec::new();
         matup::upscale_streamed(
             m,
-            &config(true),
+            &matup::Plan::new(m, &config(true)).unwrap(),
             &RunOptions::default(),
             &Silent,
             &mut |_, band| {

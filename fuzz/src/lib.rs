@@ -16,6 +16,7 @@ use matup_apps::model::upscale_model;
 use matup_core::io::{discover, encode_png8, read_image};
 use matup_core::progress::Silent;
 use matup_core::{LoadOptions, Map, NormalConvention, SaveOptions};
+use matup_method::plan::{levels_of, Reach};
 use matup_method::Config;
 
 // Linked for their registrations: the kernel upsamplers and the shading models a model's run
@@ -127,9 +128,9 @@ pub fn settings(data: &[u8]) -> bool {
         printed,
         "settings change when printed twice"
     );
-    let _ = config.levels();
+    let _ = levels_of(config.scale);
     for input in [[1, 1], [16, 16], [64, 32], [4096, 4096]] {
-        let _ = config.reach(input);
+        let _ = Reach::of(&config, input);
     }
     true
 }

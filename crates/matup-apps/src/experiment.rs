@@ -21,10 +21,10 @@ use matup_core::shading::shading_model;
 use matup_core::upsample::{check_scale, upsampler};
 use matup_core::{Error, PluginSpec, Result};
 use matup_eval::metrics::{evaluate, false_colour, new_structure, worst_new_structure, Evaluation};
-use matup_method::config::choose_upsampler;
 use matup_method::config::{check_supported_scale, Config};
 use matup_method::per_map::upscale_per_map;
 use matup_method::pipeline::{detect_tileable, upscale};
+use matup_method::plan::check_settings;
 use matup_method::RunOptions;
 
 /// An experiment file (`matup sweep FILE.toml`); `matup bench` builds one from its arguments.
@@ -198,7 +198,7 @@ impl Experiment {
     pub fn points(&self) -> Result<Vec<(BTreeMap<String, String>, Config)>> {
         let points = self.settings()?;
         for (settings, config) in &points {
-            check_plugins(config).map_err(|e| in_point(settings, e.to_string()))?;
+            check_settings(config).map_err(|e| in_point(settings, e.to_string()))?;
         }
         Ok(points)
     }
@@ -341,13 +341,6 @@ fn value_text(v: &toml::Value) -> String {
         toml::Value::String(s) => s.clone(),
         other => other.to_string(),
     }
-}
-
-/// The configuration's upsampler and shading model exist (a sweep fails before it starts).
-fn check_plugins(config: &Config) -> Result<()> {
-    shading_model(&config.shading.parse::<PluginSpec>()?)?;
-    choose_upsampler(config)?;
-    Ok(())
 }
 
 /// A true material and the LR input made from it.

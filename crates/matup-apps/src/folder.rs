@@ -11,10 +11,10 @@ use matup_core::io::{
 };
 use matup_core::material::{Material, OtherSizeFile};
 use matup_core::progress::Progress;
-use matup_core::shading::shading_model;
 use matup_core::{Error, Result};
-use matup_method::config::{choose_upsampler, TargetSize};
-use matup_method::pipeline::{output_size, upscale_streamed};
+use matup_method::config::TargetSize;
+use matup_method::pipeline::upscale_streamed;
+use matup_method::plan::Plan;
 use matup_method::preview::{preview_of_centre, PreviewWindow};
 use matup_method::report::{peak_memory_mib, OtherSizeRun, RunReport};
 use matup_method::Config;
@@ -52,10 +52,8 @@ pub fn upscale_to_folder(
     }
     // Settings that cannot run (an unknown upsampler or shading model, a size that cannot be
     // reached) are refused before the folder is made.
-    config.validate()?;
-    choose_upsampler(config)?;
-    shading_model(&config.shading.parse()?)?;
-    let size = output_size(material, config)?;
+    let plan = Plan::new(material, config)?;
+    let size = plan.output_size([material.width(), material.height_px()]);
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let checkpoints = out.join(CHECKPOINT_FOLDER);
     let options = RunOptions {
@@ -66,7 +64,7 @@ pub fn upscale_to_folder(
     };
     let mut maps = MaterialWriter::new(out, size, material.origin.as_ref(), save)?;
     let mut centre = PreviewWindow::new(size);
-    let mut report = upscale_streamed(material, config, &options, progress, &mut |first, band| {
+    let mut report = upscale_streamed(material, &plan, &options, progress, &mut |first, band| {
         centre.add(first, band)?;
         maps.write_band(band)
     })?;
@@ -74,12 +72,12 @@ pub fn upscale_to_folder(
 
     let mut written = maps.finish()?;
     let centre = centre.finish().expect("a run makes at least one band");
-    let sheet = preview_of_centre(material, &centre, size, config, report.tileable)?;
+    let sheet = preview_of_centre(material, &centre, size, &plan)?;
     let preview_path = out.join("preview.png");
     save_png(&preview_path, &sheet)?;
     written.push(preview_path);
     let (other_sizes, mut other_files) =
-        upscale_other_sizes(material, config, out, save, &options, &written, progress)?;
+        upscale_other_sizes(material, &plan, out, save, &options, &written, progress)?;
     report.other_sizes = other_sizes;
     written.append(&mut other_files);
     // The peak after the maps, the preview and the other sizes, not only the pipeline's.
@@ -100,7 +98,7 @@ pub fn upscale_to_folder(
 /// runs and the files written.
 fn upscale_other_sizes(
     material: &Material,
-    config: &Config,
+    plan: &Plan,
     out: &Path,
     save: &SaveOptions,
     options: &RunOptions,
@@ -116,7 +114,7 @@ fn upscale_other_sizes(
         by_size.entry(file.size).or_default().push(file);
     }
     let input = [material.width(), material.height_px()];
-    let maps_output = output_size(material, config)?;
+    let maps_output = plan.output_size(input);
     for (size, files) in by_size {
         let names: Vec<String> = files.iter().map(|f| file_name(&f.path)).collect();
         let [w, h] = size;
@@ -139,20 +137,15 @@ fn upscale_other_sizes(
         };
         let part = load_material(None, &load)?;
         // A size asked for holds for the maps: these keep the ratio it gave them.
-        let config = match config.size {
-            None => config.clone(),
-            Some(_) => {
-                let side = |i: usize| (size[i] * maps_output[i] + input[i] / 2) / input[i];
-                Config {
-                    size: Some(TargetSize {
-                        width: side(0),
-                        height: Some(side(1)),
-                    }),
-                    ..config.clone()
-                }
+        let part_output = plan.asked_size.map(|_| {
+            let side = |i: usize| (size[i] * maps_output[i] + input[i] / 2) / input[i];
+            TargetSize {
+                width: side(0),
+                height: Some(side(1)),
             }
-        };
-        let part_size = output_size(&part, &config)?;
+        });
+        let plan = plan.for_other_material(&part, part_output)?;
+        let part_size = plan.output_size(size);
         let options = RunOptions {
             checkpoint_folder: (options.checkpoint_folder.as_ref())
                 .map(|c| c.join(format!("other-size-{w}x{h}"))),
@@ -163,7 +156,7 @@ fn upscale_other_sizes(
         let taken: Vec<PathBuf> = (taken.iter()).chain(&written).cloned().collect();
         let mut maps =
             MaterialWriter::new(out, part_size, part.origin.as_ref(), save)?.beside(&taken);
-        let report = upscale_streamed(&part, &config, &options, progress, &mut |_, band| {
+        let report = upscale_streamed(&part, &plan, &options, progress, &mut |_, band| {
             maps.write_band(band)
         })?;
         written.append(&mut maps.finish()?);

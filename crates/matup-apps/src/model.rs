@@ -17,6 +17,7 @@ use matup_core::io::{encoded_size, write_atomic, MaterialPaths, Names};
 use matup_core::progress::Progress;
 use matup_core::{layout::Packing, SaveOptions};
 use matup_core::{load_material, Error, LoadOptions, NormalConvention, Result};
+use matup_method::plan::check_settings;
 use matup_method::report::RunReport;
 use matup_method::Config;
 
@@ -107,6 +108,9 @@ pub fn upscale_model(
              leave --format out"
         )));
     }
+    // Settings that cannot run are refused before the output folder is made; each group's
+    // run then plans its own material.
+    check_settings(config)?;
     let model = Model::read(path)?;
     if same_folder(out, &model.folder) {
         return Err(Error::file(

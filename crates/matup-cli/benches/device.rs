@@ -38,7 +38,7 @@ use matup_core::io::encode_map;
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material, NormalConvention};
 use matup_core::{load_material, save_material, LoadOptions, SaveOptions};
-use matup_method::config::MATERIAL_NETWORK;
+use matup_method::plan::MATERIAL_NETWORK;
 
 /// The repository's root: `MATUP_REPO`, for a bench binary carried to another machine, else
 /// this build's.

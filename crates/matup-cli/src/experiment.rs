@@ -74,7 +74,7 @@ pub struct SweepArgs {
 
 /// The shipped SR network's spec, when this build has it and it loads.
 fn shipped_network() -> Option<String> {
-    let spec = matup_method::config::AUTO_UPSAMPLERS[0];
+    let spec = matup_method::plan::AUTO_UPSAMPLERS[0];
     spec.parse()
         .ok()
         .and_then(|s| matup_core::upsampler(&s).ok())

@@ -317,7 +317,6 @@ impl SettingsArgs {
         if self.no_early_stop {
             c.train.early_stop.enabled = false;
         }
-        c.validate()?;
         Ok(c)
     }
 }

@@ -10,8 +10,7 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 pub use crate::per_map::{EnsembleMaps, MapPasses, SelfEnsemble, UpsampledMaps};
 use matup_core::loss::LossNorm;
 use matup_core::resample::Kernel;
-use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
-use matup_core::{Error, PluginSpec, Result};
+use matup_core::{Error, Result};
 
 /// Settings with a parameter or aliases (`leaky-relu:0.1`, a kernel's name as a residual base)
 /// parse and print by hand; serde goes through those (and their messages), so values read the
@@ -210,30 +209,6 @@ impl fmt::Display for TargetSize {
         match self.height {
             Some(h) => write!(f, "{}x{h}", self.width),
             None => write!(f, "{}", self.width),
-        }
-    }
-}
-
-/// How a run reaches its output size: the whole scale its levels make, and the size that
-/// output is then shrunk to where the size asked for is no whole scale.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Reach {
-    pub scale: usize,
-    pub shrink_to: Option<[usize; 2]>,
-}
-
-impl Reach {
-    /// The output's size for an input of `input` texels.
-    pub fn output_size(&self, input: [usize; 2]) -> [usize; 2] {
-        self.shrink_to.unwrap_or(input.map(|n| n * self.scale))
-    }
-
-    /// The route in words, for the note and `run.json`: `×4` or `×2, then area-shrunk to
-    /// 1536×1536`.
-    pub fn describe(&self) -> String {
-        match self.shrink_to {
-            Some([w, h]) => format!("×{}, then area-shrunk to {w}×{h}", self.scale),
-            None => format!("×{}", self.scale),
         }
     }
 }
@@ -685,12 +660,11 @@ pub struct Config {
     /// 2, 3 or 4 (one level), 8 (×4, then ×2) or 16 (two ×4 levels).
     pub scale: usize,
     /// An output size in texels instead of `scale`: the smallest scale that reaches it runs,
-    /// and a whole output larger than it is area-shrunk to it ([`Config::reach`]).
+    /// and a whole output larger than it is area-shrunk to it (`crate::plan::Reach`).
     pub size: Option<TargetSize>,
     pub chain: Chain,
     /// The RGB upsampler of the renders (`NAME[:ARGUMENT]`), or `auto`: the best the build
-    /// has ([`MATERIAL_NETWORK`] where [`Config::upsamples_maps_only`], else
-    /// [`AUTO_UPSAMPLERS`]; the first that loads and fits the scale).
+    /// has, which the run's plan chooses (`crate::plan::choose_upsampler`).
     pub upsampler: String,
     /// The shading model (`NAME[:OPTIONS]`).
     pub shading: String,
@@ -738,16 +712,6 @@ impl Default for Config {
     }
 }
 
-/// SPAN tuned for material maps (models/README.md has its card). It was trained and measured
-/// through the per-map base back-projected onto the LR maps, and only there beats stock SPAN:
-/// each map on its own it loses (docs/experiments/2026-11-25-blend-default.md), and renders are not what it
-/// learned. So `auto` runs it first only where [`Config::upsamples_maps_only`].
-pub const MATERIAL_NETWORK: &str = "onnx:span_x4_materials";
-
-/// What `upsampler = "auto"` tries otherwise (and after [`MATERIAL_NETWORK`], where a models
-/// folder lacks it), best first: stock SPAN, then Lanczos.
-pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
-
 /// The scales one level of the method handles.
 pub const LEVEL_SCALES: [usize; 3] = [2, 3, 4];
 
@@ -766,20 +730,10 @@ pub fn check_supported_scale(scale: usize, what: &str) -> Result<()> {
 /// Every whole factor matup upsamples by.
 pub const SCALES: [usize; 5] = [2, 3, 4, 8, 16];
 
-/// The levels that make a supported `scale`: the scale itself for one level, else ×4 and then
-/// the rest (a network's ×4 goes first, on the smaller input).
-pub fn levels_of(scale: usize) -> Vec<usize> {
-    if LEVEL_SCALES.contains(&scale) {
-        vec![scale]
-    } else {
-        vec![4, scale / 4]
-    }
-}
-
 impl Config {
     /// Whether the upsampler's only work is the per-map base back-projected onto the LR maps,
-    /// which is then the result (no filter trained, so no renders upsampled): the use
-    /// [`MATERIAL_NETWORK`] was trained and measured for.
+    /// which is then the result (no filter trained, so no renders upsampled): the use the
+    /// material network (`crate::plan::MATERIAL_NETWORK`) was trained and measured for.
     pub fn upsamples_maps_only(&self) -> bool {
         self.filter.residual_base == ResidualBase::Upsampler
             && self.filter.back_project
@@ -822,59 +776,6 @@ impl Config {
     /// The configuration as TOML.
     pub fn to_toml(&self) -> String {
         toml::to_string(self).expect("a Config always serialises")
-    }
-
-    /// How a run of an `input`-sized material reaches its output: `scale`, or where a `size` is
-    /// asked for, the smallest supported scale that reaches it and the shrink to it. A size
-    /// smaller than the input, past ×16, or of another shape than the input is refused.
-    pub fn reach(&self, input: [usize; 2]) -> Result<Reach> {
-        let Some(size) = self.size else {
-            return Ok(Reach {
-                scale: self.scale,
-                shrink_to: None,
-            });
-        };
-        let [w, h] = input;
-        let target = match size.height {
-            Some(height) => [size.width, height],
-            None if w == h => [size.width; 2],
-            None => {
-                return Err(Error::Invalid(format!(
-                    "size {size}: the input is {w}×{h}, not square; give both sides \
-                     (--size {}x{}) or a --scale",
-                    size.width,
-                    size.width * h / w
-                )))
-            }
-        };
-        // Sides rounded by one texel to keep the shape are the same ratio.
-        if target[0].abs_diff(target[1] * w / h) > 1 && target[1].abs_diff(target[0] * h / w) > 1 {
-            return Err(Error::Invalid(format!(
-                "size {size}: {}×{} is not the shape of the {w}×{h} input",
-                target[0], target[1]
-            )));
-        }
-        if target[0] <= w || target[1] <= h {
-            return Err(Error::Invalid(format!(
-                "size {size}: not larger than the {w}×{h} input (matup upsamples only)"
-            )));
-        }
-        let reaches = |s: usize| w * s >= target[0] && h * s >= target[1];
-        let Some(&scale) = SCALES.iter().find(|&&s| reaches(s)) else {
-            return Err(Error::Invalid(format!(
-                "size {size}: more than ×16 of the {w}×{h} input"
-            )));
-        };
-        let exact = [w * scale, h * scale] == target;
-        Ok(Reach {
-            scale,
-            shrink_to: (!exact).then_some(target),
-        })
-    }
-
-    /// The scale of each level: `[4, 4]` for ×16, `[4, 2]` for ×8, `[s]` otherwise.
-    pub fn levels(&self) -> Vec<usize> {
-        levels_of(self.scale)
     }
 
     /// These settings as level `level` (0 for the first) of ×`scale` runs them with an
@@ -978,43 +879,6 @@ impl Config {
         }
         Ok(())
     }
-}
-
-/// `spec` on the run's `device`: an ONNX network that names no device of its own runs there
-/// (the other upsamplers run on the CPU).
-pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
-    let names_one = (spec.argument.iter()).any(|a| a.split(',').any(|o| o.starts_with("device=")));
-    if spec.name == "onnx" && device != "cpu" && !names_one {
-        let argument = spec.argument.take().unwrap_or_default();
-        spec.argument = Some(format!("{argument},device={device}"));
-    }
-    spec
-}
-
-/// The configured upsampler, or for `auto` the first that loads and supports every level's
-/// scale: [`MATERIAL_NETWORK`] where the configuration only upsamples maps, then
-/// [`AUTO_UPSAMPLERS`].
-pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
-    let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
-        let spec = on_device(spec.parse()?, &config.device);
-        let up = upsampler(&spec)?;
-        for &s in &config.levels() {
-            check_scale(&spec.name, up.as_ref(), s)?;
-        }
-        Ok(up)
-    };
-    if config.upsampler != "auto" {
-        return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
-    }
-    let material = config.upsamples_maps_only().then_some(MATERIAL_NETWORK);
-    let mut last = None;
-    for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
-        match fits(spec) {
-            Ok(up) => return Ok((spec.to_string(), up)),
-            Err(e) => last = Some(e),
-        }
-    }
-    Err(last.expect("AUTO_UPSAMPLERS is not empty"))
 }
 
 #[cfg(test)]
@@ -1157,47 +1021,6 @@ mod tests {
     }
 
     #[test]
-    fn a_size_is_reached_by_the_smallest_scale_past_it() {
-        let with = |size: &str| Config {
-            size: Some(size.parse().unwrap()),
-            ..Config::default()
-        };
-        let reach = |size: &str, input: [usize; 2]| with(size).reach(input);
-        let exact = |scale| Reach {
-            scale,
-            shrink_to: None,
-        };
-        assert_eq!(reach("4K", [1024, 1024]).unwrap(), exact(4));
-        assert_eq!(reach("2048", [1024, 1024]).unwrap(), exact(2));
-        assert_eq!(reach("8192x4096", [1024, 512]).unwrap(), exact(8));
-        // Between scales: the next one past, then shrunk.
-        let between = reach("1536", [1024, 1024]).unwrap();
-        assert_eq!(between.scale, 2);
-        assert_eq!(between.shrink_to, Some([1536, 1536]));
-        assert_eq!(between.output_size([1024, 1024]), [1536, 1536]);
-        assert_eq!(between.describe(), "×2, then area-shrunk to 1536×1536");
-        assert_eq!(reach("400", [128, 128]).unwrap().scale, 4);
-        // Refused, saying why.
-        for (size, input, why) in [
-            ("1K", [1024, 1024], "not larger"),
-            ("512", [1024, 1024], "not larger"),
-            ("17K", [1024, 1024], "more than ×16"),
-            ("2048", [1024, 512], "not square"),
-            ("2048x2048", [1024, 512], "not the shape"),
-        ] {
-            let e = reach(size, input).unwrap_err().to_string();
-            assert!(e.contains(why), "{size} of {input:?}: {e}");
-        }
-        for bad in ["", "0", "4M", "x512", "1.5K"] {
-            assert!(bad.parse::<TargetSize>().is_err(), "{bad}");
-        }
-        // A scale alone is its own reach; the size round-trips through TOML.
-        assert_eq!(Config::default().reach([64, 64]).unwrap(), exact(4));
-        let c = with("4096x2048");
-        assert_eq!(Config::from_toml(&c.to_toml(), "s.toml").unwrap(), c);
-    }
-
-    #[test]
     fn toml_round_trips_and_rejects_unknown_keys() {
         let c = Config::default();
         assert_eq!(Config::from_toml(&c.to_toml(), "x.toml").unwrap(), c);
@@ -1207,9 +1030,7 @@ mod tests {
         )
         .unwrap();
         assert_eq!(c.train.loss, LossNorm::Lpq { p: 1.5, q: 1.0 });
-        assert_eq!(c.levels(), vec![4, 4]);
-        let eight = Config::from_toml("scale = 8\n", "c.toml").unwrap();
-        assert_eq!(eight.levels(), vec![4, 2]);
+        assert_eq!(c.scale, 16);
         let e = Config::from_toml("scale = 8\nchain = \"single\"\n", "d.toml").unwrap_err();
         assert!(e.to_string().contains("not ×8"), "{e}");
         for scale in [5, 6, 12, 32] {

@@ -30,7 +30,7 @@ pub struct RunOptions {
 }
 
 /// Everything a level needs: the run's, with the settings as that level runs them
-/// ([`Config::at_level`]).
+/// (`crate::plan::Level`).
 #[derive(Clone)]
 pub(crate) struct Context<'a> {
     pub(crate) config: &'a Config,
@@ -47,7 +47,7 @@ pub(crate) struct Context<'a> {
 /// The run's upsampler, stopping the run where the caller asks ([`Progress::cancelled`]):
 /// each call checks first, so Ctrl-C stops a run between maps, not only between stages.
 pub(crate) struct StopsOnRequest<'a> {
-    pub(crate) inner: Box<dyn RgbUpsampler>,
+    pub(crate) inner: &'a dyn RgbUpsampler,
     pub(crate) progress: &'a dyn Progress,
 }
 

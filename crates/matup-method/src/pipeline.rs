@@ -1,7 +1,7 @@
-//! The method end to end, as one straight line of stages over a [`Config`]: the settings
-//! chosen, then per ×s level the per-material fit where one is asked for, and band by band
-//! the residual base, the filter's inference and the height. Progress goes through a
-//! callback. It does not know which plugins exist.
+//! The method end to end, carrying out a run's [`Plan`] as one straight line of stages: the
+//! selection among the plan's candidates, then per ×s level the per-material fit where one is
+//! asked for, and band by band the residual base, the filter's inference and the height.
+//! Progress goes through a callback. It does not know which plugins exist.
 
 use std::borrow::Cow;
 use std::sync::Arc;
@@ -12,16 +12,17 @@ use crate::bands::{
     ENSEMBLE_BYTES_PER_BAND_TEXEL, ROUTE_BYTES_PER_NATIVE_TEXEL,
 };
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
-use crate::config::{choose_upsampler, Chain, Config, ResidualBase};
+use crate::config::{Chain, Config, ResidualBase, Selection};
 use crate::context::{Context, RunOptions, StopsOnRequest};
 use crate::fit::{
     decoded_maps_on_device, infer_material, learn_level, upsample_anisotropy, TrainedFilter,
 };
 use crate::height::{band_margin, detail_scale, rebuild_height};
 use crate::per_map::LEFT_OUT;
+use crate::plan::{Plan, Setup, Tiling, TilingGrounds};
 use crate::report::{peak_memory_mib, timed, LevelReport, RunReport};
 use crate::residual::{self, project_onto_input, upsampled_base};
-use crate::select::choose_settings;
+use crate::select::{choose_candidate, Candidate, SelectionReport};
 use crate::train::TrainStats;
 use matup_core::candle_core::Tensor;
 use matup_core::device_maps;
@@ -30,162 +31,111 @@ use matup_core::material::{MapKind, Material};
 use matup_core::output_band::OutputBand;
 use matup_core::progress::{Progress, Silent};
 use matup_core::resample::Border;
-use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::upsample::{route, RgbUpsampler};
-use matup_core::{Error, PluginSpec, Result};
+use matup_core::{Error, Result};
 
 pub use crate::features::{constant_features, features};
 pub use matup_core::tileable::{
     decide_tileable, detect_tileable, wrap_seam_ratio, SEAM_OVER_LARGEST_STEP,
 };
 
-/// Upsamples `material` as `config` says. Returns the HR material (height included when the
-/// input has one) and what the run did. Holds the whole output; [`upscale_streamed`] hands it
-/// over in bands instead.
+/// Upsamples `material` as `config` says: plans the run ([`Plan::new`]) and carries it out
+/// whole. Returns the HR material (height included when the input has one) and what the run
+/// did. [`upscale_streamed`] carries out a plan in bands instead.
 pub fn upscale(
     material: &Material,
     config: &Config,
     options: &RunOptions,
     progress: &dyn Progress,
 ) -> Result<(Material, RunReport)> {
-    let mut assembler = Assembler::new(output_size(material, config)?[1]);
-    let report = upscale_streamed(material, config, options, progress, &mut |first, band| {
-        assembler.add(first, &*band.to_material()?);
-        Ok(())
-    })?;
-    let mut result = assembler.finish().expect("a run makes at least one band");
+    let plan = Plan::new(material, config)?;
+    let (mut result, report) = upscale_whole(material, &plan, options, progress)?;
     result.origin = material.origin.clone();
     Ok((result, report))
 }
 
-/// The size `config` upsamples `material` to: [width, height] (an error for a size asked for
-/// that cannot be reached, [`Config::reach`]).
-pub fn output_size(material: &Material, config: &Config) -> Result<[usize; 2]> {
+/// [`upscale_streamed`], its bands assembled into one material.
+fn upscale_whole(
+    material: &Material,
+    plan: &Plan,
+    options: &RunOptions,
+    progress: &dyn Progress,
+) -> Result<(Material, RunReport)> {
     let input = [material.width(), material.height_px()];
-    Ok(config.reach(input)?.output_size(input))
+    let mut assembler = Assembler::new(plan.output_size(input)[1]);
+    let report = upscale_streamed(material, plan, options, progress, &mut |first, band| {
+        assembler.add(first, &*band.to_material()?);
+        Ok(())
+    })?;
+    Ok((
+        assembler.finish().expect("a run makes at least one band"),
+        report,
+    ))
 }
 
-/// [`upscale`], handing the output to `sink` in bands of whole rows, top to bottom, as they
-/// are finished: `sink(first_row, band)`, the band holding every map of the output's rows
-/// from `first_row` on. Within [`RunOptions::memory_limit`] the last level works a band at a
-/// time (levels before it are held whole: they are the next level's input). Where the run
-/// works on a GPU, the band's maps are still there: the sink brings back what it needs.
+/// Carries out `plan` on `material`, handing the output to `sink` in bands of whole rows, top
+/// to bottom, as they are finished: `sink(first_row, band)`, the band holding every map of
+/// the output's rows from `first_row` on. Within [`RunOptions::memory_limit`] the last level
+/// works a band at a time (levels before it are held whole: they are the next level's input).
+/// Where the run works on a GPU, the band's maps are still there: the sink brings back what
+/// it needs.
 pub fn upscale_streamed(
     material: &Material,
-    config: &Config,
+    plan: &Plan,
     options: &RunOptions,
     progress: &dyn Progress,
     sink: &mut dyn FnMut(usize, &OutputBand) -> Result<()>,
 ) -> Result<RunReport> {
-    config.validate()?;
     let input = [material.width(), material.height_px()];
-    let reach = config.reach(input)?;
-    let asked_size = config.size;
-    // A size asked for runs as the scale that reaches it.
-    let resolved;
-    let config = if asked_size.is_some() {
-        resolved = Config {
-            scale: reach.scale,
-            size: None,
-            ..config.clone()
-        };
-        &resolved
-    } else {
-        config
+    let Some(size) = plan.reach.shrink_to else {
+        if let Some(size) = plan.asked_size {
+            progress.note(&format!("output {size}: {}", plan.reach.describe()));
+        }
+        return run_levels(material, plan, options, progress, sink);
     };
-    if let Some(size) = reach.shrink_to {
-        // No whole scale reaches the size asked for: the output is made whole at the scale
-        // past it, then shrunk by area, and handed over as one band.
-        progress.note(&format!(
-            "output {}×{}: {}",
-            size[0],
-            size[1],
-            reach.describe()
-        ));
-        let mut assembler = Assembler::new(input[1] * reach.scale);
-        let mut report =
-            upscale_streamed(material, config, options, progress, &mut |first, band| {
-                assembler.add(first, &*band.to_material()?);
-                Ok(())
-            })?;
-        let whole = assembler.finish().expect("a run makes at least one band");
-        sink(0, &whole.area_resize(size[0], size[1]).into())?;
-        report.config.size = asked_size;
-        report.route = reach.describe();
-        report.output_size = size;
-        return Ok(report);
-    }
-    if let Some(size) = asked_size {
-        progress.note(&format!("output {size}: {}", reach.describe()));
-    }
+    // No whole scale reaches the size asked for: the output is made whole at the scale past
+    // it, then shrunk by area, and handed over as one band.
+    progress.note(&format!(
+        "output {}×{}: {}",
+        size[0],
+        size[1],
+        plan.reach.describe()
+    ));
+    let mut assembler = Assembler::new(input[1] * plan.reach.scale);
+    let report = run_levels(material, plan, options, progress, &mut |first, band| {
+        assembler.add(first, &*band.to_material()?);
+        Ok(())
+    })?;
+    let whole = assembler.finish().expect("a run makes at least one band");
+    sink(0, &whole.area_resize(size[0], size[1]).into())?;
+    Ok(report)
+}
+
+/// The run's levels, each one's output the next one's input, the last one's handed to `sink`:
+/// the notes on the input, the selection among the plan's candidates, then level by level.
+fn run_levels(
+    material: &Material,
+    plan: &Plan,
+    options: &RunOptions,
+    progress: &dyn Progress,
+    sink: &mut dyn FnMut(usize, &OutputBand) -> Result<()>,
+) -> Result<RunReport> {
     let start = Instant::now();
     let mut timings = Vec::new();
     let mut skipped = Vec::new();
-
-    let model: Arc<dyn ShadingModel> =
-        Arc::from(shading_model(&config.shading.parse::<PluginSpec>()?)?);
-    let source_says = (material.origin.as_ref()).and_then(|o| o.tiling.clone());
-    let (tileable, evidence) = match (config.tileable, source_says) {
-        (Some(t), _) => (t, None),
-        (None, Some((t, why))) => (t, Some(Err(why))),
-        (None, None) => {
-            let (tileable, evidence) = decide_tileable(material);
-            (tileable, Some(Ok(evidence)))
-        }
-    };
-    progress.note(&match &evidence {
-        Some(Err(why)) => format!(
-            "tileable: {} ({why}; --{}tileable decides otherwise)",
-            if tileable {
-                "yes, wrapped"
-            } else {
-                "no, mirrored"
-            },
-            if tileable { "no-" } else { "" }
-        ),
-        // Decided by what each wrong call costs: mirroring a tileable input seams its output,
-        // wrapping a crop costs little (docs/experiments/2026-11-26-seamless-by-default.md).
-        Some(Ok(e)) if tileable => format!(
-            "tileable: yes, wrapped (its wrap-around step is {e:.2}× its largest interior step; \
-             only past {SEAM_OVER_LARGEST_STEP} on both axes is it taken for a crop; \
-             --no-tileable mirrors)"
-        ),
-        Some(Ok(e)) => format!(
-            "tileable: no, mirrored (its wrap-around step is {e:.2}× its largest interior step \
-             on both axes: a crop; --tileable wraps)"
-        ),
-        None => format!(
-            "tileable: {} (as given)",
-            if tileable { "yes" } else { "no" }
-        ),
-    });
+    progress.note(&tiling_note(&plan.tiling));
     let sources: Vec<String> = (material.origin.iter())
         .flat_map(|o| o.sources().into_iter().chain(o.notes.iter().cloned()))
         .collect();
-    for note in &sources {
+    let stand_ins = stand_in_notes(material, &plan.setup.settings);
+    for note in sources.iter().chain(&stand_ins) {
         progress.note(note);
     }
-    let stand_ins = stand_in_notes(material, config);
-    for note in &stand_ins {
-        progress.note(note);
-    }
-    let run = |m: &Material, c: &Config, p: &dyn Progress| {
-        upscale(m, c, &RunOptions::default(), p).map(|(result, _)| result)
+    let (setup, selection) = select_candidate(material, plan, options, progress)?;
+    let upsampler_used = match options.oracle {
+        Some(_) => "oracle (exact renders of the true material)".to_string(),
+        None => setup.upsampler_name.clone(),
     };
-    let (chosen, selection) = choose_settings(
-        material,
-        config,
-        options.oracle.is_some(),
-        tileable,
-        &run,
-        progress,
-    )?;
-    let config = &chosen;
-    // The upsampler of the chosen settings: the selection may have changed it.
-    let (mut upsampler_used, upsampler) = choose_upsampler(config)?;
-    if options.oracle.is_some() {
-        upsampler_used = "oracle (exact renders of the true material)".into();
-    }
     if let Some(s) = &selection {
         timings.push(("select".to_string(), s.seconds));
     }
@@ -195,52 +145,30 @@ pub fn upscale_streamed(
     if material.anisotropy.is_some() || material.anisotropy_angle.is_some() {
         skipped.push("anisotropy maps: upsampled bilinearly, not learned".to_string());
     }
-    // Each level may upsample them differently (×8: the network at ×4, Lanczos-3 at ×2).
-    let carried_plan = CarriedPlan::of(&material.carried);
-    let describe_at = |(level, scale)| {
-        let how = carried_upsampling(
-            &config.at_level(level, scale, upsampler.native_scale()),
-            upsampler.as_ref(),
-            scale,
-            Border::for_tiling(tileable),
-        );
-        describe_carried(material, &carried_plan, &upsampler_used, how)
-    };
-    let by_level: Vec<Vec<String>> = (config.levels().into_iter().enumerate())
-        .map(describe_at)
-        .collect();
-    let carried = if by_level.iter().all(|d| *d == by_level[0]) {
-        by_level[0].clone()
-    } else {
-        (by_level.iter().enumerate())
-            .flat_map(|(i, lines)| lines.iter().map(move |l| format!("level {}: {l}", i + 1)))
-            .collect()
-    };
-    let lights = config.lights.build();
+    let carried = carried_by_level(material, setup, plan.tiling.border(), &upsampler_used);
     let stopping = StopsOnRequest {
-        inner: upsampler,
+        inner: setup.upsampler.as_ref(),
         progress,
     };
     let ctx = Context {
-        config,
-        model,
+        config: &setup.settings,
+        model: plan.shading.clone(),
         upsampler: &stopping,
         upsampler_name: &upsampler_used,
-        lights,
-        border: Border::for_tiling(tileable),
+        lights: setup.settings.lights.build(),
+        border: plan.tiling.border(),
         options,
         progress,
     };
 
-    let scales = config.levels();
     let mut levels = Vec::new();
     // The input itself for level 1 (no copy: at 4K² it is 600 MB), then each level's output.
     let mut current = Cow::Borrowed(material);
     let mut single_filter: Option<TrainedFilter> = None;
-    for (level, &scale) in scales.iter().enumerate() {
-        let last = level + 1 == scales.len();
+    for (index, level) in setup.levels.iter().enumerate() {
+        let last = index + 1 == setup.levels.len();
         // Levels before the last are the next one's input: assembled whole.
-        let mut assembler = (!last).then(|| Assembler::new(current.height_px() * scale));
+        let mut assembler = (!last).then(|| Assembler::new(current.height_px() * level.scale));
         let mut emit = |first: usize, band: &OutputBand| match assembler.as_mut() {
             Some(a) => {
                 a.add(first, &*band.to_material()?);
@@ -248,10 +176,14 @@ pub fn upscale_streamed(
             }
             None => sink(first, band),
         };
+        let ctx = Context {
+            config: &level.settings,
+            ..ctx.clone()
+        };
         let report = run_level(
             &current,
-            scale,
-            level,
+            level.scale,
+            index,
             &ctx,
             &mut single_filter,
             &mut timings,
@@ -268,22 +200,28 @@ pub fn upscale_streamed(
         .iter()
         .rev()
         .find_map(|l| l.training.epoch_losses.last().copied());
-    let [w, h] = reach.output_size(input);
+    let input = [material.width(), material.height_px()];
     drop(ctx); // it borrows the upsampler's name, which the report takes
     Ok(RunReport {
         matup_version: env!("CARGO_PKG_VERSION"),
         input_folder: material.origin.as_ref().map(|o| o.folder.clone()),
-        input_size: [material.width(), material.height_px()],
-        output_size: [w, h],
+        input_size: input,
+        output_size: plan.output_size(input),
         config: Config {
-            size: asked_size,
-            ..config.clone()
+            size: plan.asked_size,
+            ..setup.settings.clone()
         },
         upsampler_used,
-        route: reach.describe(),
-        tileable,
-        tiling_evidence: evidence.clone().and_then(Result::ok),
-        tiling_source: evidence.and_then(Result::err),
+        route: plan.reach.describe(),
+        tileable: plan.tiling.tileable,
+        tiling_evidence: match plan.tiling.grounds {
+            TilingGrounds::Edges(e) => Some(e),
+            _ => None,
+        },
+        tiling_source: match &plan.tiling.grounds {
+            TilingGrounds::Source(why) => Some(why.clone()),
+            _ => None,
+        },
         selection,
         levels,
         timings,
@@ -301,7 +239,102 @@ pub fn upscale_streamed(
     })
 }
 
-/// One ×`scale` level: unless there is nothing to learn (or `chain = "single"` reuses level
+/// The tiling decided, and how to decide otherwise, in words.
+fn tiling_note(tiling: &Tiling) -> String {
+    let tileable = tiling.tileable;
+    match &tiling.grounds {
+        TilingGrounds::Source(why) => format!(
+            "tileable: {} ({why}; --{}tileable decides otherwise)",
+            if tileable {
+                "yes, wrapped"
+            } else {
+                "no, mirrored"
+            },
+            if tileable { "no-" } else { "" }
+        ),
+        // Decided by what each wrong call costs: mirroring a tileable input seams its output,
+        // wrapping a crop costs little (docs/experiments/2026-11-26-seamless-by-default.md).
+        TilingGrounds::Edges(e) if tileable => format!(
+            "tileable: yes, wrapped (its wrap-around step is {e:.2}× its largest interior step; \
+             only past {SEAM_OVER_LARGEST_STEP} on both axes is it taken for a crop; \
+             --no-tileable mirrors)"
+        ),
+        TilingGrounds::Edges(e) => format!(
+            "tileable: no, mirrored (its wrap-around step is {e:.2}× its largest interior step \
+             on both axes: a crop; --tileable wraps)"
+        ),
+        TilingGrounds::Given => format!(
+            "tileable: {} (as given)",
+            if tileable { "yes" } else { "no" }
+        ),
+    }
+}
+
+/// The setup the run carries out: the plan's own, or with `select` on the best of its
+/// candidates validated one level down (not for the oracle, whose targets are the truth's).
+fn select_candidate<'a>(
+    material: &Material,
+    plan: &'a Plan,
+    options: &RunOptions,
+    progress: &dyn Progress,
+) -> Result<(&'a Setup, Option<SelectionReport>)> {
+    if plan.candidates.is_empty() || options.oracle.is_some() {
+        return Ok((&plan.setup, None));
+    }
+    let candidates: Vec<Candidate> = (plan.candidates.iter())
+        .map(|(name, c)| Candidate {
+            name: name.clone(),
+            config: c.settings.clone(),
+        })
+        .collect();
+    let run = |m: &Material, c: &Config, p: &dyn Progress| {
+        upscale(m, c, &RunOptions::default(), p).map(|(result, _)| result)
+    };
+    let chosen = choose_candidate(
+        material,
+        &candidates,
+        plan.setup.levels[0].scale,
+        plan.tiling.tileable,
+        plan.shading.as_ref(),
+        &run,
+        progress,
+    )?;
+    Ok(match chosen {
+        Some((best, report)) => (&plan.candidates[best].1, Some(report)),
+        None => (&plan.setup, None),
+    })
+}
+
+/// What upsamples the maps the material carries, in words: once, or level by level where the
+/// levels differ (×8: the network at ×4, Lanczos-3 at ×2).
+fn carried_by_level(
+    material: &Material,
+    setup: &Setup,
+    border: Border,
+    upsampler_name: &str,
+) -> Vec<String> {
+    let carried_plan = CarriedPlan::of(&material.carried);
+    let by_level: Vec<Vec<String>> = (setup.levels.iter())
+        .map(|level| {
+            let how = carried_upsampling(
+                &level.settings,
+                setup.upsampler.as_ref(),
+                level.scale,
+                border,
+            );
+            describe_carried(material, &carried_plan, upsampler_name, how)
+        })
+        .collect();
+    if by_level.iter().all(|d| *d == by_level[0]) {
+        by_level[0].clone()
+    } else {
+        (by_level.iter().enumerate())
+            .flat_map(|(i, lines)| lines.iter().map(move |l| format!("level {}: {l}", i + 1)))
+            .collect()
+    }
+}
+
+/// One ×`scale` level, `ctx` holding its settings: unless there is nothing to learn (or `chain = "single"` reuses level
 /// 1's filter), the residual base, LR renders, targets and training; then the output, band by
 /// band within the memory limit: residual base, inference, height. Hands each band's kept rows
 /// to `emit` and keeps the filter it trained in `single_filter`.
@@ -316,13 +349,6 @@ fn run_level(
     skipped: &mut Vec<String>,
     emit: &mut dyn FnMut(usize, &OutputBand) -> Result<()>,
 ) -> Result<LevelReport> {
-    let level_config = ctx
-        .config
-        .at_level(level, scale, ctx.upsampler.native_scale());
-    let ctx = &Context {
-        config: &level_config,
-        ..ctx.clone()
-    };
     let config = ctx.config;
     let tag = |stage: &str| format!("level {}: {stage}", level + 1);
     let reuse = config.chain == Chain::Single && level > 0 && single_filter.is_some();
@@ -652,7 +678,7 @@ fn stand_in_notes(material: &Material, config: &Config) -> Vec<String> {
     {
         return vec!["no material maps: each image is upscaled on its own".into()];
     }
-    let renders = config.train.epochs > 0 || config.select != crate::config::Selection::Off;
+    let renders = config.train.epochs > 0 || config.select != Selection::Off;
     stand_ins
         .into_iter()
         .map(|kind| {

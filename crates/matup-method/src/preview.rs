@@ -3,15 +3,14 @@
 //! from.
 
 use crate::bands::Assembler;
-use crate::config::Config;
+use crate::plan::Plan;
 use matup_core::lights::Light;
 use matup_core::map::Map;
 use matup_core::material::Material;
 use matup_core::output_band::OutputBand;
 use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{Border, Kernel};
-use matup_core::shading::shading_model;
-use matup_core::{PluginSpec, Result};
+use matup_core::Result;
 use matup_draw::labelled_sheet;
 
 /// `input` upsampled bilinearly to `output`'s size: what the preview and the viewer compare
@@ -137,20 +136,9 @@ fn bilinear_centre(
 
 /// `preview.png`: the bilinearly upsampled input (left) and the result (right), rendered
 /// under two training lights (rows), labelled. Large outputs show their central 512² texels.
-pub fn preview(
-    input: &Material,
-    output: &Material,
-    config: &Config,
-    tileable: bool,
-) -> Result<Map> {
+pub fn preview(input: &Material, output: &Material, plan: &Plan) -> Result<Map> {
     let size = [output.width(), output.height_px()];
-    preview_of_centre(
-        input,
-        &centre(output, preview_side(size)),
-        size,
-        config,
-        tileable,
-    )
+    preview_of_centre(input, &centre(output, preview_side(size)), size, plan)
 }
 
 /// [`preview`] from the output's central square alone (what [`PreviewWindow`] kept of an
@@ -159,20 +147,20 @@ pub fn preview_of_centre(
     input: &Material,
     result: &Material,
     output_size: [usize; 2],
-    config: &Config,
-    tileable: bool,
+    plan: &Plan,
 ) -> Result<Map> {
-    let border = Border::for_tiling(tileable);
+    let tileable = plan.tiling.tileable;
+    let border = plan.tiling.border();
     let side = preview_side(output_size);
     let baseline = bilinear_centre(input, output_size, side, tileable);
-    let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
-    let lights = config.lights.build();
+    let model = &plan.shading;
+    let lights = plan.setup.settings.lights.build();
     // A high light and a low one: shading detail shows at grazing angles.
     let by_height = |a: &&Light, b: &&Light| a.position[2].total_cmp(&b.position[2]);
     let high = *lights.iter().max_by(by_height).unwrap();
     let low = *lights
         .iter()
-        .filter(|l| l.position[2] > 0.3 * config.lights.distance)
+        .filter(|l| l.position[2] > 0.3 * plan.setup.settings.lights.distance)
         .min_by(by_height)
         .unwrap_or(&high);
     let options = RenderOptions {

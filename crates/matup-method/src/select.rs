@@ -13,8 +13,8 @@ use matup_core::lights::LightSetSpec;
 use matup_core::material::Material;
 use matup_core::progress::Progress;
 use matup_core::resample::Kernel;
-use matup_core::shading::shading_model;
-use matup_core::{PluginSpec, Result};
+use matup_core::shading::ShadingModel;
+use matup_core::Result;
 use matup_eval::metrics::evaluate;
 
 /// Held-out lights the candidates are scored under (as `matup eval`'s default).
@@ -133,12 +133,13 @@ pub fn too_small(material: &Material, scale: usize) -> Option<String> {
 pub type Upscale<'a> = &'a dyn Fn(&Material, &Config, &dyn Progress) -> Result<Material>;
 
 /// Validates `candidates` on `material` one level (`scale`) down with `upscale`, tiling as
-/// `tileable` says, and returns the index of the best with the report.
+/// `tileable` says and rendering by `model`, and returns the index of the best with the report.
 pub fn select(
     material: &Material,
     candidates: &[Candidate],
     scale: usize,
     tileable: bool,
+    model: &dyn ShadingModel,
     upscale: Upscale,
     progress: &dyn Progress,
 ) -> Result<(usize, SelectionReport)> {
@@ -155,8 +156,7 @@ pub fn select(
         config.select = Selection::Off;
         let quiet = Cancellable(progress);
         let result = upscale(&lower, &config, &quiet)?;
-        let model = shading_model(&config.shading.parse::<PluginSpec>()?)?;
-        let e = evaluate(material, &result, scale, model.as_ref(), &lights)?;
+        let e = evaluate(material, &result, scale, model, &lights)?;
         scores.push(CandidateScore {
             name: candidate.name.clone(),
             render_psnr: e.render_psnr,
@@ -192,32 +192,30 @@ impl Progress for Cancellable<'_> {
     }
 }
 
-/// The settings to run: `config` itself, or with `select` on the best of its candidates
-/// validated one scale down, each upsampled by `upscale` (the pipeline). Not for the oracle
-/// (`oracle`), whose targets are the truth's.
-pub fn choose_settings(
+/// With `select` on, the index of the best of `candidates` (the plan's) validated one level
+/// (`scale`) down, each upsampled by `upscale` (the pipeline) and rendered by `model`, with the
+/// report; none where the material is too small to validate.
+pub fn choose_candidate(
     material: &Material,
-    config: &Config,
-    oracle: bool,
+    candidates: &[Candidate],
+    scale: usize,
     tileable: bool,
+    model: &dyn ShadingModel,
     upscale: Upscale,
     progress: &dyn Progress,
-) -> Result<(Config, Option<SelectionReport>)> {
-    if config.select == Selection::Off || oracle {
-        return Ok((config.clone(), None));
-    }
-    let scale = config.levels()[0];
+) -> Result<Option<(usize, SelectionReport)>> {
     if let Some(why) = too_small(material, scale) {
         progress.note(&format!(
             "select: settings as configured; no validation one scale down ({why})"
         ));
-        return Ok((config.clone(), None));
+        return Ok(None);
     }
-    let candidates = candidates(config);
-    let (best, report) = select(material, &candidates, scale, tileable, upscale, progress)?;
+    let (best, report) = select(
+        material, candidates, scale, tileable, model, upscale, progress,
+    )?;
     progress.note(&format!(
         "select: {} (validated at {}×{})",
         report.chosen, report.validation_size[0], report.validation_size[1]
     ));
-    Ok((candidates[best].config.clone(), Some(report)))
+    Ok(Some((best, report)))
 }

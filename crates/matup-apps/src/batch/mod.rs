@@ -33,6 +33,7 @@ use crate::view::write_run_view;
 use matup_core::io::{is_image_file, load_material, write_atomic, LoadOptions, SaveOptions};
 use matup_core::progress::{Progress, Silent};
 use matup_core::{Error, Result};
+use matup_method::plan::check_settings;
 use matup_method::Config;
 
 /// How a batch runs.
@@ -156,7 +157,7 @@ pub fn run_batch(
     options: &BatchOptions,
     progress: &dyn BatchProgress,
 ) -> Result<BatchReport> {
-    options.config.validate()?;
+    check_settings(&options.config)?;
     if let (Ok(r), Ok(o)) = (root.canonicalize(), out.canonicalize()) {
         if r == o {
             return Err(Error::file(

@@ -1,0 +1,371 @@
+//! A run's plan: the settings and the material made, once, into what the pipeline carries
+//! out. The output size becomes a scale and its levels, each level gets its settings, the
+//! tiling is decided, the shading model is loaded and the upsampler chosen; with `select` on,
+//! each candidate setting is planned the same way. Every check and every choice of a run is
+//! made here: the pipeline, folder runs and the Python package receive the plan.
+
+use std::sync::Arc;
+
+use crate::config::{Config, Selection, TargetSize, LEVEL_SCALES, SCALES};
+use crate::select::candidates;
+use matup_core::material::Material;
+use matup_core::resample::Border;
+use matup_core::shading::{shading_model, ShadingModel};
+use matup_core::tileable::decide_tileable;
+use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
+use matup_core::{Error, PluginSpec, Result};
+
+/// What a run of one material carries out.
+#[derive(Clone)]
+pub struct Plan {
+    /// The size asked for, as given (the settings' `size`; the setup's is resolved).
+    pub asked_size: Option<TargetSize>,
+    pub reach: Reach,
+    pub tiling: Tiling,
+    pub shading: Arc<dyn ShadingModel>,
+    /// The settings as they run and the upsampler chosen for them.
+    pub setup: Setup,
+    /// With `select` on, each candidate setting's setup (`crate::select::candidates`), in
+    /// order of preference; empty otherwise.
+    pub candidates: Vec<(String, Setup)>,
+}
+
+/// Settings ready to run: validated, each level's settings derived and the upsampler chosen.
+#[derive(Clone)]
+pub struct Setup {
+    /// The settings, with a size asked for resolved into the scale that reaches it (`size`
+    /// none, `scale` that one).
+    pub settings: Config,
+    /// Each level's scale and settings, the first level first.
+    pub levels: Vec<Level>,
+    /// The upsampler `settings.upsampler` names, or for `auto` the one chosen.
+    pub upsampler: Arc<dyn RgbUpsampler>,
+    pub upsampler_name: String,
+}
+
+/// One ×`scale` level of a run, with the settings as it runs them ([`Config::at_level`]).
+#[derive(Clone)]
+pub struct Level {
+    pub scale: usize,
+    pub settings: Config,
+}
+
+/// Whether the material is taken to tile, and on what grounds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tiling {
+    pub tileable: bool,
+    pub grounds: TilingGrounds,
+}
+
+/// Why a material is taken to tile or not.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TilingGrounds {
+    /// The settings say so (`tileable`, `--tileable`, `--no-tileable`).
+    Given,
+    /// Its source says so (an exporter's layout, a model's samplers), in words.
+    Source(String),
+    /// Its edges: the wrap-around step over its largest interior step
+    /// (`matup_core::tileable::decide_tileable`).
+    Edges(f32),
+}
+
+impl Tiling {
+    /// The settings' word, else the material's source's, else its edges'.
+    pub fn of(material: &Material, settings: &Config) -> Tiling {
+        let source_says = (material.origin.as_ref()).and_then(|o| o.tiling.clone());
+        let (tileable, grounds) = match (settings.tileable, source_says) {
+            (Some(t), _) => (t, TilingGrounds::Given),
+            (None, Some((t, why))) => (t, TilingGrounds::Source(why)),
+            (None, None) => {
+                let (tileable, evidence) = decide_tileable(material);
+                (tileable, TilingGrounds::Edges(evidence))
+            }
+        };
+        Tiling { tileable, grounds }
+    }
+
+    /// How the borders are read: wrapped where the material tiles, mirrored otherwise.
+    pub fn border(&self) -> Border {
+        Border::for_tiling(self.tileable)
+    }
+}
+
+impl Plan {
+    /// Plans a run of `material` with `settings`: refused, saying why, where the settings
+    /// cannot run (a bad value, an unknown or unfitting upsampler or shading model, a size
+    /// that cannot be reached).
+    pub fn new(material: &Material, settings: &Config) -> Result<Plan> {
+        settings.validate()?;
+        let reach = Reach::of(settings, [material.width(), material.height_px()])?;
+        let resolved = Config {
+            scale: reach.scale,
+            size: None,
+            ..settings.clone()
+        };
+        let candidates = match resolved.select {
+            Selection::Off => Vec::new(),
+            _ => (candidates(&resolved).into_iter())
+                .map(|c| Ok((c.name, Setup::new(c.config)?)))
+                .collect::<Result<_>>()?,
+        };
+        Ok(Plan {
+            asked_size: settings.size,
+            reach,
+            tiling: Tiling::of(material, settings),
+            shading: Arc::from(shading_model(&settings.shading.parse::<PluginSpec>()?)?),
+            setup: Setup::new(resolved)?,
+            candidates,
+        })
+    }
+
+    /// This plan for another material (a folder's images of another size than its maps),
+    /// upsampled to `size` where one is asked for: its own reach and tiling, the same setup
+    /// where the reach's scale is the same.
+    pub fn for_other_material(
+        &self,
+        material: &Material,
+        size: Option<TargetSize>,
+    ) -> Result<Plan> {
+        let settings = Config {
+            size,
+            ..self.reported_settings()
+        };
+        let reach = Reach::of(&settings, [material.width(), material.height_px()])?;
+        if reach.scale != self.reach.scale {
+            return Plan::new(material, &settings);
+        }
+        Ok(Plan {
+            asked_size: size,
+            reach,
+            tiling: Tiling::of(material, &settings),
+            ..self.clone()
+        })
+    }
+
+    /// The output's size for the `input`-sized material planned: [width, height].
+    pub fn output_size(&self, input: [usize; 2]) -> [usize; 2] {
+        self.reach.output_size(input)
+    }
+
+    /// The settings as the run reports them: as run, with the size asked for.
+    pub fn reported_settings(&self) -> Config {
+        Config {
+            size: self.asked_size,
+            ..self.setup.settings.clone()
+        }
+    }
+}
+
+impl Setup {
+    /// The setup of `settings`, validated and resolved to a scale.
+    fn new(settings: Config) -> Result<Setup> {
+        let (upsampler_name, upsampler) = choose_upsampler(&settings)?;
+        let levels = (levels_of(settings.scale).into_iter().enumerate())
+            .map(|(level, scale)| Level {
+                scale,
+                settings: settings.at_level(level, scale, upsampler.native_scale()),
+            })
+            .collect();
+        Ok(Setup {
+            settings,
+            levels,
+            upsampler: Arc::from(upsampler),
+            upsampler_name,
+        })
+    }
+
+    /// The scale of each level: `[4, 4]` for ×16, `[4, 2]` for ×8, `[s]` otherwise.
+    pub fn scales(&self) -> Vec<usize> {
+        self.levels.iter().map(|l| l.scale).collect()
+    }
+}
+
+/// Refuses settings that cannot run on any material (a bad value, an unknown upsampler or
+/// shading model) before a sweep or a batch begins: the checks of [`Plan::new`] that do not
+/// depend on the material.
+pub fn check_settings(settings: &Config) -> Result<()> {
+    settings.validate()?;
+    shading_model(&settings.shading.parse::<PluginSpec>()?)?;
+    choose_upsampler(settings)?;
+    Ok(())
+}
+
+/// How a run reaches its output size: the whole scale its levels make, and the size that
+/// output is then shrunk to where the size asked for is no whole scale.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reach {
+    pub scale: usize,
+    pub shrink_to: Option<[usize; 2]>,
+}
+
+impl Reach {
+    /// How a run of an `input`-sized material reaches its output: the settings' `scale`, or
+    /// where a `size` is
+    /// asked for, the smallest supported scale that reaches it and the shrink to it. A size
+    /// smaller than the input, past ×16, or of another shape than the input is refused.
+    pub fn of(settings: &Config, input: [usize; 2]) -> Result<Reach> {
+        let Some(size) = settings.size else {
+            return Ok(Reach {
+                scale: settings.scale,
+                shrink_to: None,
+            });
+        };
+        let [w, h] = input;
+        let target = match size.height {
+            Some(height) => [size.width, height],
+            None if w == h => [size.width; 2],
+            None => {
+                return Err(Error::Invalid(format!(
+                    "size {size}: the input is {w}×{h}, not square; give both sides \
+                     (--size {}x{}) or a --scale",
+                    size.width,
+                    size.width * h / w
+                )))
+            }
+        };
+        // Sides rounded by one texel to keep the shape are the same ratio.
+        if target[0].abs_diff(target[1] * w / h) > 1 && target[1].abs_diff(target[0] * h / w) > 1 {
+            return Err(Error::Invalid(format!(
+                "size {size}: {}×{} is not the shape of the {w}×{h} input",
+                target[0], target[1]
+            )));
+        }
+        if target[0] <= w || target[1] <= h {
+            return Err(Error::Invalid(format!(
+                "size {size}: not larger than the {w}×{h} input (matup upsamples only)"
+            )));
+        }
+        let reaches = |s: usize| w * s >= target[0] && h * s >= target[1];
+        let Some(&scale) = SCALES.iter().find(|&&s| reaches(s)) else {
+            return Err(Error::Invalid(format!(
+                "size {size}: more than ×16 of the {w}×{h} input"
+            )));
+        };
+        let exact = [w * scale, h * scale] == target;
+        Ok(Reach {
+            scale,
+            shrink_to: (!exact).then_some(target),
+        })
+    }
+
+    /// The output's size for an input of `input` texels.
+    pub fn output_size(&self, input: [usize; 2]) -> [usize; 2] {
+        self.shrink_to.unwrap_or(input.map(|n| n * self.scale))
+    }
+
+    /// The route in words, for the note and `run.json`: `×4` or `×2, then area-shrunk to
+    /// 1536×1536`.
+    pub fn describe(&self) -> String {
+        match self.shrink_to {
+            Some([w, h]) => format!("×{}, then area-shrunk to {w}×{h}", self.scale),
+            None => format!("×{}", self.scale),
+        }
+    }
+}
+
+/// SPAN tuned for material maps (models/README.md has its card). It was trained and measured
+/// through the per-map base back-projected onto the LR maps, and only there beats stock SPAN:
+/// each map on its own it loses (docs/experiments/2026-11-25-blend-default.md), and renders are not what it
+/// learned. So `auto` runs it first only where [`Config::upsamples_maps_only`].
+pub const MATERIAL_NETWORK: &str = "onnx:span_x4_materials";
+
+/// What `upsampler = "auto"` tries otherwise (and after [`MATERIAL_NETWORK`], where a models
+/// folder lacks it), best first: stock SPAN, then Lanczos.
+pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
+
+/// The levels that make a supported `scale`: the scale itself for one level, else ×4 and then
+/// the rest (a network's ×4 goes first, on the smaller input).
+pub fn levels_of(scale: usize) -> Vec<usize> {
+    if LEVEL_SCALES.contains(&scale) {
+        vec![scale]
+    } else {
+        vec![4, scale / 4]
+    }
+}
+
+/// `spec` on the run's `device`: an ONNX network that names no device of its own runs there
+/// (the other upsamplers run on the CPU).
+pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
+    let names_one = (spec.argument.iter()).any(|a| a.split(',').any(|o| o.starts_with("device=")));
+    if spec.name == "onnx" && device != "cpu" && !names_one {
+        let argument = spec.argument.take().unwrap_or_default();
+        spec.argument = Some(format!("{argument},device={device}"));
+    }
+    spec
+}
+
+/// The configured upsampler, or for `auto` the first that loads and supports every level's
+/// scale: [`MATERIAL_NETWORK`] where the configuration only upsamples maps, then
+/// [`AUTO_UPSAMPLERS`].
+pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
+    let levels = levels_of(config.scale);
+    let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
+        let spec = on_device(spec.parse()?, &config.device);
+        let up = upsampler(&spec)?;
+        for &s in &levels {
+            check_scale(&spec.name, up.as_ref(), s)?;
+        }
+        Ok(up)
+    };
+    if config.upsampler != "auto" {
+        return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
+    }
+    let material = config.upsamples_maps_only().then_some(MATERIAL_NETWORK);
+    let mut last = None;
+    for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
+        match fits(spec) {
+            Ok(up) => return Ok((spec.to_string(), up)),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.expect("AUTO_UPSAMPLERS is not empty"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_size_is_reached_by_the_smallest_scale_past_it() {
+        let with = |size: &str| Config {
+            size: Some(size.parse().unwrap()),
+            ..Config::default()
+        };
+        let reach = |size: &str, input: [usize; 2]| Reach::of(&with(size), input);
+        let exact = |scale| Reach {
+            scale,
+            shrink_to: None,
+        };
+        assert_eq!(reach("4K", [1024, 1024]).unwrap(), exact(4));
+        assert_eq!(reach("2048", [1024, 1024]).unwrap(), exact(2));
+        assert_eq!(reach("8192x4096", [1024, 512]).unwrap(), exact(8));
+        // Between scales: the next one past, then shrunk.
+        let between = reach("1536", [1024, 1024]).unwrap();
+        assert_eq!(between.scale, 2);
+        assert_eq!(between.shrink_to, Some([1536, 1536]));
+        assert_eq!(between.output_size([1024, 1024]), [1536, 1536]);
+        assert_eq!(between.describe(), "×2, then area-shrunk to 1536×1536");
+        assert_eq!(reach("400", [128, 128]).unwrap().scale, 4);
+        // Refused, saying why.
+        for (size, input, why) in [
+            ("1K", [1024, 1024], "not larger"),
+            ("512", [1024, 1024], "not larger"),
+            ("17K", [1024, 1024], "more than ×16"),
+            ("2048", [1024, 512], "not square"),
+            ("2048x2048", [1024, 512], "not the shape"),
+        ] {
+            let e = reach(size, input).unwrap_err().to_string();
+            assert!(e.contains(why), "{size} of {input:?}: {e}");
+        }
+        for bad in ["", "0", "4M", "x512", "1.5K"] {
+            assert!(bad.parse::<TargetSize>().is_err(), "{bad}");
+        }
+        // A scale alone is its own reach; the size round-trips through TOML.
+        assert_eq!(Reach::of(&Config::default(), [64, 64]).unwrap(), exact(4));
+        let c = with("4096x2048");
+        assert_eq!(Config::from_toml(&c.to_toml(), "s.toml").unwrap(), c);
+        assert_eq!(levels_of(16), vec![4, 4]);
+        assert_eq!(levels_of(8), vec![4, 2]);
+        assert_eq!(levels_of(3), vec![3]);
+    }
+}
