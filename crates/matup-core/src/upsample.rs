@@ -69,6 +69,40 @@ pub trait RgbUpsampler: Send + Sync {
     }
 }
 
+/// An upsampler shared (a process's cache of loaded networks hands out clones) is the
+/// upsampler itself.
+impl<T: RgbUpsampler + ?Sized> RgbUpsampler for std::sync::Arc<T> {
+    fn native_scale(&self) -> Option<usize> {
+        (**self).native_scale()
+    }
+    fn context(&self) -> usize {
+        (**self).context()
+    }
+    fn tile(&self) -> Option<usize> {
+        (**self).tile()
+    }
+    fn batches_images(&self) -> bool {
+        (**self).batches_images()
+    }
+    fn serves_smaller_scales(&self) -> bool {
+        (**self).serves_smaller_scales()
+    }
+    fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        (**self).upsample(images, scale, border)
+    }
+    fn device(&self) -> Option<Device> {
+        (**self).device()
+    }
+    fn upsample_on_device(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+    ) -> Result<Vec<Tensor>> {
+        (**self).upsample_on_device(images, scale, border)
+    }
+}
+
 /// An upsampler that interpolates with a separable kernel (the registry's `bilinear`,
 /// `bicubic` and `lanczos3`). [`KernelUpsampler::on`] a device, it leaves its outputs there,
 /// for a run whose other maps a network upsamples on that device.

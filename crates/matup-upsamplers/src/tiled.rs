@@ -1,9 +1,12 @@
 //! Tiled inference, for networks that run on pieces of an image: each image cut into tiles
 //! read with context on every side (as the border says: wrapped for tileable materials),
 //! several tiles a call, and the outputs blended with feathered weights where their kept
-//! regions overlap, so memory stays bounded and no seam shows. The ONNX networks and a
-//! caller's own function ([`crate::function`]) share it.
+//! regions overlap, so memory stays bounded and no seam shows: on the host
+//! ([`upsample_tiled`]), or on a device with the images and outputs kept there
+//! ([`upsample_tiled_on_device`]). The ONNX networks and a caller's own function
+//! ([`crate::function`]) share it.
 
+use matup_core::candle_core::{self, Tensor};
 use matup_core::resample::Border;
 use matup_core::{Map, Result};
 use rayon::prelude::*;
@@ -286,6 +289,110 @@ pub fn upsample_tiled(
         .into_iter()
         .map(|acc| Map::from_planar(out_w, out_h, 3, acc))
         .collect())
+}
+
+/// Runs a network on a batch of tile windows on a device, `[n, 3, h, w]` in, the outputs
+/// `[n, 3, h·scale, w·scale]` in [0, 1] out.
+pub type RunTilesOnDevice<'a> = dyn FnMut(Tensor) -> candle_core::Result<Tensor> + 'a;
+
+/// [`upsample_tiled`] on a device: `uploaded` (`[images, 3, h, w]`, already in the network's
+/// range and order) stays there; the tiles' windows are cut, run `batch` a call (filled to
+/// `fixed_batch` with copies where the network fixes it), weighted and blended along each
+/// row of tiles there, and each finished row of tiles is added into its output there. The
+/// outputs, `[3, h·scale, w·scale]` each, stay on the device.
+pub fn upsample_tiled_on_device(
+    uploaded: &Tensor,
+    border: Border,
+    tiling: Tiling,
+    batch: usize,
+    fixed_batch: Option<usize>,
+    run: &mut RunTilesOnDevice,
+) -> candle_core::Result<Vec<Tensor>> {
+    let s = tiling.scale;
+    let (images, _, h, w) = uploaded.dims4()?;
+    let device = uploaded.device();
+    let Tiling {
+        rows,
+        columns,
+        row_starts,
+        column_starts,
+        kept_rows,
+        kept_columns,
+        grid,
+        ..
+    } = tiling;
+    // Each tile's window as indices into the image (the border decides beyond its edges).
+    let window = |start: usize, axis: TileAxis, len: usize| {
+        let at = |t: usize| border.index(start as isize + t as isize - axis.before as isize, len);
+        let indices: Vec<u32> = (0..axis.window).map(|t| at(t) as u32).collect();
+        Tensor::from_vec(indices, axis.window, device)
+    };
+    let row_windows = (row_starts.iter().map(|&y| window(y, rows, h)))
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    let column_windows = (column_starts.iter().map(|&x| window(x, columns, w)))
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    let weights =
+        |k: &Kept, shape: (usize, usize, usize)| Tensor::from_slice(&k.weights, shape, device);
+    let row_weights = (kept_rows
+        .iter()
+        .map(|k| weights(k, (1, k.weights.len(), 1))))
+    .collect::<candle_core::Result<Vec<_>>>()?;
+    let column_weights = (kept_columns
+        .iter()
+        .map(|k| weights(k, (1, 1, k.weights.len()))))
+    .collect::<candle_core::Result<Vec<_>>>()?;
+
+    let (out_w, out_h) = (w * s, h * s);
+    let outputs = (0..images)
+        .map(|_| Tensor::zeros((3, out_h, out_w), candle_core::DType::F32, device))
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    // The row of tiles being blended: (image, row of tiles) and its [3, rows, out_w] sum.
+    let mut strip: Option<((usize, usize), Tensor)> = None;
+    let finish = |strip: Option<((usize, usize), Tensor)>| -> candle_core::Result<()> {
+        let Some(((k, i), sum)) = strip else {
+            return Ok(());
+        };
+        let kept = &kept_rows[i];
+        let (to, n) = (kept.in_image, kept.weights.len());
+        let blended = (outputs[k].narrow(1, to, n)? + sum)?.contiguous()?;
+        outputs[k].slice_set(&blended, 1, to)
+    };
+    for group in grid.chunks(batch) {
+        let mut windows = (group.iter())
+            .map(|&(k, i, j)| {
+                uploaded
+                    .narrow(0, k, 1)?
+                    .index_select(&row_windows[i], 2)?
+                    .index_select(&column_windows[j], 3)
+            })
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        if let Some(fixed) = fixed_batch {
+            // Fill the fixed batch with copies; their outputs are not used.
+            let last = windows.last().expect("chunks are not empty").clone();
+            windows.resize(fixed, last);
+        }
+        let out = run(Tensor::cat(&windows, 0)?)?;
+        for (b, &(k, i, j)) in group.iter().enumerate() {
+            let (kr, kc) = (&kept_rows[i], &kept_columns[j]);
+            let tile = out
+                .get(b)?
+                .narrow(1, kr.in_tile, kr.weights.len())?
+                .narrow(2, kc.in_tile, kc.weights.len())?
+                .broadcast_mul(&row_weights[i])?
+                .broadcast_mul(&column_weights[j])?;
+            let right = out_w - kc.in_image - kc.weights.len();
+            let tile = tile.pad_with_zeros(2, kc.in_image, right)?;
+            strip = match strip.take() {
+                Some((at, sum)) if at == (k, i) => Some((at, (sum + tile)?)),
+                done => {
+                    finish(done)?;
+                    Some(((k, i), tile))
+                }
+            };
+        }
+    }
+    finish(strip)?;
+    Ok(outputs)
 }
 
 #[cfg(test)]

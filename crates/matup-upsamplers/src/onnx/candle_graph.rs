@@ -6,7 +6,7 @@
 use candle_core::{DType, Device, Tensor};
 
 use super::convnet::{last_uses, Graph, Op, Step};
-use super::kernels::{Arith, Padding, PerTexel};
+use super::nhwc::{Arith, Padding, PerTexel};
 use super::source::ModelInfo;
 
 /// Runs `steps` on `input`, the network's input values (slot 0) as `[B, C, H, W]`;

@@ -4,7 +4,7 @@
 
 use matup_kernels::gemm::gemm;
 
-use super::kernels::{in_row_blocks, pad, Features, Padding, PerTexel};
+use super::nhwc::{in_row_blocks, pad, Features, Padding, PerTexel};
 use super::winograd;
 
 /// Output rows per parallel block of a convolution: its partial sums stay in cache.

@@ -5,7 +5,7 @@
 //! 3×3 convolutions reach about a fifth of onnxruntime's speed on our CPUs (see
 //! docs/experiments/2026-11-21-onnx-executor-speed.md), and no pure-Rust runtime does better (candle-onnx needs protoc
 //! to build). This executor reads the ONNX graph itself and runs those few operators on
-//! texel-major feature maps ([`super::kernels`]): 3×3 convolutions by Winograd's algorithm
+//! texel-major feature maps ([`super::nhwc`]): 3×3 convolutions by Winograd's algorithm
 //! ([`super::winograd`]), all matrix products on the `gemm` crate's SIMD kernels. Graphs with any other operator or attribute are refused
 //! with the reason, and the caller runs them with tract.
 
@@ -17,7 +17,7 @@ use tract_onnx::pb::{
 };
 
 use super::conv::Conv;
-use super::kernels::{self, Arith, Features, Padding, PerTexel};
+use super::nhwc::{self, Arith, Features, Padding, PerTexel};
 
 /// Why a graph cannot run here.
 #[derive(Debug)]
@@ -595,20 +595,18 @@ impl ConvNet {
             let input = |k: usize| written(&values, step.inputs[k]);
             let out = match &step.op {
                 Op::Conv(conv, then) => conv.apply(input(0), padding, then),
-                Op::Concat => {
-                    kernels::concat(&(0..step.inputs.len()).map(input).collect::<Vec<_>>())
-                }
-                Op::DepthToSpace { block, crd } => kernels::depth_to_space(input(0), *block, *crd),
-                Op::ResizeNearest(factor) => kernels::resize_nearest(input(0), *factor),
+                Op::Concat => nhwc::concat(&(0..step.inputs.len()).map(input).collect::<Vec<_>>()),
+                Op::DepthToSpace { block, crd } => nhwc::depth_to_space(input(0), *block, *crd),
+                Op::ResizeNearest(factor) => nhwc::resize_nearest(input(0), *factor),
                 Op::PerTexel(chain) => {
                     let mut x = self.first_input(&mut values, i);
-                    kernels::per_texel(chain, &mut x);
+                    nhwc::per_texel(chain, &mut x);
                     x
                 }
                 Op::Arith(arith) => {
                     let mut x = self.first_input(&mut values, i);
                     let b = written(&values, step.inputs[1]);
-                    kernels::arith_in_place(&mut x.data, &b.data, *arith);
+                    nhwc::arith_in_place(&mut x.data, &b.data, *arith);
                     x
                 }
             };

@@ -10,7 +10,7 @@
 use matup_kernels::gemm::gemm;
 use matup_kernels::with_avx2;
 
-use super::kernels::{in_row_blocks, pad, Features, Padding, PerTexel};
+use super::nhwc::{in_row_blocks, pad, Features, Padding, PerTexel};
 
 /// Channels per lane group; Winograd is used where both channel counts are multiples of it.
 pub const LANES: usize = 8;
