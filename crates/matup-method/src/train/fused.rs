@@ -6,18 +6,18 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
-use candle_core::{CpuStorage, Device, InplaceOp1, Layout, Tensor, Var};
+use candle_core::{CpuStorage, Layout, Tensor};
 use rayon::prelude::*;
 
+use super::adam::FusedAdam;
 use super::examples::Examples;
 use super::stepper::{CrossBatch, LossTerms, Shading, Stepper};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES};
-use crate::op::{contiguous_f32, storage_f32, TexelLossOp, TexelObjective};
+use crate::op::{contiguous_f32, TexelLossOp, TexelObjective};
 use matup_core::material::texel_position;
 use matup_core::shading::{Svbrdf, Texel};
-use matup_core::{Error, Result};
-use matup_kernels::with_avx2;
+use matup_core::Result;
 
 /// Steps on the CPU with the fused kernels, training the filter's own weights.
 pub(super) struct FusedStepper<'a> {
@@ -29,7 +29,7 @@ pub(super) struct FusedStepper<'a> {
     consistency_weight: Option<f32>,
     /// Texels per step (the objective is evaluated in chunks of as many).
     batch: usize,
-    adam: Adam,
+    adam: FusedAdam,
 }
 
 impl<'a> FusedStepper<'a> {
@@ -48,7 +48,7 @@ impl<'a> FusedStepper<'a> {
             group,
             consistency_weight,
             batch,
-            adam: Adam::new(&filter.vars),
+            adam: FusedAdam::new(&filter.vars),
         }
     }
 }
@@ -313,173 +313,6 @@ impl candle_core::CustomOp1 for Consistency {
             .expect("forward ran before backward");
         let grads = Tensor::from_vec(grads, arg.shape(), arg.device())?;
         Ok(Some(grads.broadcast_mul(grad_res)?))
-    }
-}
-
-/// Adam (Kingma & Ba, default betas), fused into one pass per weight tensor. Hand-written
-/// so its state can be checkpointed (a resumed run equals an uninterrupted one).
-pub struct Adam {
-    pub step: u64,
-    moments: Vec<Mutex<(Vec<f32>, Vec<f32>)>>,
-}
-
-const BETA1: f32 = 0.9;
-const BETA2: f32 = 0.999;
-const EPSILON: f32 = 1e-8;
-
-/// Elements per parallel task of the update.
-const ADAM_CHUNK: usize = 4096;
-
-struct AdamUpdate<'a> {
-    /// The gradient in parts (one per part of the batch), summed here.
-    grads: &'a [&'a [f32]],
-    moments: &'a Mutex<(Vec<f32>, Vec<f32>)>,
-    learning_rate: f32,
-    step: u64,
-}
-
-impl InplaceOp1 for AdamUpdate<'_> {
-    fn name(&self) -> &'static str {
-        "matup-adam"
-    }
-    fn cpu_fwd(&self, storage: &mut CpuStorage, layout: &Layout) -> candle_core::Result<()> {
-        let Some((start, end)) = layout.contiguous_offsets() else {
-            candle_core::bail!("adam needs contiguous weights");
-        };
-        let CpuStorage::F32(weights) = storage else {
-            candle_core::bail!("adam needs f32 weights");
-        };
-        let weights = &mut weights[start..end];
-        let mut guard = self.moments.lock().unwrap();
-        let (m, v) = &mut *guard;
-        let c1 = 1.0 - BETA1.powi(self.step as i32);
-        let c2 = 1.0 - BETA2.powi(self.step as i32);
-        // w -= lr·(m/c1) / (√(v/c2) + ε), with the bias corrections as factors.
-        let (step_size, v_scale) = (self.learning_rate / c1, 1.0 / c2);
-        weights
-            .par_chunks_mut(ADAM_CHUNK)
-            .zip(
-                m.par_chunks_mut(ADAM_CHUNK)
-                    .zip(v.par_chunks_mut(ADAM_CHUNK)),
-            )
-            .enumerate()
-            .for_each(|(k, (w, (m, v)))| {
-                let range = k * ADAM_CHUNK..k * ADAM_CHUNK + w.len();
-                let mut sum = [0f32; ADAM_CHUNK];
-                let g = &mut sum[..w.len()];
-                g.copy_from_slice(&self.grads[0][range.clone()]);
-                for p in &self.grads[1..] {
-                    g.iter_mut()
-                        .zip(&p[range.clone()])
-                        .for_each(|(g, p)| *g += p);
-                }
-                with_avx2!(adam_chunk(w, g, m, v, step_size, v_scale));
-            });
-        Ok(())
-    }
-}
-
-/// Adam's update of one chunk of weights (zipped, not indexed: without bounds checks the
-/// loop vectorises).
-#[inline(always)]
-fn adam_chunk(
-    w: &mut [f32],
-    g: &[f32],
-    m: &mut [f32],
-    v: &mut [f32],
-    step_size: f32,
-    v_scale: f32,
-) {
-    for (((w, g), m), v) in w.iter_mut().zip(g).zip(m).zip(v) {
-        *m = BETA1 * *m + (1.0 - BETA1) * g;
-        *v = BETA2 * *v + (1.0 - BETA2) * g * g;
-        *w -= step_size * *m / ((*v * v_scale).sqrt() + EPSILON);
-    }
-}
-
-impl Adam {
-    pub fn new(vars: &[Var]) -> Adam {
-        Adam {
-            step: 0,
-            moments: vars
-                .iter()
-                .map(|v| Mutex::new((vec![0.0; v.elem_count()], vec![0.0; v.elem_count()])))
-                .collect(),
-        }
-    }
-
-    /// One update of every weight from its gradient, the sum of its parts in `parts`.
-    pub fn update(
-        &mut self,
-        vars: &[Var],
-        parts: &[candle_core::backprop::GradStore],
-        learning_rate: f64,
-    ) -> Result<()> {
-        self.step += 1;
-        for (var, moments) in vars.iter().zip(&self.moments) {
-            let grads = (parts.iter())
-                .filter_map(|p| p.get(var.as_tensor()))
-                .map(|g| g.contiguous())
-                .collect::<candle_core::Result<Vec<_>>>()?;
-            if grads.is_empty() {
-                continue;
-            }
-            let storages: Vec<_> = grads.iter().map(|g| g.storage_and_layout()).collect();
-            let slices = (storages.iter())
-                .map(|(storage, layout)| storage_f32(storage, layout))
-                .collect::<candle_core::Result<Vec<_>>>()?;
-            let update = AdamUpdate {
-                grads: &slices,
-                moments,
-                learning_rate: learning_rate as f32,
-                step: self.step,
-            };
-            var.as_tensor().inplace_op1(&update)?;
-        }
-        Ok(())
-    }
-
-    fn tensors(&self) -> Result<HashMap<String, Tensor>> {
-        let mut out = HashMap::new();
-        for (i, m) in self.moments.iter().enumerate() {
-            let (m, v) = &*m.lock().unwrap();
-            out.insert(
-                format!("adam_m{i}"),
-                Tensor::from_slice(m, m.len(), &Device::Cpu)?,
-            );
-            out.insert(
-                format!("adam_v{i}"),
-                Tensor::from_slice(v, v.len(), &Device::Cpu)?,
-            );
-        }
-        Ok(out)
-    }
-
-    fn restore(
-        &mut self,
-        tensors: &HashMap<String, Tensor>,
-        step: u64,
-        origin: &Path,
-    ) -> Result<()> {
-        for (i, slot) in self.moments.iter().enumerate() {
-            let get = |k: String| -> Result<Vec<f32>> {
-                let t = tensors
-                    .get(&k)
-                    .ok_or_else(|| Error::file(origin, format!("checkpoint lacks {k}")))?;
-                Ok(t.to_vec1::<f32>()?)
-            };
-            let (m, v) = (get(format!("adam_m{i}"))?, get(format!("adam_v{i}"))?);
-            let mut guard = slot.lock().unwrap();
-            if m.len() != guard.0.len() || v.len() != guard.1.len() {
-                return Err(Error::file(
-                    origin,
-                    "checkpoint optimiser state does not fit this filter",
-                ));
-            }
-            *guard = (m, v);
-        }
-        self.step = step;
-        Ok(())
     }
 }
 

@@ -2,6 +2,7 @@
 //! in [`examples`]; the steps themselves in [`fused`] (CPU kernels) or [`tensor`] (candle
 //! operations, any device), behind [`stepper`]'s interface.
 
+pub mod adam;
 mod examples;
 mod fused;
 mod stepper;

@@ -1,6 +1,6 @@
 //! The tensor backend: the filter as candle-nn layers, decoding, the shading model's tensor
 //! form and the loss as candle operations on any candle device, differentiated by candle's
-//! autograd and stepped by candle-nn's AdamW. It needs no hand-derived gradient, so a
+//! autograd and stepped by the tensor form of Adam ([`super::adam::Adam`]). It needs no hand-derived gradient, so a
 //! shading model with only a tensor form trains here; it computes what the fused backend
 //! computes (tested to 1e-3 of its loss after a short run).
 
@@ -9,7 +9,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 use candle_core::{Device, Tensor, Var};
-use candle_nn::{AdamW, Linear, Module, Optimizer, ParamsAdamW, VarMap};
+use candle_nn::{Linear, Module, VarMap};
+
+use super::adam::Adam;
 
 use super::examples::Examples;
 use super::stepper::{CrossBatch, LossTerms, Stepper};
@@ -32,7 +34,9 @@ pub(super) struct TensorStepper<'a> {
     device: Device,
     varmap: VarMap,
     layers: Vec<Linear>,
-    optimizer: AdamW,
+    /// The map's variables, in the order the optimiser's moments follow.
+    vars: Vec<Var>,
+    optimizer: Adam,
     /// Texels per step (the objective is evaluated in chunks of as many).
     batch: usize,
     steps: u64,
@@ -77,16 +81,9 @@ impl<'a> TensorStepper<'a> {
                 vars.insert(tensor_name(2 * index + 1), b);
             }
         }
-        let optimizer = AdamW::new(
-            varmap.all_vars(),
-            ParamsAdamW {
-                lr: 1e-4,
-                beta1: 0.9,
-                beta2: 0.999,
-                eps: 1e-8,
-                weight_decay: 0.0,
-            },
-        )?;
+        let vars = varmap.all_vars();
+        // Each step sets its scheduled learning rate.
+        let optimizer = Adam::new(&vars, 0.0, 0.0)?;
         Ok(TensorStepper {
             filter,
             main,
@@ -95,6 +92,7 @@ impl<'a> TensorStepper<'a> {
             device: device.clone(),
             varmap,
             layers,
+            vars,
             optimizer,
             batch,
             steps: 0,
@@ -181,8 +179,8 @@ impl Stepper for TensorStepper<'_> {
         let loss = self.loss(indices)?;
         let value = loss.to_scalar::<f32>()? as f64;
         if value.is_finite() {
-            self.optimizer.set_learning_rate(lr);
-            self.optimizer.backward_step(&loss)?;
+            self.optimizer.learning_rate = lr;
+            self.optimizer.update(&self.vars, &loss.backward()?)?;
             self.steps += 1;
         }
         Ok(value)
@@ -200,8 +198,8 @@ impl Stepper for TensorStepper<'_> {
         self.steps
     }
 
-    /// The weights in the filter's layout. candle-nn's AdamW keeps its moments to itself, so
-    /// a resumed tensor run starts them afresh (the fused backend's resume is exact).
+    /// The weights in the filter's layout. The optimiser's moments are not checkpointed, so a
+    /// resumed tensor run starts them afresh (the fused backend's resume is exact).
     fn state(&self) -> Result<HashMap<String, Tensor>> {
         let vars = self
             .varmap
