@@ -8,7 +8,7 @@
 
 use std::path::PathBuf;
 
-use matup::convention::{measure, Signal};
+use matup::normal_convention::{measure, Signal};
 use matup::{load_material, LoadOptions, Map, NormalConvention};
 
 fn folders() -> Vec<(String, PathBuf)> {

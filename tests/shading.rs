@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use candle_core::{Device, Tensor, Var};
-use matup::op::{RenderLoss, TexelLossOp};
+use matup::texel_loss_op::{RenderLoss, TexelLossOp};
 use matup::{
     shading_model, shading_models, Light, LightSample, LossNorm, PluginSpec, ShadingModel, Svbrdf,
     Texel,
@@ -496,7 +496,7 @@ fn ggx_fused_override_equals_the_generic_loop() {
 
 #[test]
 fn every_tensor_form_equals_the_fused_loss_and_gradient() {
-    use matup::tensor::{params_tensor, texel_losses, LightTensors, SvbrdfTensors};
+    use matup::tensor_shading::{params_tensor, texel_losses, LightTensors, SvbrdfTensors};
     let lights = matup::LightSetSpec::default().build();
     let mut checked_models = 0;
     for registration in shading_models().unwrap() {

@@ -62,7 +62,7 @@ pub fn run(args: &BatchArgs) -> anyhow::Result<()> {
     );
     let config = args.settings.config()?;
     // On a GPU one material's files are written while the next is upscaled.
-    let in_flight = if matup_core::tensor::cuda_ordinal(&config.device)?.is_some() {
+    let in_flight = if matup_core::device::cuda_ordinal(&config.device)?.is_some() {
         2
     } else {
         1

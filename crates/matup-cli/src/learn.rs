@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use matup_core::tensor::parse_device;
+use matup_core::device::parse_device;
 use matup_learn::config::Target;
 use matup_learn::{train, LearnConfig};
 

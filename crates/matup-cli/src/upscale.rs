@@ -143,7 +143,7 @@ pub struct SettingsArgs {
     /// result). Training stops earlier when a held-out loss stops improving.
     #[arg(long)]
     pub epochs: Option<usize>,
-    /// How training steps run: fused (matup's CPU kernels), tensor (candle operations, any
+    /// How training steps run: fused (matup's own CPU code), tensor (candle operations, any
     /// device; the shading model needs a tensor form) or auto (fused on the CPU, tensor on a
     /// GPU).
     #[arg(long)]

@@ -1,7 +1,7 @@
 //! Colour transfer functions: sRGB encoding and the display transform renders are compared in.
 
 use candle_core::Tensor;
-use matup_kernels::simd::{fast_exp, fast_ln};
+use matup_simd::simd::{fast_exp, fast_ln};
 
 /// sRGB-encoded value in [0, 1] → linear.
 #[inline]

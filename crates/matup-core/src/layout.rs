@@ -15,7 +15,8 @@ use std::str::FromStr;
 use candle_core::Tensor;
 
 use crate::color::{linear_to_srgb, linear_to_srgb_tensor, srgb_to_linear};
-use crate::kinds::{FileFormat, MapKind, NormalConvention};
+use crate::file_format::FileFormat;
+use crate::map_kind::{MapKind, NormalConvention};
 use crate::{Error, Result};
 
 /// How a channel's values are stored in its file.

@@ -10,16 +10,18 @@
 //! runner, pages and experiments in `matup-apps`; each crate builds only on the ones below it.
 
 pub mod color;
-pub mod convention;
+pub mod device;
 pub mod device_maps;
 mod error;
+mod file_format;
 pub mod io;
-mod kinds;
 pub mod layout;
 pub mod lights;
 pub mod loss;
 pub mod map;
+mod map_kind;
 pub mod material;
+pub mod normal_convention;
 pub mod output_band;
 pub mod plugin;
 pub mod progress;
@@ -27,7 +29,7 @@ pub mod render;
 pub mod resample;
 pub mod shading;
 pub mod svbrdf;
-pub mod tensor;
+pub mod tensor_shading;
 pub mod tileable;
 pub mod upsample;
 

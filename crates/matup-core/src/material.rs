@@ -15,10 +15,10 @@ pub const MIN_ALPHA: f32 = 2e-3;
 /// Height displaces the shading point by `DISPLACEMENT · (h − ½)`.
 pub const DISPLACEMENT: f32 = 0.01;
 
-pub use crate::kinds::{
-    BlockQuality, DdsCodec, DdsFormat, FileFormat, MapKind, NormalConvention, SampleDepth,
-    DDS_CODECS,
+pub use crate::file_format::{
+    BlockQuality, DdsCodec, DdsFormat, FileFormat, SampleDepth, DDS_CODECS,
 };
+pub use crate::map_kind::{MapKind, NormalConvention};
 
 /// Where a loaded material came from, so it can be saved the way it was given.
 #[derive(Clone, Debug, PartialEq)]

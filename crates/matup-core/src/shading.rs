@@ -5,7 +5,7 @@ use crate::color::{display, display_with_derivative};
 use crate::lights::{Light, LightSample};
 use crate::loss::LossNorm;
 use crate::plugin::{find_registration, sorted_registry, PluginOption, PluginSpec, Registration};
-use crate::tensor::TensorShading;
+use crate::tensor_shading::TensorShading;
 use crate::{Error, Result};
 
 pub use crate::svbrdf::{Svbrdf, Texel, VIEW};

@@ -1,6 +1,6 @@
 //! What a shading model shades: the parameters of one texel ([`Svbrdf`], also the layout of
 //! their gradients), a texel with its position, and the view direction. Below both the
-//! models ([`crate::shading`]) and their tensor forms ([`crate::tensor`]).
+//! models ([`crate::shading`]) and their tensor forms ([`crate::tensor_shading`]).
 
 /// The view direction: the camera is orthographic and looks down −z.
 pub const VIEW: [f32; 3] = [0.0, 0.0, 1.0];

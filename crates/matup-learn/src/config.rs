@@ -85,7 +85,7 @@ pub struct LearnConfig {
     #[serde(default)]
     pub height_guide: bool,
     /// Share of the training crops cut into tiles with grout between them, made of the
-    /// corpus's own maps (`tiles.rs`: tiled floors and walls, which the corpus lacks); 0: none.
+    /// corpus's own maps (`floor_tiles.rs`: tiled floors and walls, which the corpus lacks); 0: none.
     #[serde(default)]
     pub tiled_share: f64,
     /// Share of the training crops taken at half the material's resolution (cut twice as
@@ -101,7 +101,7 @@ pub struct LearnConfig {
     pub context: usize,
     /// Weight of the grid term beside the renders (maps only): how far the steps across the
     /// output's `scale`-texel block edges lie from the truth's block-edge ratio to the steps
-    /// inside its blocks, either way, over the batch ([`crate::grid::grid_term`]); 0: none.
+    /// inside its blocks, either way, over the batch ([`crate::grid_term::grid_term`]); 0: none.
     #[serde(default)]
     pub grid_weight: f64,
     /// Pull toward the base model's weights: after each step every weight `w` moves by

@@ -11,8 +11,8 @@ use matup_method::per_map::encode_for_upsampler;
 use matup_method::pipeline::{constant_features, features};
 use rand::Rng;
 
-use crate::shipped::IMAGES_PER_MATERIAL;
-use crate::tiles::TileLayout;
+use crate::floor_tiles::TileLayout;
+use crate::post_process::IMAGES_PER_MATERIAL;
 
 /// Materials loaded from a corpus folder.
 pub struct Corpus {

@@ -8,7 +8,7 @@ use matup_core::render::{render, RenderOptions};
 use matup_core::resample::{upsample, Border, Kernel};
 use matup_core::shading::shading_model;
 use matup_core::shading::tensor_form;
-use matup_core::tensor::{params_tensor, LightTensors};
+use matup_core::tensor_shading::{params_tensor, LightTensors};
 use matup_core::upsample::{serving_smaller_scales, RgbUpsampler};
 use matup_core::{
     load_material, save_material, Dihedral, LightSetSpec, LoadOptions, Map, Material, PluginSpec,
@@ -17,7 +17,7 @@ use matup_core::{
 use matup_learn::config::{Target, Trained};
 use matup_learn::data::{lr_features, network_inputs};
 use matup_learn::net::TrainableNet;
-use matup_learn::shipped::{decode_outputs, shown, BackProjection, Route};
+use matup_learn::post_process::{decode_outputs, shown, BackProjection, Route};
 use matup_learn::train::{centre, one_pass_defaults, shipped_maps};
 use matup_learn::{train, LearnConfig};
 use matup_method::config::{FilterConfig, ResidualBase};
@@ -97,7 +97,7 @@ fn shipped_against_matup(scale: usize) -> (f32, f32) {
         residual_base: ResidualBase::Upsampler,
         back_project: true,
         self_ensemble: 1,
-        // Training does not model the chroma clamp (crates/matup-learn/src/shipped.rs).
+        // Training does not model the chroma clamp (crates/matup-learn/src/post_process.rs).
         clamp_chroma: false,
         ..FilterConfig::default()
     };
@@ -174,7 +174,7 @@ fn the_training_pipeline_computes_what_matup_upscale_ships() {
         residual_base: ResidualBase::Upsampler,
         back_project: true,
         self_ensemble: 1,
-        // Training does not model the chroma clamp (crates/matup-learn/src/shipped.rs).
+        // Training does not model the chroma clamp (crates/matup-learn/src/post_process.rs).
         clamp_chroma: false,
         ..FilterConfig::default()
     };

@@ -13,7 +13,6 @@ pub mod features;
 pub mod filter;
 mod fit;
 pub mod height;
-pub mod op;
 pub mod per_map;
 pub mod pipeline;
 pub mod plan;
@@ -22,6 +21,7 @@ pub mod report;
 pub mod residual;
 pub mod select;
 pub mod targets;
+pub mod texel_loss_op;
 pub mod train;
 
 pub use config::Config;

@@ -155,7 +155,7 @@ fn run_levels(
         model: plan.shading.clone(),
         upsampler: &stopping,
         upsampler_name: &upsampler_used,
-        lights: setup.settings.lights.build(),
+        lights: plan.lights.clone(),
         border: plan.tiling.border(),
         options,
         progress,

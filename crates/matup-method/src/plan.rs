@@ -8,6 +8,7 @@ use std::sync::Arc;
 
 use crate::config::{Config, Selection, TargetSize, LEVEL_SCALES, SCALES};
 use crate::select::candidates;
+use matup_core::lights::Light;
 use matup_core::material::Material;
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
@@ -23,6 +24,8 @@ pub struct Plan {
     pub reach: Reach,
     pub tiling: Tiling,
     pub shading: Arc<dyn ShadingModel>,
+    /// The training light set the renders are made under (`[lights]`).
+    pub lights: Vec<Light>,
     /// The settings as they run and the upsampler chosen for them.
     pub setup: Setup,
     /// With `select` on, each candidate setting's setup (`crate::select::candidates`), in
@@ -113,6 +116,7 @@ impl Plan {
             reach,
             tiling: Tiling::of(material, settings),
             shading: Arc::from(shading_model(&settings.shading.parse::<PluginSpec>()?)?),
+            lights: settings.lights.build(),
             setup: Setup::new(resolved)?,
             candidates,
         })

@@ -154,7 +154,7 @@ pub fn preview_of_centre(
     let side = preview_side(output_size);
     let baseline = bilinear_centre(input, output_size, side, tileable);
     let model = &plan.shading;
-    let lights = plan.setup.settings.lights.build();
+    let lights = &plan.lights;
     // A high light and a low one: shading detail shows at grazing angles.
     let by_height = |a: &&Light, b: &&Light| a.position[2].total_cmp(&b.position[2]);
     let high = *lights.iter().max_by(by_height).unwrap();

@@ -5,13 +5,13 @@ use std::f32::consts::PI;
 
 use matup_core::material::MIN_ALPHA;
 use matup_core::shading::{ShadingModel, ShadingModelRegistration, Svbrdf};
-use matup_core::tensor::TensorShading;
+use matup_core::tensor_shading::TensorShading;
 use matup_core::{LightSample, Result};
 
 use crate::dual::{Dual, Real};
 use glam::Vec3;
 
-use crate::conventions::{half_vector, DENOMINATOR_MIN, DOT_MAX, DOT_MIN, TINY_LENGTH2};
+use crate::clamps::{half_vector, DENOMINATOR_MIN, DOT_MAX, DOT_MIN, TINY_LENGTH2};
 
 /// Anisotropic GGX: roughness `alpha_t = alpha·(1 + k)` along the tangent and
 /// `alpha_b = alpha·(1 − k)` along the bitangent (each ≥ 2e-3), the tangent at

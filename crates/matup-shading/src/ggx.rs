@@ -6,13 +6,13 @@ use std::f32::consts::PI;
 use matup_core::color::display_with_derivative;
 use matup_core::material::MIN_ALPHA;
 use matup_core::shading::{texel_loss, ShadingModel, ShadingModelRegistration, Svbrdf, Texel};
-use matup_core::tensor::TensorShading;
+use matup_core::tensor_shading::TensorShading;
 use matup_core::{Light, LightSample, LossNorm, Result};
-use matup_kernels::with_avx2;
+use matup_simd::with_avx2;
 
 use glam::Vec3;
 
-use crate::conventions::*;
+use crate::clamps::*;
 
 /// Cook–Torrance with GGX distribution, Smith height-correlated visibility and Schlick
 /// Fresnel; Lambertian diffuse `(1 − m)·base/π`, `F0 = 0.04(1 − m) + m·base`.

@@ -3,12 +3,12 @@
 use std::f32::consts::PI;
 
 use matup_core::shading::{ShadingModel, ShadingModelRegistration, Svbrdf};
-use matup_core::tensor::TensorShading;
+use matup_core::tensor_shading::TensorShading;
 use matup_core::{LightSample, Result};
 
 use glam::Vec3;
 
-use crate::conventions::{clamp_dot, normalize, normalize_backward};
+use crate::clamps::{clamp_dot, normalize, normalize_backward};
 
 /// Lambertian reflection of the base colour: `I · N·L · base / π`. Metallic and roughness
 /// are ignored.

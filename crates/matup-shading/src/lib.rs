@@ -2,11 +2,11 @@
 //! Cook–Torrance), `ggx-aniso` (anisotropic GGX) and `lambert` (diffuse only).
 
 mod aniso;
-mod conventions;
+mod clamps;
 mod dual;
 mod ggx;
 mod lambert;
-mod tensors;
+mod tensor_forms;
 
 pub use aniso::GgxAniso;
 pub use ggx::Ggx;

@@ -29,7 +29,7 @@ fn median(f: impl FnMut()) -> f64 {
 
 fn main() {
     let device_name = std::env::var("MATUP_BENCH_DEVICE").unwrap_or_else(|_| "cuda".into());
-    let device = matup_core::tensor::parse_device(&device_name).unwrap();
+    let device = matup_core::device::parse_device(&device_name).unwrap();
     let size: usize = std::env::var("MATUP_BENCH_SIZE")
         .ok()
         .and_then(|s| s.parse().ok())

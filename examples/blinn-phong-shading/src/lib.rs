@@ -8,7 +8,9 @@ use std::f32::consts::PI;
 use matup_core::candle_core::{Result as CandleResult, Tensor};
 use matup_core::material::MIN_ALPHA;
 use matup_core::shading::{ShadingModel, ShadingModelRegistration, Svbrdf, VIEW};
-use matup_core::tensor::{dot, normalize, view, LightTensors, SvbrdfTensors, TensorShading};
+use matup_core::tensor_shading::{
+    dot, normalize, view, LightTensors, SvbrdfTensors, TensorShading,
+};
 use matup_core::{LightSample, Result};
 
 /// Cosines are clamped as the built-in models clamp them.

@@ -5,7 +5,7 @@ use std::process::Command;
 
 use matup_blinn_phong as _;
 use matup_core::candle_core::{Device, Tensor};
-use matup_core::tensor::{params_tensor, LightTensors, SvbrdfTensors};
+use matup_core::tensor_shading::{params_tensor, LightTensors, SvbrdfTensors};
 use matup_core::{shading_model, LightSetSpec, PluginSpec, Svbrdf};
 
 #[test]

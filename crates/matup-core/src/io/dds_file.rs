@@ -12,7 +12,7 @@ use dds::{
 };
 
 use crate::color::{linear_to_srgb, srgb_to_linear};
-use crate::kinds::{BlockQuality, DdsCodec, DdsFormat, DDS_CODECS};
+use crate::file_format::{BlockQuality, DdsCodec, DdsFormat, DDS_CODECS};
 use crate::layout::Stored;
 use crate::map::Map;
 use crate::{Error, Result};
@@ -347,9 +347,10 @@ impl Level {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::file_format::FileFormat;
     use crate::io::image_file::read_image;
     use crate::io::stream::{write_whole, ImageWriter, WriteHints};
-    use crate::kinds::{FileFormat, NormalConvention};
+    use crate::map_kind::NormalConvention;
 
     /// A smooth test image (block formats are judged on content like a map's).
     fn image(channels: usize, size: usize) -> Map {

@@ -20,12 +20,12 @@ pub use image_file::{
 pub use stream::{ChannelRows, ImageWriter, Samples, WriteHints};
 pub use write::{check_output_folder, retag, MaterialWriter, Names, SaveOptions};
 
-use crate::convention;
 use crate::layout::{Packing, Stored};
 use crate::map::Map;
 use crate::material::{
     normalize_normals, Carried, FileFormat, MapKind, Material, MaterialOrigin, NormalConvention,
 };
+use crate::normal_convention;
 use crate::{Error, Result};
 pub use image_file::encode_png8;
 use read::Reader;
@@ -314,7 +314,7 @@ fn settle_convention(
     if let Some((exporter, c)) = exporter {
         return (*c, format!("{exporter} files hold {c} normals"));
     }
-    let measured = convention::measure(normal, height);
+    let measured = normal_convention::measure(normal, height);
     let mut evidence = format!("measured: {}", measured.signal);
     if measured.weak {
         evidence += "; weak evidence, a guess: --normal-convention decides";

@@ -1,5 +1,5 @@
 //! One training step's loss: random pairs from the training materials, the network's maps
-//! through what `matup upscale` does with them ([`crate::shipped`]), rendered under random
+//! through what `matup upscale` does with them ([`crate::post_process`]), rendered under random
 //! lights against the truth's renders (or compared as maps, or as normals).
 
 use std::f64::consts::TAU;
@@ -12,7 +12,7 @@ use matup_core::render::{render, RenderOptions};
 use matup_core::resample::Border;
 use matup_core::shading::tensor_form;
 use matup_core::shading::{shading_model, ShadingModel};
-use matup_core::tensor::{loss_norm, params_tensor, LightTensors};
+use matup_core::tensor_shading::{loss_norm, params_tensor, LightTensors};
 use matup_core::{Error, LightSetSpec, LossNorm, Material, PluginSpec, Result};
 use matup_method::filter::FEATURES;
 use rand::rngs::StdRng;
@@ -23,9 +23,9 @@ use crate::config::{LearnConfig, Target};
 use crate::data::{
     lr_features, material_extent, network_inputs, normal_inputs, random_pair, Corpus, Pair,
 };
-use crate::grid::grid_term;
+use crate::grid_term::grid_term;
 use crate::net::TrainableNet;
-use crate::shipped::{
+use crate::post_process::{
     decode_normal_image, decode_outputs, normal_chord, normal_params, shown, BackProjection, Route,
 };
 use matup_method::filter::decode::shading_params;

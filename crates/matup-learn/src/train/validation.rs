@@ -19,7 +19,7 @@ use super::loss::{shipped_normals, CROP_RENDERS};
 use crate::config::{LearnConfig, Target};
 use crate::data::{Corpus, Pair};
 use crate::net::TrainableNet;
-use crate::shipped::BackProjection;
+use crate::post_process::BackProjection;
 
 /// A validation material: the true crop and its LR version.
 pub struct ValMaterial {

@@ -231,7 +231,7 @@ impl Config {
         if self.lights.count == 0 {
             return bad("lights.count must be at least 1".into());
         }
-        let on_cpu = matup_core::tensor::cuda_ordinal(&self.device)?.is_none();
+        let on_cpu = matup_core::device::cuda_ordinal(&self.device)?.is_none();
         let tensor = t.backend.resolve(on_cpu) == Backend::Tensor;
         if t.backend == Backend::Fused && !on_cpu {
             return bad(format!(

@@ -62,7 +62,7 @@ impl PriorConfig {
     }
 }
 
-/// Why a tensor-backend run refuses β and γ (their ops have CPU kernels only).
+/// Why a tensor-backend run refuses β and γ (their ops run on the CPU only).
 pub(crate) const FUSED_ONLY_TERMS: &str = "train.lr_consistency (β) and train.cross_scale (γ) are trained by the fused backend only (train.backend = fused, on the CPU)";
 
 /// Training.

@@ -310,7 +310,7 @@ pub enum Selection {
 pub enum Backend {
     /// `fused` on the CPU, `tensor` on any other device.
     Auto,
-    /// matup's CPU kernels: the render loss with each model's hand-derived gradient.
+    /// matup's own CPU code: the render loss with each model's hand-derived gradient.
     Fused,
     /// candle tensor operations on any device, differentiated by candle's autograd (the
     /// shading model needs a tensor form).

@@ -4,7 +4,7 @@
 
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 
-use crate::op::contiguous_f32;
+use crate::texel_loss_op::contiguous_f32;
 
 /// `max(x, slope·x)` for 0 ≤ slope < 1 (ReLU at 0).
 pub struct LeakyRelu(pub f32);

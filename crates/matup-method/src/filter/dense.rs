@@ -7,13 +7,13 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use crate::op::{contiguous_f32, storage_f32};
-use matup_kernels::gemm::gemm;
+use crate::texel_loss_op::{contiguous_f32, storage_f32};
+use matup_simd::gemm::gemm;
 
 /// How a layer's `O × I` weight matrix is stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum WeightLayout {
-    /// `[out][in]`, as the hidden layers store theirs (candle's `Linear` convention).
+    /// `[out][in]`, as the hidden layers store theirs (as candle's `Linear` does).
     OutputMajor,
     /// `[in][out]`: the first layer's `[dy][dx][c][h]`, which folding reads in rows of C·H.
     InputMajor,

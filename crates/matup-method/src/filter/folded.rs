@@ -13,7 +13,7 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use super::geometry::WindowGeometry;
-use matup_kernels::gemm::product;
+use matup_simd::gemm::product;
 
 #[inline]
 fn axpy(alpha: f32, x: &[f32], y: &mut [f32]) {

@@ -12,9 +12,9 @@ use candle_core::backprop::GradStore;
 use candle_core::{CpuStorage, Device, InplaceOp1, Layout, Tensor, Var};
 use rayon::prelude::*;
 
-use crate::op::storage_f32;
+use crate::texel_loss_op::storage_f32;
 use matup_core::{Error, Result};
-use matup_kernels::with_avx2;
+use matup_simd::with_avx2;
 
 const BETA1: f64 = 0.9;
 const BETA2: f64 = 0.999;

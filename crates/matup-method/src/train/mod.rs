@@ -1,12 +1,13 @@
 //! Training the filter: the epoch loop with early stopping, and checkpoints. Its examples are
-//! in [`examples`]; the steps themselves in [`fused`] (CPU kernels) or [`tensor`] (candle
-//! operations, any device), behind [`stepper`]'s interface.
+//! in [`examples`]; the steps themselves in [`fused_backend`] (hand-written CPU code) or
+//! [`tensor_backend`] (candle operations, any device), behind [`stepper`]'s interface, both
+//! stepped by [`adam`].
 
 pub mod adam;
 mod examples;
-mod fused;
+mod fused_backend;
 mod stepper;
-mod tensor;
+mod tensor_backend;
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -20,9 +21,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{Backend, EarlyStopConfig, Schedule, TrainConfig, FUSED_ONLY_TERMS};
 use crate::filter::{Filter, FEATURES};
+use matup_core::device::parse_device;
 use matup_core::progress::Progress;
 use matup_core::shading::ShadingModel;
-use matup_core::tensor::parse_device;
 use matup_core::{Error, Result};
 
 pub use examples::Examples;
@@ -215,10 +216,10 @@ pub fn train(
     let device = parse_device(device_name)?;
     let backend = training_backend(config, &device, shading.model.as_ref(), cross.is_some())?;
     let mut stepper: Box<dyn Stepper + '_> = match backend {
-        Backend::Tensor => Box::new(tensor::TensorStepper::new(
+        Backend::Tensor => Box::new(tensor_backend::TensorStepper::new(
             filter, main, &terms, batch, &device,
         )?),
-        Backend::Fused | Backend::Auto => Box::new(fused::FusedStepper::new(
+        Backend::Fused | Backend::Auto => Box::new(fused_backend::FusedStepper::new(
             filter,
             main,
             &terms,

@@ -22,8 +22,8 @@ pub struct Shading {
     pub norm: LossNorm,
 }
 
-/// How training steps are computed: the fused CPU kernels ([`fused`]) or candle tensor
-/// operations on any device ([`tensor`]). The epoch loop, early stopping and checkpoints
+/// How training steps are computed: the fused CPU code (`fused_backend`) or candle tensor
+/// operations on any device (`tensor_backend`). The epoch loop, early stopping and checkpoints
 /// are the same for both.
 pub(super) trait Stepper {
     /// One optimiser step at learning rate `lr` on the main texels `indices` (whole groups of

@@ -2,7 +2,7 @@
 //! ([`super::winograd`]) where the shape allows, else as matrix products over shifted views of
 //! the padded input.
 
-use matup_kernels::gemm::gemm;
+use matup_simd::gemm::gemm;
 
 use super::nhwc::{in_row_blocks, pad, Features, Padding, PerTexel};
 use super::winograd;

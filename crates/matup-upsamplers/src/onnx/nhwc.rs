@@ -4,9 +4,9 @@
 
 use rayon::prelude::*;
 
-use matup_kernels::denormals::flushing_denormals;
-use matup_kernels::simd::fast_exp;
-use matup_kernels::with_avx2;
+use matup_simd::denormals::flushing_denormals;
+use matup_simd::simd::fast_exp;
+use matup_simd::with_avx2;
 
 /// `height × width` texels of `channels` values each, texel-major.
 #[derive(Clone, Debug, PartialEq)]

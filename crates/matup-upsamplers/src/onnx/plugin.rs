@@ -117,7 +117,7 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
     }
     let values = parse_options("onnx", Some(options), OPTIONS)?;
     let device = values["device"].clone();
-    let on_gpu = matup_core::tensor::cuda_ordinal(&device)?.is_some();
+    let on_gpu = matup_core::device::cuda_ordinal(&device)?.is_some();
     let precision = Precision::parse(&values["precision"]).ok_or_else(|| Error::Plugin {
         plugin: "onnx".into(),
         message: format!(

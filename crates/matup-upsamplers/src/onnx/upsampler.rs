@@ -414,10 +414,10 @@ fn candle_engine(
 ) -> Result<Engine> {
     let graph =
         Graph::from_model(proto).map_err(|e| source.error("matup's executor cannot run it", e))?;
-    if matup_core::tensor::cuda_ordinal(device)?.is_some() {
+    if matup_core::device::cuda_ordinal(device)?.is_some() {
         keep_f32_convolutions(precision);
     }
-    let device = matup_core::tensor::parse_device(device)?;
+    let device = matup_core::device::parse_device(device)?;
     let on = format!("on {}", device_name(&device));
     let failed = |e: candle_core::Error| source.error(&on, e);
     let net = TensorNet::new(graph, &device, precision).map_err(failed)?;

@@ -7,8 +7,8 @@
 //!
 //! Channels are processed 8 at a time as `[f32; 8]` lanes, which the compiler vectorises.
 
-use matup_kernels::gemm::gemm;
-use matup_kernels::with_avx2;
+use matup_simd::gemm::gemm;
+use matup_simd::with_avx2;
 
 use super::nhwc::{in_row_blocks, pad, Features, Padding, PerTexel};
 

@@ -9,8 +9,8 @@
 
 use std::fmt;
 
-use crate::kinds::NormalConvention;
 use crate::map::Map;
+use crate::map_kind::NormalConvention;
 
 /// The height signal is used when the height explains the normals across the rows at least
 /// this well (|correlation| of x with the height's slope along the rows) and the signal down

@@ -1,4 +1,4 @@
-//! METHOD.md's numerical conventions shared by the shading models: clamped cosines, floored
+//! METHOD.md's numerical clamps shared by the shading models: clamped cosines, floored
 //! denominators and lengths. Vector arithmetic is glam's; what glam does not have is the
 //! floored normalisation (glam's `normalize` returns NaN or a zero vector near 0, where the
 //! method needs a finite length and gradient) and its backward pass.

@@ -14,12 +14,12 @@ use super::examples::Examples;
 use super::stepper::{CrossBatch, LossTerms, Shading, Stepper};
 use crate::filter::decode::decode;
 use crate::filter::{Filter, FEATURES};
-use crate::op::{contiguous_f32, TexelLossOp, TexelObjective};
+use crate::texel_loss_op::{contiguous_f32, TexelLossOp, TexelObjective};
 use matup_core::material::texel_position;
 use matup_core::shading::{Svbrdf, Texel};
 use matup_core::Result;
 
-/// Steps on the CPU with the fused kernels, training the filter's own weights.
+/// Steps on the CPU with the fused ops, training the filter's own weights.
 pub(super) struct FusedStepper<'a> {
     filter: &'a Filter,
     main: &'a Arc<Examples>,

@@ -20,7 +20,7 @@ use crate::filter::decode::decode_tensors;
 use crate::filter::{tensor_name, Filter, FEATURES};
 use matup_core::material::texel_position;
 use matup_core::shading::tensor_form;
-use matup_core::tensor::{texel_losses, LightTensors, SvbrdfTensors, TensorShading};
+use matup_core::tensor_shading::{texel_losses, LightTensors, SvbrdfTensors, TensorShading};
 use matup_core::{Error, Result};
 
 /// Steps with candle tensor operations on `device`. The filter's weights are copied into a

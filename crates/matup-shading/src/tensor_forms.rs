@@ -5,9 +5,11 @@ use std::f64::consts::PI;
 
 use matup_core::candle_core::{DType, Result, Tensor};
 use matup_core::material::MIN_ALPHA;
-use matup_core::tensor::{dot, normalize, view, LightTensors, SvbrdfTensors, TensorShading};
+use matup_core::tensor_shading::{
+    dot, normalize, view, LightTensors, SvbrdfTensors, TensorShading,
+};
 
-use crate::conventions::{DENOMINATOR_MIN, DOT_MAX, DOT_MIN};
+use crate::clamps::{DENOMINATOR_MIN, DOT_MAX, DOT_MIN};
 use crate::{Ggx, GgxAniso, Lambert};
 
 /// A cosine clamped to [`DOT_MIN`, `DOT_MAX`] (no gradient where clamped).

@@ -11,7 +11,7 @@
 use candle_core::{Device, Tensor, D};
 use matup_core::device_maps::Separable;
 use matup_core::resample::{upsample_matrix, Border, Kernel, Shrink};
-use matup_core::tensor::{display, LightTensors, SvbrdfTensors, TensorShading};
+use matup_core::tensor_shading::{display, LightTensors, SvbrdfTensors, TensorShading};
 use matup_method::features::ALPHA;
 use matup_method::filter::decode::decode_tensors;
 use matup_method::filter::FEATURES;
