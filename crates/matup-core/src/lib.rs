@@ -1,13 +1,23 @@
-//! matup's core: what a plugin author needs, nothing more.
+//! matup's core: what a plugin author needs, nothing more. Each crate above builds only on
+//! the ones below it; the method, evaluation and applications are not here.
 //!
-//! It holds the material model (`Map`, `Material`) with its I/O and conventions, colour,
-//! resampling and tileability measures, lights, the renderer, the plugin traits
-//! (`RgbUpsampler`, `ShadingModel`) with their registries and tensor forms, errors and
-//! progress callbacks.
+//! Rooms:
+//! - `map`, `material`, `map_kind`, `svbrdf`: planar f32 maps, a material's maps and where
+//!   it came from, the kinds of map, the ten shading parameters of a texel.
+//! - `io` (`discover`, `read`, `write`, `stream`, `image_file`, `dds_file`), `layout`,
+//!   `file_format`, `normal_convention`: **formats and exporters' layouts** live here:
+//!   recognising a folder's files by exporters' names and packings (Unity's mask map, ORM…),
+//!   each file's channels (`layout`), reading and writing every format in bands.
+//! - `shading`, `render`, `lights`, `loss`, `tensor_shading`: **the `ShadingModel` trait**
+//!   and registry, the renderer and light sets, the loss norms, shading as candle tensors.
+//! - `upsample`, `resample`, `tileable`: **the `RgbUpsampler` trait** and registry, the
+//!   separable resampling kernels with border modes, whether a material tiles.
+//! - `device`, `device_maps`, `output_band`: the candle device a spec names, maps as tensors
+//!   there, and output bands whose maps stay there.
+//! - `color`, `plugin`, `progress`, `error`: sRGB, plugin specs and options, the progress
+//!   callback, the typed error.
 //!
-//! It holds no method, evaluation or application code: the pipeline, its configuration and
-//! training are in `matup-method`, metrics and per-map baselines in `matup-eval`, the batch
-//! runner, pages and experiments in `matup-apps`; each crate builds only on the ones below it.
+//! The built-in plugins are in `matup-shading` and `matup-upsamplers`.
 
 pub mod color;
 pub mod device;

@@ -1,9 +1,13 @@
 //! `matup learn`: super-resolution networks for material maps, trained and judged in render
-//! space. A network that matup's ONNX executor runs is rebuilt from candle operations
-//! ([`net`]), fed pairs made as matup makes its inputs ([`data`]), and its maps go through what
-//! `matup upscale` does with them (decoding, back-projection, rendering: [`post_process`]) before
-//! the loss compares their renders with the truth's under random lights ([`train`]). The
-//! result is written back into the ONNX file ([`export`]) and validated by `matup upscale`.
+//! space. The result is written back into the ONNX file and validated by `matup upscale`.
+//!
+//! Rooms:
+//! - `config`, `data`, `floor_tiles`: the settings; training pairs made as matup makes its
+//!   inputs; floor tiles cut into training crops, which the corpus lacks.
+//! - `net`, `export`: the ONNX network rebuilt from candle operations, and written back.
+//! - `post_process`, `grid_term`: what `matup upscale` does with the network's maps, as
+//!   differentiable operations; a loss term on the output's texel grid.
+//! - `train`: the loop, each step's loss, checkpoints that resume exactly, validation.
 
 pub mod config;
 pub mod data;

@@ -1,8 +1,17 @@
-//! matup's method: the configuration and the pipeline's stages, run as one straight line by
-//! `pipeline::upscale`: the per-map path (`per_map`, the defaults' upsampling), the residual
-//! base, the per-material fit (`fit`: targets, filter, training backends), height
-//! reconstruction, self-validation among candidates (`select`), the preview and the run's
-//! report. Built on `matup-core` and `matup-eval`.
+//! matup's method: the settings, the run's plan made of them, and the pipeline's stages, run
+//! as one straight line by `pipeline::upscale_streamed`. Built on `matup-core` and
+//! `matup-eval`.
+//!
+//! Rooms:
+//! - `config`: the settings (one module per TOML table) and their parsing and checks;
+//!   `plan`: the settings and a material made, once, into what a run carries out.
+//! - `pipeline`, `context`, `bands`, `report`: the stages' order, what every level shares,
+//!   output in bands within a memory limit, the run's report.
+//! - `per_map`, `residual`, `chroma`, `carried`, `height`: the defaults' per-map path with
+//!   its self-ensemble, back-projection, the base colour's chroma, maps carried unrendered.
+//! - `fit`, `targets`, `features`, `filter`, `train`, `texel_loss_op`: the paper's
+//!   per-material filter, its targets and training (two backends, one Adam).
+//! - `select`, `preview`: self-validation among candidate settings; `preview.png`.
 
 pub mod bands;
 pub mod carried;

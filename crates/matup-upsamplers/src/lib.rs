@@ -1,7 +1,13 @@
 //! matup's built-in RGB upsamplers, each registered with `inventory`: `bilinear`, `bicubic`
-//! and `lanczos3`, at any integer scale, on matup-core's shared resampling kernels; and, with
-//! the `onnx` feature (on by default), `onnx`: pre-trained super-resolution networks; and
-//! `callable`: a function the caller registers at run time ([`function`]).
+//! and `lanczos3`, at any integer scale, on matup-core's resampling kernels; and, with the
+//! `onnx` feature (on by default), `onnx`: pre-trained super-resolution networks; and
+//! `callable`: a function the caller registers at run time.
+//!
+//! Rooms:
+//! - `onnx`: a network from an ONNX file and its sidecar, run by matup's executor, tract, or
+//!   candle on a device; its options and the process's cache of loaded networks.
+//! - `tiled`: tiles with context and their feathered blend, on the host or on a device.
+//! - `function`: the `callable` upsampler, a caller's function run on tiles.
 
 pub mod function;
 #[cfg(feature = "onnx")]

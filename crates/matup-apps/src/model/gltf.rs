@@ -1,11 +1,6 @@
-//! glTF 2.0 models (`.gltf` with its files, or `.glb`) upscaled whole. The model's materials
-//! say what each texture holds, so nothing is guessed: base colour, `metallicRoughness`
-//! (roughness in G, metallic in B, R kept, or occlusion where `occlusionTexture` shares the
-//! image), OpenGL normals, occlusion (R) and emission (colour); the textures of `KHR_materials_*`
-//! extensions are carried, colour or data as their specifications say. Images are PNG, JPEG
-//! or WebP (`EXT_texture_webp`, whose PNG or JPEG fallbacks are upscaled too). Each image is
-//! upscaled once, with the first material that uses it, and the model comes back as it was:
-//! every JSON field and extension kept, geometry bytes where they were, only the images new.
+//! A glTF 2.0 model read and written back: its JSON, buffers and images, the role each
+//! texture plays in its materials, the images grouped into runs, the atlases among them, and
+//! the model written with only its images new.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Component, Path, PathBuf};
@@ -13,64 +8,20 @@ use std::path::{Component, Path, PathBuf};
 use base64::Engine;
 use serde_json::Value;
 
-use matup_core::io::{encoded_size, write_atomic, MaterialPaths, Names};
-use matup_core::progress::Progress;
-use matup_core::{layout::Packing, SaveOptions};
-use matup_core::{load_material, Error, LoadOptions, NormalConvention, Result};
-use matup_method::plan::check_settings;
-use matup_method::report::RunReport;
-use matup_method::Config;
-
-use crate::folder::upscale_to_folder;
-
-/// Where a model's per-material runs leave their preview and `run.json`, inside the output.
-pub const RUNS_FOLDER: &str = "matup-runs";
-
-/// The working folder inside the output where images are unpacked and upscaled (removed once
-/// the model is written).
-const WORK_FOLDER: &str = ".matup-model";
+use matup_core::io::{encoded_size, write_atomic};
+use matup_core::{Error, Result};
 
 /// Extension textures that hold colour (sRGB); the others hold data.
-const COLOUR_EXTENSION_TEXTURES: &[&str] = &[
+pub(super) const COLOUR_EXTENSION_TEXTURES: &[&str] = &[
     "sheenColorTexture",
     "specularColorTexture",
     "diffuseTexture",
     "specularGlossinessTexture",
 ];
 
-/// Whether `path` names a glTF model (`.gltf` or `.glb`, any case).
-pub fn is_model_file(path: &Path) -> bool {
-    has_extension(path, "gltf") || is_glb(path)
-}
-
-/// The files a model's result depends on: the model and the images and buffers its URIs name.
-pub fn model_files(path: &Path) -> Result<Vec<PathBuf>> {
-    let model = Model::read(path)?;
-    let mut files = vec![path.to_path_buf()];
-    for key in ["images", "buffers"] {
-        for entry in model.array(key) {
-            if let Some(uri) = entry["uri"].as_str().filter(|u| !u.starts_with("data:")) {
-                files.push(model.file_of(uri)?);
-            }
-        }
-    }
-    Ok(files)
-}
-
-/// What [`upscale_model`] did.
-pub struct ModelRun {
-    /// The model, then the image and buffer files beside it, then each run's preview and
-    /// `run.json`.
-    pub written: Vec<PathBuf>,
-    /// One run per group of images upscaled together, with its label.
-    pub runs: Vec<(String, RunReport)>,
-    /// What the reader should know: images shared across roles, unused images.
-    pub notes: Vec<String>,
-}
-
 /// What a texture holds in its material.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Role {
+pub(super) enum Role {
     BaseColor,
     Normal,
     /// `metallicRoughness`; `occlusion` where `occlusionTexture` is the same image.
@@ -83,159 +34,17 @@ enum Role {
 }
 
 /// A model as read: its JSON, its binary chunk (GLB) and the folder its URIs are relative to.
-struct Model {
-    path: PathBuf,
-    json: Value,
-    bin: Option<Vec<u8>>,
-    folder: PathBuf,
-}
-
-/// Upscales every texture of the model at `path` into `out` (created; never the model's own
-/// folder): `out/<model file>` with its images and buffers, each run's preview and `run.json`
-/// under `out/matup-runs/`. Each image keeps its format: `save.format` is refused.
-pub fn upscale_model(
-    path: &Path,
-    config: &Config,
-    out: &Path,
-    save: &SaveOptions,
-    load: &LoadOptions,
-    memory_limit: Option<u64>,
-    progress: &dyn Progress,
-) -> Result<ModelRun> {
-    if let Some(format) = save.format {
-        return Err(Error::Invalid(format!(
-            "--format {format}: a model's images keep their own formats (its JSON names them); \
-             leave --format out"
-        )));
-    }
-    // Settings that cannot run are refused before the output folder is made; each group's
-    // run then plans its own material.
-    check_settings(config)?;
-    let model = Model::read(path)?;
-    if same_folder(out, &model.folder) {
-        return Err(Error::file(
-            out,
-            "is the model's own folder; write the upscaled model elsewhere",
-        ));
-    }
-    // Everything the model needs is read before any work: a missing buffer or image is
-    // reported now, not after an hour of upscaling.
-    let buffers = model.buffers()?;
-    let images = model.images(&buffers)?;
-    let groups = model.groups(&images)?;
-    let atlases = model.atlases(&buffers);
-
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    // A killed run's working folder is cleared first; this run's goes when it ends, however
-    // it ends (an error, Ctrl-C).
-    let work = WorkFolder(out.join(WORK_FOLDER));
-    let _ = std::fs::remove_dir_all(&work.0);
-    let work = &work.0;
-    let mut upscaled: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
-    let mut runs = Vec::new();
-    let mut written = Vec::new();
-    let save = SaveOptions {
-        names: Names::Keep,
-        normal_convention: None,
-        ..save.clone()
-    };
-    for (g, group) in groups.groups.iter().enumerate() {
-        if progress.cancelled() {
-            return Err(Error::Interrupted);
-        }
-        progress.note(&format!(
-            "{}: {}",
-            group.label,
-            (group.uses.iter())
-                .map(|&(image, role)| format!("{} as {}", images[image].name, role.words()))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ));
-        let input = work.join(format!("in-{g}"));
-        let output = work.join(format!("out-{g}"));
-        std::fs::create_dir_all(&input).map_err(|e| Error::io(&input, e))?;
-        let mut paths = MaterialPaths::default();
-        for &(image, role) in &group.uses {
-            let file = input.join(images[image].file_name());
-            std::fs::write(&file, &images[image].bytes).map_err(|e| Error::io(&file, e))?;
-            match role {
-                Role::BaseColor => paths.base_color = Some(file),
-                Role::Normal => paths.normal = Some(file),
-                Role::MetallicRoughness { occlusion } => {
-                    let key = if occlusion { "orm" } else { "gltf" };
-                    paths.packed = Some(file);
-                    paths.packing = Some(key.parse::<Packing>()?);
-                }
-                Role::Carried { data } => paths.carried.push((file, data)),
-            }
-        }
-        let options = LoadOptions {
-            paths,
-            normal_convention: Some(NormalConvention::OpenGl),
-            max_texels: load.max_texels,
-        };
-        let mut material = load_material(None, &options)
-            .map_err(|e| Error::file(path, format!("{}: {e}", group.label)))?;
-        // A UV atlas is not wrapped: islands across its edges are no neighbours.
-        let atlas = (group.material).is_some_and(|m| atlases.contains(&m));
-        if let Some(origin) = material.origin.as_mut() {
-            // A texture whose file name says DirectX is read so, and the run says why.
-            if origin.normal_convention == NormalConvention::OpenGl {
-                origin.normal_evidence = "glTF's own: its specification says OpenGL".into();
-            }
-            origin.tiling = atlas.then(|| {
-                (
-                    false,
-                    "a UV atlas: every primitive of its material reads one copy of it".into(),
-                )
-            });
-        }
-        let run = upscale_to_folder(
-            &material,
-            config,
-            &output,
-            &save,
-            false,
-            memory_limit,
-            None,
-            progress,
-        )?;
-        for &(image, _) in &group.uses {
-            let file = output.join(images[image].file_name());
-            let bytes = std::fs::read(&file).map_err(|e| Error::io(&file, e))?;
-            upscaled.insert(image, bytes);
-        }
-        let kept = out.join(RUNS_FOLDER).join(&group.label);
-        std::fs::create_dir_all(&kept).map_err(|e| Error::io(&kept, e))?;
-        for name in ["preview.png", "run.json"] {
-            let to = kept.join(name);
-            std::fs::rename(output.join(name), &to).map_err(|e| Error::io(&to, e))?;
-            written.push(to);
-        }
-        runs.push((group.label.clone(), run.report));
-    }
-    let mut files = model.write(&images, &upscaled, &buffers, out)?;
-    files.append(&mut written);
-    Ok(ModelRun {
-        written: files,
-        runs,
-        notes: groups.notes,
-    })
-}
-
-/// The working folder, removed when dropped: on success, on an error and on Ctrl-C alike.
-struct WorkFolder(PathBuf);
-
-impl Drop for WorkFolder {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
+pub(super) struct Model {
+    pub(super) path: PathBuf,
+    pub(super) json: Value,
+    pub(super) bin: Option<Vec<u8>>,
+    pub(super) folder: PathBuf,
 }
 
 /// The texture coordinate sets a material's textures read, or `None` where it has none or one
 /// is transformed (`KHR_texture_transform`): then where it reads on its textures is not known
 /// from its UVs alone.
-fn texture_coordinate_sets(material: &Value) -> Option<Vec<u32>> {
+pub(super) fn texture_coordinate_sets(material: &Value) -> Option<Vec<u32>> {
     let mut sets = Vec::new();
     let mut transformed = false;
     visit_texture_infos(material, &mut |info, _| {
@@ -248,7 +57,7 @@ fn texture_coordinate_sets(material: &Value) -> Option<Vec<u32>> {
 }
 
 /// Whether `uvs` stay within one copy of the texture on both axes ([`within_one_copy`]).
-fn uvs_within_one_copy(uvs: impl Iterator<Item = [f32; 2]>) -> bool {
+pub(super) fn uvs_within_one_copy(uvs: impl Iterator<Item = [f32; 2]>) -> bool {
     let mut range = [[f32::INFINITY, f32::NEG_INFINITY]; 2];
     for uv in uvs {
         for (axis, value) in uv.into_iter().enumerate() {
@@ -260,14 +69,14 @@ fn uvs_within_one_copy(uvs: impl Iterator<Item = [f32; 2]>) -> bool {
 
 /// UVs that never pass more than a rounding error into a neighbouring copy of the texture
 /// (its unit square): DamagedHelmet's V runs over 1.0005–1.9987, one copy.
-fn within_one_copy(lo: f32, hi: f32) -> bool {
+pub(super) fn within_one_copy(lo: f32, hi: f32) -> bool {
     const SLACK: f32 = 1e-3;
     lo.is_finite() && hi.is_finite() && (lo + SLACK).floor() == (hi - SLACK).floor()
 }
 
 /// Stems made unique (as files on a case-blind disk) with the image's number, and kept off
 /// the names of the run's own files (`preview.png`, `run.json`) written beside them.
-fn unique_stems(images: &mut [Image]) {
+pub(super) fn unique_stems(images: &mut [Image]) {
     let key = |stem: &str| stem.to_lowercase();
     let mut count: BTreeMap<String, usize> = BTreeMap::new();
     for image in images.iter() {
@@ -282,7 +91,7 @@ fn unique_stems(images: &mut [Image]) {
 }
 
 /// Whether two paths name one folder.
-fn same_folder(a: &Path, b: &Path) -> bool {
+pub(super) fn same_folder(a: &Path, b: &Path) -> bool {
     let resolved = |p: &Path| p.canonicalize().ok();
     let b = if b.as_os_str().is_empty() {
         Path::new(".")
@@ -293,21 +102,21 @@ fn same_folder(a: &Path, b: &Path) -> bool {
 }
 
 /// An image of the model: its bytes, format and size.
-struct Image {
-    bytes: Vec<u8>,
-    encoding: Encoding,
-    size: (u32, u32),
+pub(super) struct Image {
+    pub(super) bytes: Vec<u8>,
+    pub(super) encoding: Encoding,
+    pub(super) size: (u32, u32),
     /// Where it is stored, for messages: its URI or bufferView.
-    name: String,
+    pub(super) name: String,
     /// The stem of its file while it is upscaled: its URI's or its name's, so that the run's
     /// notes name `Default_albedo`, not a number.
-    stem: String,
+    pub(super) stem: String,
 }
 
 /// The image formats a glTF model holds that matup writes back: the core PNG and JPEG, and
 /// WebP (`EXT_texture_webp`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Encoding {
+pub(super) enum Encoding {
     Png,
     Jpeg,
     Webp,
@@ -315,7 +124,7 @@ enum Encoding {
 
 impl Encoding {
     /// The format of an image's bytes, from their signature.
-    fn of(bytes: &[u8]) -> Option<Encoding> {
+    pub(super) fn of(bytes: &[u8]) -> Option<Encoding> {
         if bytes.starts_with(b"\x89PNG") {
             Some(Encoding::Png)
         } else if bytes.starts_with(&[0xFF, 0xD8]) {
@@ -330,7 +139,7 @@ impl Encoding {
 
 impl Image {
     /// Its file's name while it is upscaled: its stem, with the extension of its bytes.
-    fn file_name(&self) -> String {
+    pub(super) fn file_name(&self) -> String {
         let extension = match self.encoding {
             Encoding::Png => "png",
             Encoding::Jpeg => "jpg",
@@ -339,7 +148,7 @@ impl Image {
         format!("{}.{extension}", self.stem)
     }
 
-    fn mime(&self) -> &'static str {
+    pub(super) fn mime(&self) -> &'static str {
         match self.encoding {
             Encoding::Png => "image/png",
             Encoding::Jpeg => "image/jpeg",
@@ -349,20 +158,20 @@ impl Image {
 }
 
 /// Images upscaled together: one material's images of one size that no earlier group took.
-struct Group {
-    label: String,
-    uses: Vec<(usize, Role)>,
+pub(super) struct Group {
+    pub(super) label: String,
+    pub(super) uses: Vec<(usize, Role)>,
     /// The material whose images these are (none for the images no material uses).
-    material: Option<usize>,
+    pub(super) material: Option<usize>,
 }
 
-struct Groups {
-    groups: Vec<Group>,
-    notes: Vec<String>,
+pub(super) struct Groups {
+    pub(super) groups: Vec<Group>,
+    pub(super) notes: Vec<String>,
 }
 
 impl Role {
-    fn words(self) -> &'static str {
+    pub(super) fn words(self) -> &'static str {
         match self {
             Role::BaseColor => "base colour",
             Role::Normal => "normal (OpenGL)",
@@ -375,7 +184,7 @@ impl Role {
 }
 
 impl Model {
-    fn read(path: &Path) -> Result<Model> {
+    pub(super) fn read(path: &Path) -> Result<Model> {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         let (json, bin) = if is_glb(path) {
             // The `gltf` crate subtracts the header's size from the length the header states
@@ -418,17 +227,17 @@ impl Model {
         })
     }
 
-    fn bad(&self, what: impl std::fmt::Display) -> Error {
+    pub(super) fn bad(&self, what: impl std::fmt::Display) -> Error {
         Error::file(&self.path, what.to_string())
     }
 
-    fn array(&self, key: &str) -> &[Value] {
+    pub(super) fn array(&self, key: &str) -> &[Value] {
         self.json[key].as_array().map_or(&[], Vec::as_slice)
     }
 
     /// The bytes of buffer `index`: the GLB's binary chunk, a data URI or a file beside the
     /// model.
-    fn buffer(&self, index: usize) -> Result<Vec<u8>> {
+    pub(super) fn buffer(&self, index: usize) -> Result<Vec<u8>> {
         let buffer = (self.array("buffers").get(index))
             .ok_or_else(|| self.bad(format!("buffer {index} does not exist")))?;
         match buffer["uri"].as_str() {
@@ -443,7 +252,7 @@ impl Model {
 
     /// The file a (non-data) URI names, inside the model's folder: by its path, and where
     /// symbolic links lead (a link out of the folder could read any file of the user's).
-    fn file_of(&self, uri: &str) -> Result<PathBuf> {
+    pub(super) fn file_of(&self, uri: &str) -> Result<PathBuf> {
         let file = self
             .folder
             .join(relative_path(uri).map_err(|e| self.bad(e))?);
@@ -458,7 +267,7 @@ impl Model {
         }
     }
 
-    fn uri_bytes(&self, uri: &str) -> Result<Vec<u8>> {
+    pub(super) fn uri_bytes(&self, uri: &str) -> Result<Vec<u8>> {
         if let Some(data) = uri.strip_prefix("data:") {
             let (_, encoded) = data
                 .split_once(";base64,")
@@ -477,7 +286,7 @@ impl Model {
     }
 
     /// Every image of the model, read and checked to be PNG or JPEG.
-    fn images(&self, buffers: &[Vec<u8>]) -> Result<Vec<Image>> {
+    pub(super) fn images(&self, buffers: &[Vec<u8>]) -> Result<Vec<Image>> {
         let mut images = Vec::new();
         for (i, image) in self.array("images").iter().enumerate() {
             let (bytes, name) = match (image["uri"].as_str(), image["bufferView"].as_u64()) {
@@ -524,14 +333,14 @@ impl Model {
     }
 
     /// Every buffer's bytes, in order; an error names the first that cannot be read.
-    fn buffers(&self) -> Result<Vec<Vec<u8>>> {
+    pub(super) fn buffers(&self) -> Result<Vec<Vec<u8>>> {
         (0..self.array("buffers").len())
             .map(|b| self.buffer(b))
             .collect()
     }
 
     /// Buffer `index` of `buffers` ([`Model::buffers`]).
-    fn loaded<'a>(&self, buffers: &'a [Vec<u8>], index: usize) -> Result<&'a [u8]> {
+    pub(super) fn loaded<'a>(&self, buffers: &'a [Vec<u8>], index: usize) -> Result<&'a [u8]> {
         (buffers.get(index).map(Vec::as_slice))
             .ok_or_else(|| self.bad(format!("buffer {index} does not exist")))
     }
@@ -541,7 +350,7 @@ impl Model {
     /// material is left out where any UVs cross a copy's edge (a texture tiled over a floor), a
     /// texture is transformed (`KHR_texture_transform`), no primitive uses it, or the UVs
     /// cannot be read: its edges then decide.
-    fn atlases(&self, buffers: &[Vec<u8>]) -> BTreeSet<usize> {
+    pub(super) fn atlases(&self, buffers: &[Vec<u8>]) -> BTreeSet<usize> {
         let Some(document) = serde_json::from_value(self.json.clone())
             .ok()
             .and_then(|root| gltf::Document::from_json(root).ok())
@@ -570,7 +379,7 @@ impl Model {
             .collect()
     }
 
-    fn view_bytes(&self, index: usize, buffers: &[Vec<u8>]) -> Result<Vec<u8>> {
+    pub(super) fn view_bytes(&self, index: usize, buffers: &[Vec<u8>]) -> Result<Vec<u8>> {
         let view = (self.array("bufferViews").get(index))
             .ok_or_else(|| self.bad(format!("bufferView {index} does not exist")))?;
         let buffer = self.loaded(buffers, view["buffer"].as_u64().unwrap_or(0) as usize)?;
@@ -584,7 +393,7 @@ impl Model {
     /// The image a texture shows, one of `images`: the WebP image of `EXT_texture_webp` where
     /// it names one, else the core `source`. With `fallback`, the core `source` of a texture
     /// that names a WebP image too (for viewers without WebP), if it has one.
-    fn texture_image(
+    pub(super) fn texture_image(
         &self,
         texture: usize,
         images: usize,
@@ -618,7 +427,7 @@ impl Model {
 
     /// Each material's images by role, split by size, each image in the first group that
     /// uses it; images no material uses come last, carried as colour.
-    fn groups(&self, images: &[Image]) -> Result<Groups> {
+    pub(super) fn groups(&self, images: &[Image]) -> Result<Groups> {
         let mut taken: BTreeMap<usize, (String, Role)> = BTreeMap::new();
         let mut groups = Vec::new();
         let mut notes = Vec::new();
@@ -694,7 +503,7 @@ impl Model {
     /// Writes the model into `out` with the upscaled images: external images at their URIs,
     /// data URIs re-encoded, images in buffers appended to their buffer (the bytes before them,
     /// which hold the geometry, unchanged); buffers in files copied or rewritten.
-    fn write(
+    pub(super) fn write(
         &self,
         images: &[Image],
         upscaled: &BTreeMap<usize, Vec<u8>>,
@@ -808,16 +617,16 @@ impl Model {
     }
 }
 
-fn is_glb(path: &Path) -> bool {
+pub(super) fn is_glb(path: &Path) -> bool {
     has_extension(path, "glb")
 }
 
-fn has_extension(path: &Path, extension: &str) -> bool {
+pub(super) fn has_extension(path: &Path, extension: &str) -> bool {
     (path.extension().and_then(|e| e.to_str())).is_some_and(|e| e.eq_ignore_ascii_case(extension))
 }
 
 /// Writes `bytes` to `file` atomically, making its folder.
-fn write_file(file: &Path, bytes: &[u8]) -> Result<()> {
+pub(super) fn write_file(file: &Path, bytes: &[u8]) -> Result<()> {
     if let Some(parent) = file.parent() {
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
@@ -826,7 +635,7 @@ fn write_file(file: &Path, bytes: &[u8]) -> Result<()> {
 
 /// A URI relative to the model as a path that stays inside the model's folder (and the
 /// output's): percent-decoded, no root, no `..`.
-fn relative_path(uri: &str) -> std::result::Result<PathBuf, String> {
+pub(super) fn relative_path(uri: &str) -> std::result::Result<PathBuf, String> {
     let decoded = percent_encoding::percent_decode_str(uri)
         .decode_utf8()
         .map_err(|_| format!("URI '{uri}' is not UTF-8"))?;
@@ -844,7 +653,7 @@ fn relative_path(uri: &str) -> std::result::Result<PathBuf, String> {
 }
 
 /// A material name as a folder name: letters, digits, `-` and `_`.
-fn sanitised(name: &str) -> String {
+pub(super) fn sanitised(name: &str) -> String {
     name.chars()
         .map(|c| {
             if c.is_alphanumeric() || c == '-' || c == '_' {
@@ -857,7 +666,7 @@ fn sanitised(name: &str) -> String {
 }
 
 /// `uses` split by image size (a material's textures may differ in size), each part labelled.
-fn by_size(
+pub(super) fn by_size(
     name: &str,
     material: Option<usize>,
     uses: Vec<(usize, Role)>,
@@ -883,7 +692,7 @@ fn by_size(
 
 /// The textures a material uses, each with its role: the core ones, then every
 /// `…Texture` of its extensions.
-fn material_textures(material: &Value) -> Vec<(usize, Role)> {
+pub(super) fn material_textures(material: &Value) -> Vec<(usize, Role)> {
     let mut found = Vec::new();
     visit_texture_infos(material, &mut |info, role| {
         if let Some(index) = info["index"].as_u64() {
@@ -895,7 +704,7 @@ fn material_textures(material: &Value) -> Vec<(usize, Role)> {
 
 /// Each texture info of a material (its object: `index`, `texCoord`, extensions) with the
 /// role of its texture, in [`material_textures`]' order.
-fn visit_texture_infos(material: &Value, visit: &mut dyn FnMut(&Value, Role)) {
+pub(super) fn visit_texture_infos(material: &Value, visit: &mut dyn FnMut(&Value, Role)) {
     let pbr = &material["pbrMetallicRoughness"];
     let core = [
         (&pbr["baseColorTexture"], Role::BaseColor),
@@ -912,7 +721,7 @@ fn visit_texture_infos(material: &Value, visit: &mut dyn FnMut(&Value, Role)) {
             visit(info, role);
         }
     }
-    fn walk(value: &Value, visit: &mut dyn FnMut(&Value, Role)) {
+    pub(super) fn walk(value: &Value, visit: &mut dyn FnMut(&Value, Role)) {
         if let Value::Object(map) = value {
             for (key, value) in map {
                 if key.ends_with("Texture") && value["index"].is_u64() {
@@ -925,197 +734,4 @@ fn visit_texture_infos(material: &Value, visit: &mut dyn FnMut(&Value, Role)) {
         }
     }
     walk(&material["extensions"], visit);
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn model(json: Value) -> Model {
-        Model {
-            path: PathBuf::from("model.gltf"),
-            json,
-            bin: None,
-            folder: PathBuf::new(),
-        }
-    }
-
-    fn images(sizes: &[u32]) -> Vec<Image> {
-        (sizes.iter().enumerate())
-            .map(|(i, &s)| Image {
-                bytes: Vec::new(),
-                encoding: Encoding::Png,
-                size: (s, s),
-                name: format!("image {i}"),
-                stem: format!("image-{i}"),
-            })
-            .collect()
-    }
-
-    #[test]
-    fn shared_images_are_upscaled_once_and_an_orm_image_is_one_file() {
-        let json = serde_json::json!({
-            "asset": {"version": "2.0"},
-            "textures": [{"source": 0}, {"source": 1}, {"source": 2}, {"source": 3}],
-            "materials": [
-                {"name": "a b", "pbrMetallicRoughness": {
-                    "baseColorTexture": {"index": 0},
-                    "metallicRoughnessTexture": {"index": 2}},
-                 "occlusionTexture": {"index": 2},
-                 "normalTexture": {"index": 1}},
-                {"pbrMetallicRoughness": {"baseColorTexture": {"index": 3}},
-                 "normalTexture": {"index": 1},
-                 "extensions": {"KHR_materials_sheen": {"sheenColorTexture": {"index": 2},
-                                                        "sheenRoughnessTexture": {"index": 3}}}}
-            ]
-        });
-        let groups = model(json).groups(&images(&[64, 64, 64, 32, 8])).unwrap();
-        let uses: Vec<(&str, Vec<(usize, Role)>)> = (groups.groups.iter())
-            .map(|g| (g.label.as_str(), g.uses.clone()))
-            .collect();
-        assert_eq!(
-            uses,
-            [
-                (
-                    "0-a_b",
-                    vec![
-                        (0, Role::BaseColor),
-                        (2, Role::MetallicRoughness { occlusion: true }),
-                        (1, Role::Normal),
-                    ]
-                ),
-                // The shared normal and the first material's ORM are not upscaled again.
-                ("material-1", vec![(3, Role::BaseColor)]),
-                // An image no material uses is still upscaled.
-                ("unused-images", vec![(4, Role::Carried { data: false })]),
-            ]
-        );
-        // The ORM image as sheen colour, and image 3 as sheen roughness, are said.
-        assert_eq!(groups.notes.len(), 3, "{:?}", groups.notes);
-    }
-
-    #[test]
-    fn textures_of_other_sizes_are_upscaled_apart_and_bad_references_are_refused() {
-        let json = serde_json::json!({
-            "asset": {"version": "2.0"},
-            "textures": [{"source": 0}, {"source": 1}, {"extensions": {"KHR_texture_basisu": {"source": 0}}}],
-            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}},
-                           "normalTexture": {"index": 1}}]
-        });
-        let groups = model(json.clone()).groups(&images(&[128, 64])).unwrap();
-        let labels: Vec<&str> = groups.groups.iter().map(|g| g.label.as_str()).collect();
-        assert_eq!(labels, ["material-0-64x64", "material-0-128x128"]);
-
-        let mut basis = json.clone();
-        basis["materials"][0]["emissiveTexture"] = serde_json::json!({"index": 2});
-        let error = model(basis)
-            .groups(&images(&[128, 64]))
-            .err()
-            .unwrap()
-            .to_string();
-        assert!(
-            error.contains("model.gltf") && error.contains("texture 2"),
-            "{error}"
-        );
-
-        let mut missing = json;
-        missing["materials"][0]["emissiveTexture"] = serde_json::json!({"index": 9});
-        let error = model(missing)
-            .groups(&images(&[128, 64]))
-            .err()
-            .unwrap()
-            .to_string();
-        assert!(error.contains("texture 9 does not exist"), "{error}");
-    }
-
-    #[test]
-    fn webp_textures_and_their_fallbacks_are_upscaled_in_runs_of_their_own() {
-        // EXT_texture_webp as gltf-transform writes it: WebP images, each texture's core
-        // `source` a PNG fallback; the normal has WebP only.
-        let json = serde_json::json!({
-            "asset": {"version": "2.0"},
-            "extensionsUsed": ["EXT_texture_webp"],
-            "textures": [
-                {"source": 0, "extensions": {"EXT_texture_webp": {"source": 2}}},
-                {"extensions": {"EXT_texture_webp": {"source": 3}}},
-                {"source": 1, "extensions": {"EXT_texture_webp": {"source": 4}}}
-            ],
-            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0},
-                                                    "metallicRoughnessTexture": {"index": 2}},
-                           "normalTexture": {"index": 1}}]
-        });
-        let groups = model(json).groups(&images(&[64; 5])).unwrap();
-        let uses: Vec<(&str, Vec<(usize, Role)>)> = (groups.groups.iter())
-            .map(|g| (g.label.as_str(), g.uses.clone()))
-            .collect();
-        let metallic_roughness = Role::MetallicRoughness { occlusion: false };
-        assert_eq!(
-            uses,
-            [
-                (
-                    "material-0",
-                    vec![
-                        (2, Role::BaseColor),
-                        (4, metallic_roughness),
-                        (3, Role::Normal)
-                    ]
-                ),
-                (
-                    "material-0-fallback",
-                    vec![(0, Role::BaseColor), (1, metallic_roughness)]
-                ),
-            ]
-        );
-        assert!(groups.notes.is_empty(), "{:?}", groups.notes);
-    }
-
-    #[test]
-    fn uris_stay_inside_the_folder() {
-        assert_eq!(
-            relative_path("textures/a%20b.png").unwrap(),
-            PathBuf::from("textures/a b.png")
-        );
-        assert!(relative_path("../a.png").is_err());
-        assert!(relative_path("%2e%2e/a.png").is_err());
-        assert!(relative_path("/etc/a.png").is_err());
-    }
-
-    #[test]
-    fn a_glb_whose_header_states_less_than_itself_is_refused() {
-        // The fuzzing finding (fuzz/regressions/glb), as a message a user can act on.
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("short.glb");
-        let mut bytes = b"glTF".to_vec();
-        bytes.extend(2u32.to_le_bytes());
-        bytes.extend(1u32.to_le_bytes());
-        bytes.extend(b"\xb8\x02\0\0JSON{}");
-        std::fs::write(&path, &bytes).unwrap();
-        let error = Model::read(&path).err().expect("refused").to_string();
-        assert!(
-            error.contains("short.glb") && error.contains("a length of 1 bytes"),
-            "{error}"
-        );
-    }
-
-    #[cfg(unix)]
-    #[test]
-    fn a_link_out_of_the_folder_is_refused() {
-        let dir = tempfile::tempdir().unwrap();
-        let (model, outside) = (dir.path().join("model"), dir.path().join("secret.png"));
-        std::fs::create_dir(&model).unwrap();
-        std::fs::write(&outside, b"not the model's").unwrap();
-        std::fs::write(model.join("inside.png"), b"the model's").unwrap();
-        std::os::unix::fs::symlink(&outside, model.join("link.png")).unwrap();
-        std::os::unix::fs::symlink(model.join("inside.png"), model.join("near.png")).unwrap();
-        let gltf = model.join("m.gltf");
-        std::fs::write(&gltf, r#"{"asset": {"version": "2.0"}}"#).unwrap();
-        let m = Model::read(&gltf).unwrap();
-        let err = m.uri_bytes("link.png").unwrap_err().to_string();
-        assert!(
-            err.contains("outside the model's folder") && err.contains("link.png"),
-            "{err}"
-        );
-        assert_eq!(m.uri_bytes("near.png").unwrap(), b"the model's");
-        assert_eq!(m.uri_bytes("inside.png").unwrap(), b"the model's");
-    }
 }

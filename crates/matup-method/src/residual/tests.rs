@@ -1,0 +1,122 @@
+//! The residual base's tests: back-projection and the settling of blocks onto their input.
+
+use super::*;
+use matup_core::resample::box_downsample;
+
+/// Features with variation in every channel, valid ranges.
+fn lr_features(size: usize) -> Map {
+    Map::from_fn(size, size, FEATURES, |c, y, x| {
+        let v = ((x * 3 + y * 5 + c * 7) % 11) as f32 / 10.0;
+        match c {
+            4 | 5 => 0.4 * (v - 0.5),
+            6 => 0.05 + 0.9 * v,
+            _ => 0.1 + 0.8 * v,
+        }
+    })
+}
+
+#[test]
+fn back_projection_is_rounds_of_box_downsample_and_bilinear_spread() {
+    // The fused rounds compute what the two resampling steps compute apart, bit for bit:
+    // odd sizes and more rows than one parallel task takes, both borders.
+    let lr = Map::from_fn(13, 37, FEATURES, |c, y, x| {
+        let v = ((x * 5 + y * 3 + c * 11) % 13) as f32 / 12.0;
+        if c == 4 || c == 5 {
+            v - 0.5
+        } else {
+            v
+        }
+    });
+    for border in [Border::Wrap, Border::Mirror] {
+        let start =
+            upsample(&lr, 4, Kernel::Bicubic { a: -0.5 }, border).map_values(|v| 0.9 * v + 0.03);
+        let mut fused = start.clone();
+        back_project_within(&mut fused, &lr, 4, border, stored_range);
+        let mut apart = start;
+        for _ in 0..BACK_PROJECTIONS {
+            let seen = box_downsample(&apart, 4);
+            for c in 0..FEATURES {
+                let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
+                    .map(|(l, s)| l - s)
+                    .collect();
+                let mismatch = Map::from_planar(lr.width(), lr.height(), 1, mismatch);
+                let correction = upsample(&mismatch, 4, Kernel::Bilinear, border);
+                let (lo, hi) = stored_range(c);
+                for (v, f) in apart.plane_mut(c).iter_mut().zip(correction.data()) {
+                    *v = (*v + f).clamp(lo, hi);
+                }
+            }
+        }
+        settle_blocks(&mut apart, &lr, 4, 0..FEATURES, stored_range);
+        assert_eq!(fused.data(), apart.data(), "{border}");
+    }
+}
+
+#[test]
+fn settled_blocks_average_to_their_input_even_where_texels_are_pinned() {
+    // LR texels at the range's ends and beside them, and a block upsampled far off.
+    let lr = Map::from_fn(6, 4, 1, |_, y, x| {
+        [0.0, 1.0, 0.98, 0.02, 0.5, 0.3][(x + y) % 6]
+    });
+    let mut hr = upsample(&lr, 4, Kernel::Bicubic { a: -0.5 }, Border::Mirror)
+        .map_values(|v| (0.8 * v + 0.1).clamp(0.0, 1.0));
+    back_project_within(&mut hr, &lr, 4, Border::Mirror, |_| (0.0, 1.0));
+    let seen = box_downsample(&hr, 4);
+    let worst = (seen.data().iter().zip(lr.data()))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
+    assert!(worst <= SETTLE_ABOVE + 1e-6, "{worst}");
+    assert!(hr.data().iter().all(|v| (0.0..=1.0).contains(v)));
+    // Where the rounds alone leave a block: they cannot lift 0.9 to 1 in four texels of
+    // a block of a pinned 1.0 beside a 0.0.
+    let mut rounds_only = upsample(&lr, 4, Kernel::Bicubic { a: -0.5 }, Border::Mirror)
+        .map_values(|v| (0.8 * v + 0.1).clamp(0.0, 1.0));
+    let before = box_downsample(&rounds_only, 4);
+    settle_blocks(&mut rounds_only, &lr, 4, 0..1, |_| (0.0, 1.0));
+    let after = box_downsample(&rounds_only, 4);
+    for (i, (b, a)) in before.data().iter().zip(after.data()).enumerate() {
+        let want = lr.data()[i];
+        let miss = (b - want).abs();
+        if miss >= 2.0 * SETTLE_ABOVE {
+            assert!((a - want).abs() < 1e-5, "block {i}: {b} → {a}, want {want}");
+        } else if miss > SETTLE_ABOVE {
+            assert!((a - want).abs() <= SETTLE_ABOVE, "block {i}: {b} → {a}");
+        } else {
+            assert_eq!(a, b, "block {i} was within reach and is left as it was");
+        }
+    }
+}
+
+#[test]
+fn back_projection_brings_the_box_downsample_back_to_the_input() {
+    let lr = lr_features(12);
+    for border in [Border::Wrap, Border::Mirror] {
+        // A blurred base: bilinear interpolation does not average back to its input.
+        let mut hr = upsample(&lr, 4, Kernel::Bilinear, border);
+        // Mean absolute mismatch of the box-downsample, as the files store the values
+        // (roughness, not alpha; the test map changes every texel, the hardest case for a
+        // bilinear back-projection).
+        let stored = |map: &Map| {
+            let mut map = map.clone();
+            map.plane_mut(ALPHA).iter_mut().for_each(|a| *a = a.sqrt());
+            map
+        };
+        let error = |hr: &Map| {
+            let seen = box_downsample(&stored(hr), 4);
+            (seen.data().iter().zip(stored(&lr).data()))
+                .map(|(a, b)| (a - b).abs())
+                .sum::<f32>()
+                / lr.data().len() as f32
+        };
+        let before = error(&hr);
+        back_project(&mut hr, &lr, 4, border, 1.0);
+        let after = error(&hr);
+        println!("{border}: mismatch {before:.4} → {after:.4}");
+        assert!(before > 0.02, "{border}: {before}");
+        assert!(after < 0.3 * before, "{border}: {before} → {after}");
+        for (c, plane) in hr.data().chunks(hr.texels()).enumerate() {
+            let (lo, hi) = stored_range(c);
+            assert!(plane.iter().all(|v| (lo..=hi).contains(v)), "feature {c}");
+        }
+    }
+}
