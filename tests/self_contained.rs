@@ -19,8 +19,8 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// The test code of every package: its `tests/` folder, and each source file's
-/// `#[cfg(test)]` part.
+/// The test code of every package: its `tests/` folder, each source file's `#[cfg(test)]`
+/// part, and the `tests.rs` files that hold a module's tests.
 fn test_sources(root: &Path) -> Vec<(PathBuf, String)> {
     let mut packages = vec![root.to_path_buf()];
     for group in ["crates", "examples"] {
@@ -43,7 +43,10 @@ fn test_sources(root: &Path) -> Vec<(PathBuf, String)> {
         rust_files(&package.join("src"), &mut files);
         for file in files {
             let text = std::fs::read_to_string(&file).unwrap();
-            if let Some((_, tests)) = text.split_once("#[cfg(test)]") {
+            // A module's tests in a file of their own (`stream/tests.rs`) are test code whole.
+            if file.file_name().is_some_and(|n| n == "tests.rs") {
+                sources.push((file, text));
+            } else if let Some((_, tests)) = text.split_once("#[cfg(test)]") {
                 sources.push((file, tests.to_string()));
             }
         }
@@ -68,7 +71,8 @@ fn no_test_reads_the_shared_folder_beside_the_repository() {
     for part in [
         "tests/self_contained.rs",
         "crates/matup-cli/tests/cli.rs",
-        "crates/matup-core/src/io/stream.rs",
+        "crates/matup-core/src/io/image_file.rs",
+        "crates/matup-core/src/io/stream/tests.rs",
     ] {
         assert!(
             sources.iter().any(|(file, _)| file.ends_with(part)),
