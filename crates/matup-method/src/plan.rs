@@ -2,7 +2,8 @@
 //! out. The output size becomes a scale and its levels, each level gets its settings, the
 //! tiling is decided, the shading model is loaded and the upsampler chosen; with `select` on,
 //! each candidate setting is planned the same way. Every check and every choice of a run is
-//! made here: the pipeline, folder runs and the Python package receive the plan.
+//! made here: the pipeline, the preview and a folder's images of other sizes receive the
+//! plan (`matup upscale`, batches and the Python package reach them through folder runs).
 
 use std::sync::Arc;
 
@@ -161,7 +162,7 @@ impl Plan {
 }
 
 impl Setup {
-    /// The setup of `settings`, validated and resolved to a scale.
+    /// The setup of `settings`, already validated and resolved to a scale.
     fn new(settings: Config) -> Result<Setup> {
         let (upsampler_name, upsampler) = choose_upsampler(&settings)?;
         let levels = (levels_of(settings.scale).into_iter().enumerate())
@@ -176,11 +177,6 @@ impl Setup {
             upsampler: Arc::from(upsampler),
             upsampler_name,
         })
-    }
-
-    /// The scale of each level: `[4, 4]` for ×16, `[4, 2]` for ×8, `[s]` otherwise.
-    pub fn scales(&self) -> Vec<usize> {
-        self.levels.iter().map(|l| l.scale).collect()
     }
 }
 
@@ -204,9 +200,9 @@ pub struct Reach {
 
 impl Reach {
     /// How a run of an `input`-sized material reaches its output: the settings' `scale`, or
-    /// where a `size` is
-    /// asked for, the smallest supported scale that reaches it and the shrink to it. A size
-    /// smaller than the input, past ×16, or of another shape than the input is refused.
+    /// where a `size` is asked for, the smallest supported scale that reaches it and the
+    /// shrink to it. A size smaller than the input, past ×16, or of another shape than the
+    /// input is refused.
     pub fn of(settings: &Config, input: [usize; 2]) -> Result<Reach> {
         let Some(size) = settings.size else {
             return Ok(Reach {
