@@ -1,8 +1,8 @@
 //! The matrix product matup's own ops and its ONNX executor use: the `gemm` crate's f32
-//! kernels (dispatched at run time to the CPU's SIMD, AVX2 and FMA on x86-64) on one thread, the callers splitting
-//! their work across matup's threads themselves; the operands' extents are checked so that
-//! callers need no `unsafe`. Views may overlap (a row stride below the row's length), which
-//! the ONNX executor's convolutions use.
+//! product (dispatched at run time to the CPU's SIMD, AVX2 and FMA on x86-64) on one thread,
+//! the callers splitting their work across matup's threads themselves; the operands' extents
+//! are checked so that callers need no `unsafe`. Views may overlap (a row stride below the
+//! row's length), which the ONNX executor's convolutions use.
 
 /// A matrix view's (row stride, column stride) in its slice.
 pub type Strides = (usize, usize);

@@ -27,7 +27,7 @@ pub struct Conv {
 enum Kernel {
     /// Kernel row `ky` as a `(kw·cin) × cout` matrix, row `kx·cin + ci` ([`Conv::shifted`]).
     Shifted(Vec<f32>),
-    /// For 3×3 kernels between channel counts of whole lane groups.
+    /// For 3×3 convolutions between channel counts of whole lane groups.
     Winograd(winograd::Weights),
 }
 

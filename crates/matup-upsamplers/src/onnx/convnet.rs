@@ -6,8 +6,8 @@
 //! docs/experiments/2026-11-21-onnx-executor-speed.md), and no pure-Rust runtime does better (candle-onnx needs protoc
 //! to build). This executor reads the ONNX graph itself and runs those few operators on
 //! texel-major feature maps ([`super::nhwc`]): 3×3 convolutions by Winograd's algorithm
-//! ([`super::winograd`]), all matrix products on the `gemm` crate's SIMD kernels. Graphs with any other operator or attribute are refused
-//! with the reason, and the caller runs them with tract.
+//! ([`super::winograd`]), all matrix products on matup-simd's `gemm`. Graphs with any other
+//! operator or attribute are refused with the reason, and the caller runs them with tract.
 
 use std::collections::HashMap;
 
@@ -30,7 +30,7 @@ impl std::fmt::Display for Unsupported {
 }
 
 /// One operation of a network. `C` is how a convolution is held: [`RawConv`] as the file
-/// gives it ([`Graph`]), or prepared for this executor's kernels ([`ConvNet`]).
+/// gives it ([`Graph`]), or prepared for this executor's operations ([`ConvNet`]).
 #[derive(Clone, Debug)]
 pub enum Op<C> {
     /// A convolution, then per-texel operations on its output.
@@ -71,7 +71,7 @@ pub struct RawConv {
 }
 
 /// A network of the operators this executor runs, per-texel work fused into the steps that
-/// feed it, convolutions as the file gives them: what [`ConvNet`] prepares for its kernels,
+/// feed it, convolutions as the file gives them: what [`ConvNet`] prepares for its operations,
 /// and what a trainer rebuilds in another framework (matup-learn).
 #[derive(Clone, Debug)]
 pub struct Graph {
