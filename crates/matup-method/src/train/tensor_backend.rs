@@ -34,7 +34,7 @@ pub(super) struct TensorStepper<'a> {
     device: Device,
     varmap: VarMap,
     layers: Vec<Linear>,
-    /// The map's variables, in the order the optimiser's moments follow.
+    /// The map's variables in the filter's order, which the optimiser's moments follow.
     vars: Vec<Var>,
     optimizer: Adam,
     /// Texels per step (the objective is evaluated in chunks of as many).
@@ -64,6 +64,8 @@ impl<'a> TensorStepper<'a> {
         let model = tensor_form(terms.shading.model.as_ref())?;
         let varmap = VarMap::new();
         let mut layers = Vec::new();
+        // In the filter's order (`tensor_name`): the optimiser's moments follow it.
+        let mut in_order = Vec::new();
         {
             let mut vars = varmap.data().lock().expect("the var map is ours alone");
             for index in 0..filter.vars.len() / 2 {
@@ -77,11 +79,12 @@ impl<'a> TensorStepper<'a> {
                     w.as_tensor().clone(),
                     Some(b.as_tensor().clone()),
                 ));
+                in_order.extend([w.clone(), b.clone()]);
                 vars.insert(tensor_name(2 * index), w);
                 vars.insert(tensor_name(2 * index + 1), b);
             }
         }
-        let vars = varmap.all_vars();
+        let vars = in_order;
         // Each step sets its scheduled learning rate.
         let optimizer = Adam::new(&vars, 0.0, 0.0)?;
         Ok(TensorStepper {
@@ -198,8 +201,9 @@ impl Stepper for TensorStepper<'_> {
         self.steps
     }
 
-    /// The weights in the filter's layout. The optimiser's moments are not checkpointed, so a
-    /// resumed tensor run starts them afresh (the fused backend's resume is exact).
+    /// The weights in the filter's layout, and the optimiser's moments in the layers' own
+    /// (`tensor_adam_m{i}`, `tensor_adam_v{i}`), so that a resumed run equals an
+    /// uninterrupted one.
     fn state(&self) -> Result<HashMap<String, Tensor>> {
         let vars = self
             .varmap
@@ -213,6 +217,10 @@ impl Stepper for TensorStepper<'_> {
             // Back to the filter's input-major first layer.
             let t = if i == 0 { t.t()?.contiguous()? } else { t };
             state.insert(name, t);
+        }
+        for (i, (m, v)) in self.optimizer.m.iter().zip(&self.optimizer.v).enumerate() {
+            state.insert(format!("tensor_adam_m{i}"), m.to_device(&Device::Cpu)?);
+            state.insert(format!("tensor_adam_v{i}"), v.to_device(&Device::Cpu)?);
         }
         Ok(state)
     }
@@ -234,6 +242,29 @@ impl Stepper for TensorStepper<'_> {
             vars[&tensor_name(2 * index)].set(&w.to_device(&self.device)?)?;
             vars[&tensor_name(2 * index + 1)].set(&b.to_device(&self.device)?)?;
         }
+        // A checkpoint that holds no moments (a fused run's) starts Adam's afresh.
+        let moment = |kind: &str, i: usize| state.get(&format!("tensor_adam_{kind}{i}"));
+        if moment("m", 0).is_none() {
+            self.steps = steps;
+            return Ok(());
+        }
+        for (i, var) in self.vars.iter().enumerate() {
+            let (Some(m), Some(v)) = (moment("m", i), moment("v", i)) else {
+                return Err(Error::file(
+                    origin,
+                    format!("checkpoint lacks tensor_adam_m{i}/v{i}"),
+                ));
+            };
+            if m.dims() != var.dims() || v.dims() != var.dims() {
+                return Err(Error::file(
+                    origin,
+                    "checkpoint optimiser state does not fit this filter",
+                ));
+            }
+            self.optimizer.m[i] = m.to_device(&self.device)?;
+            self.optimizer.v[i] = v.to_device(&self.device)?;
+        }
+        self.optimizer.step = steps as usize;
         self.steps = steps;
         Ok(())
     }
