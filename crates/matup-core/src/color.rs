@@ -34,7 +34,7 @@ pub fn srgb_encode(v: f32) -> (f32, f32) {
     srgb_from_power(v, v.powf(1.0 / 2.4))
 }
 
-/// [`srgb_encode`] with the power as `exp(ln v / 2.4)` from [`crate::simd`], which has no
+/// [`srgb_encode`] with the power as `exp(ln v / 2.4)` from `matup_simd::simd`, which has no
 /// call or branch, so that loops over many values (the training loss's lights) vectorise.
 /// Within 10⁻⁶ of [`srgb_encode`] (tested).
 #[inline(always)]

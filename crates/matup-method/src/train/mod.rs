@@ -1,6 +1,6 @@
 //! Training the filter: the epoch loop with early stopping, and checkpoints. Its examples are
-//! in [`examples`]; the steps themselves in [`fused_backend`] (hand-written CPU code) or
-//! [`tensor_backend`] (candle operations, any device), behind [`stepper`]'s interface, both
+//! in `examples`; the steps themselves in `fused_backend` (hand-written CPU code) or
+//! `tensor_backend` (candle operations, any device), behind `stepper`'s interface, both
 //! stepped by [`adam`].
 
 pub mod adam;

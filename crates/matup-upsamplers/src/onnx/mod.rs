@@ -3,10 +3,10 @@
 //! from a sidecar `NAME.toml` next to `NAME.onnx`; the scale is checked against the network's
 //! real output on a probe input.
 //!
-//! Three engines run the graph: matup's own executor for convolutional SR graphs ([`convnet`],
+//! Three engines run the graph: matup's own executor for convolutional SR graphs (`convnet`,
 //! several times faster on CPUs), used whenever the graph's operators allow, and tract for
 //! every other graph (the optimised tract plan is built once per input shape and reused); on
-//! a GPU (`device=cuda`), the executor's graph as candle operations ([`candle_graph`]), many
+//! a GPU (`device=cuda`), the executor's graph as candle operations (`candle_graph`), many
 //! tiles a call.
 //!
 //! Images are processed in tiles ([`crate::tiled`]) read with `overlap` texels of context on
@@ -14,10 +14,10 @@
 //! tileable image that fits in one tile runs whole on matup's executor, its convolutions
 //! wrapping around, which needs no context at all.
 //!
-//! Rooms: [`upsampler`] loads a network and runs it on one of the engines; [`plugin`] is the
-//! `onnx` upsampler's options and the process's cache of loaded networks; [`source`] finds a
-//! model and reads its sidecar; [`convnet`] (with [`conv`], [`winograd`] and [`nhwc`], its
-//! operations on texel-major feature maps) is matup's executor; [`candle_graph`] is its graph
+//! Rooms: `upsampler` loads a network and runs it on one of the engines; `plugin` is the
+//! `onnx` upsampler's options and the process's cache of loaded networks; `source` finds a
+//! model and reads its sidecar; `convnet` (with `conv`, `winograd` and `nhwc`, its
+//! operations on texel-major feature maps) is matup's executor; `candle_graph` is its graph
 //! as candle operations.
 
 mod candle_graph;
