@@ -1,8 +1,8 @@
 //! Adam (Kingma & Ba 2015, default betas), the optimiser of every training matup does, in
 //! two forms of the same mathematics: [`Adam`], candle operations on any device (matup
 //! learn's networks, the tensor backend's filter), and [`FusedAdam`], one pass per weight
-//! over the CPU's storage (the fused backend, whose gradient comes in one part per thread;
-//! the candle form would cost a tensor operation per part and step).
+//! over the CPU's storage (the fused backend, whose gradient comes in one part per thread:
+//! it sums them as it updates, where the candle form would first add them up as tensors).
 
 use std::collections::HashMap;
 use std::path::Path;
