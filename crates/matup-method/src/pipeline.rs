@@ -49,28 +49,30 @@ pub fn upscale(
     progress: &dyn Progress,
 ) -> Result<(Material, RunReport)> {
     let plan = Plan::new(material, config)?;
-    let (mut result, report) = upscale_whole(material, &plan, options, progress)?;
+    let height = plan.output_size([material.width(), material.height_px()])[1];
+    let (mut result, report) = assembled(height, |sink| {
+        upscale_streamed(material, &plan, options, progress, sink)
+    })?;
     result.origin = material.origin.clone();
     Ok((result, report))
 }
 
-/// [`upscale_streamed`], its bands assembled into one material.
-fn upscale_whole(
-    material: &Material,
-    plan: &Plan,
-    options: &RunOptions,
-    progress: &dyn Progress,
-) -> Result<(Material, RunReport)> {
-    let input = [material.width(), material.height_px()];
-    let mut assembler = Assembler::new(plan.output_size(input)[1]);
-    let report = upscale_streamed(material, plan, options, progress, &mut |first, band| {
+/// A band sink: `sink(first_row, band)`.
+type Sink<'a> = dyn FnMut(usize, &OutputBand) -> Result<()> + 'a;
+
+/// What `stream` hands its sink in bands, assembled into one material `height` rows tall,
+/// with what `stream` returns.
+fn assembled<R>(
+    height: usize,
+    stream: impl FnOnce(&mut Sink) -> Result<R>,
+) -> Result<(Material, R)> {
+    let mut assembler = Assembler::new(height);
+    let returned = stream(&mut |first, band| {
         assembler.add(first, &*band.to_material()?);
         Ok(())
     })?;
-    Ok((
-        assembler.finish().expect("a run makes at least one band"),
-        report,
-    ))
+    let whole = assembler.finish().expect("a run makes at least one band");
+    Ok((whole, returned))
 }
 
 /// Carries out `plan` on `material`, handing the output to `sink` in bands of whole rows, top
@@ -101,12 +103,9 @@ pub fn upscale_streamed(
         size[1],
         plan.reach.describe()
     ));
-    let mut assembler = Assembler::new(input[1] * plan.reach.scale);
-    let report = run_levels(material, plan, options, progress, &mut |first, band| {
-        assembler.add(first, &*band.to_material()?);
-        Ok(())
+    let (whole, report) = assembled(input[1] * plan.reach.scale, |sink| {
+        run_levels(material, plan, options, progress, sink)
     })?;
-    let whole = assembler.finish().expect("a run makes at least one band");
     sink(0, &whole.area_resize(size[0], size[1]).into())?;
     Ok(report)
 }

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use candle_core::{Device, Tensor, Var};
-use candle_nn::{Linear, Module, VarMap};
+use candle_nn::{Linear, Module};
 
 use super::adam::Adam;
 
@@ -23,8 +23,8 @@ use matup_core::shading::tensor_form;
 use matup_core::tensor_shading::{texel_losses, LightTensors, SvbrdfTensors, TensorShading};
 use matup_core::{Error, Result};
 
-/// Steps with candle tensor operations on `device`. The filter's weights are copied into a
-/// [`VarMap`] there (the first layer transposed to candle-nn's `[out, in]`) and copied back
+/// Steps with candle tensor operations on `device`. The filter's weights are copied into
+/// variables there (the first layer transposed to candle-nn's `[out, in]`) and copied back
 /// by [`Stepper::finish`], so inference runs as after fused training.
 pub(super) struct TensorStepper<'a> {
     filter: &'a Filter,
@@ -32,9 +32,9 @@ pub(super) struct TensorStepper<'a> {
     terms: &'a LossTerms<'a>,
     model: &'a dyn TensorShading,
     device: Device,
-    varmap: VarMap,
     layers: Vec<Linear>,
-    /// The map's variables in the filter's order, which the optimiser's moments follow.
+    /// The layers' variables in the filter's order (`tensor_name`), which the optimiser's
+    /// moments follow.
     vars: Vec<Var>,
     optimizer: Adam,
     /// Texels per step (the objective is evaluated in chunks of as many).
@@ -62,29 +62,21 @@ impl<'a> TensorStepper<'a> {
         device: &Device,
     ) -> Result<TensorStepper<'a>> {
         let model = tensor_form(terms.shading.model.as_ref())?;
-        let varmap = VarMap::new();
         let mut layers = Vec::new();
-        // In the filter's order (`tensor_name`): the optimiser's moments follow it.
-        let mut in_order = Vec::new();
-        {
-            let mut vars = varmap.data().lock().expect("the var map is ours alone");
-            for index in 0..filter.vars.len() / 2 {
-                let (w, b) = layer_weights(filter, index)?;
-                let (w, b) = (
-                    Var::from_tensor(&w.to_device(device)?)?,
-                    Var::from_tensor(&b.to_device(device)?)?,
-                );
-                // The layer reads the variables' storage, which the optimiser updates in place.
-                layers.push(Linear::new(
-                    w.as_tensor().clone(),
-                    Some(b.as_tensor().clone()),
-                ));
-                in_order.extend([w.clone(), b.clone()]);
-                vars.insert(tensor_name(2 * index), w);
-                vars.insert(tensor_name(2 * index + 1), b);
-            }
+        let mut vars = Vec::new();
+        for index in 0..filter.vars.len() / 2 {
+            let (w, b) = layer_weights(filter, index)?;
+            let (w, b) = (
+                Var::from_tensor(&w.to_device(device)?)?,
+                Var::from_tensor(&b.to_device(device)?)?,
+            );
+            // The layer reads the variables' storage, which the optimiser updates in place.
+            layers.push(Linear::new(
+                w.as_tensor().clone(),
+                Some(b.as_tensor().clone()),
+            ));
+            vars.extend([w, b]);
         }
-        let vars = in_order;
         // Each step sets its scheduled learning rate.
         let optimizer = Adam::new(&vars, 0.0, 0.0)?;
         Ok(TensorStepper {
@@ -93,7 +85,6 @@ impl<'a> TensorStepper<'a> {
             terms,
             model,
             device: device.clone(),
-            varmap,
             layers,
             vars,
             optimizer,
@@ -205,18 +196,12 @@ impl Stepper for TensorStepper<'_> {
     /// (`tensor_adam_m{i}`, `tensor_adam_v{i}`), so that a resumed run equals an
     /// uninterrupted one.
     fn state(&self) -> Result<HashMap<String, Tensor>> {
-        let vars = self
-            .varmap
-            .data()
-            .lock()
-            .expect("the var map is ours alone");
         let mut state = HashMap::new();
-        for i in 0..self.filter.vars.len() {
-            let name = tensor_name(i);
-            let t = vars[&name].as_tensor().to_device(&Device::Cpu)?;
+        for (i, var) in self.vars.iter().enumerate() {
+            let t = var.as_tensor().to_device(&Device::Cpu)?;
             // Back to the filter's input-major first layer.
             let t = if i == 0 { t.t()?.contiguous()? } else { t };
-            state.insert(name, t);
+            state.insert(tensor_name(i), t);
         }
         for (i, (m, v)) in self.optimizer.m.iter().zip(&self.optimizer.v).enumerate() {
             state.insert(format!("tensor_adam_m{i}"), m.to_device(&Device::Cpu)?);
@@ -232,15 +217,10 @@ impl Stepper for TensorStepper<'_> {
         origin: &Path,
     ) -> Result<()> {
         self.filter.load_tensors(state, origin)?;
-        let vars = self
-            .varmap
-            .data()
-            .lock()
-            .expect("the var map is ours alone");
         for index in 0..self.filter.vars.len() / 2 {
             let (w, b) = layer_weights(self.filter, index)?;
-            vars[&tensor_name(2 * index)].set(&w.to_device(&self.device)?)?;
-            vars[&tensor_name(2 * index + 1)].set(&b.to_device(&self.device)?)?;
+            self.vars[2 * index].set(&w.to_device(&self.device)?)?;
+            self.vars[2 * index + 1].set(&b.to_device(&self.device)?)?;
         }
         // A checkpoint that holds no moments (a fused run's) starts Adam's afresh.
         let moment = |kind: &str, i: usize| state.get(&format!("tensor_adam_{kind}{i}"));
