@@ -221,6 +221,7 @@ fn experiments_record_failures_and_resume_without_rerunning() {
             vec![toml::Value::from("l21"), toml::Value::from("l11")],
         )]),
         mode: Default::default(),
+        degrade: Vec::new(),
         view: false,
     };
     let runs = exp.runs().unwrap();
@@ -290,4 +291,64 @@ fn every_shipped_sweep_reads_and_its_points_are_valid_settings() {
         read += 1;
     }
     assert!(read >= 30, "{read} sweeps in {}", folder.display());
+}
+
+#[test]
+fn degraded_inputs_run_beside_clean_ones_against_the_clean_truth() {
+    let out = tempfile::tempdir().unwrap();
+    let denim = common::test_material("polyhaven_denim_fabric");
+    let exp = Experiment {
+        materials: vec![denim],
+        factor: 4,
+        crop: Some(64),
+        eval_lights: 4,
+        eval_shading: "ggx".into(),
+        baselines: vec!["lanczos3".into()],
+        degrade: vec!["clean".into(), "jpeg30".into(), "bc1".into()],
+        base: toml::from_str("upsampler = \"bilinear\"").unwrap(),
+        ..Default::default()
+    };
+    let runs = exp.runs().unwrap();
+    let ids: Vec<&str> = runs.iter().map(|r| r.id.as_str()).collect();
+    assert_eq!(
+        ids,
+        [
+            "polyhaven_denim_fabric/per-map upsampler=lanczos3",
+            "polyhaven_denim_fabric/matup",
+            "polyhaven_denim_fabric+jpeg30/per-map upsampler=lanczos3",
+            "polyhaven_denim_fabric+jpeg30/matup",
+            "polyhaven_denim_fabric+bc1/per-map upsampler=lanczos3",
+            "polyhaven_denim_fabric+bc1/matup",
+        ]
+    );
+    // The per-map runs: clean, JPEG 30, BC1.
+    let runs: Vec<_> = runs.into_iter().step_by(2).collect();
+    let rows = run_experiment(&exp, &runs, out.path(), &Silent).unwrap();
+    let psnr = |i: usize| rows[i].metric("render_psnr");
+    assert!(rows.iter().all(|r| r.error.is_none()));
+    // Each degradation costs render PSNR against the same truth (measured: about 1 dB).
+    assert!(
+        psnr(1) < psnr(0) - 0.3,
+        "JPEG 30 {} vs clean {}",
+        psnr(1),
+        psnr(0)
+    );
+    assert!(
+        psnr(2) < psnr(0) - 0.3,
+        "BC1 {} vs clean {}",
+        psnr(2),
+        psnr(0)
+    );
+    assert_eq!(rows[1].material, "polyhaven_denim_fabric+jpeg30");
+    // The same noise every time: a second run of the same input gives the same numbers.
+    let again = run_experiment(
+        &exp,
+        &runs[1..2],
+        tempfile::tempdir().unwrap().path(),
+        &Silent,
+    )
+    .unwrap();
+    assert_eq!(again[0].metric("render_psnr"), psnr(1));
+    let e = experiment_error("materials = [\"/a\"]\ndegrade = \"jpeg200\"\n");
+    assert!(e.contains("'jpeg200'") && e.contains("quality"), "{e}");
 }

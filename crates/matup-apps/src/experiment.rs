@@ -8,10 +8,13 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use rand::rngs::StdRng;
+use rand::SeedableRng;
 use serde::{Deserialize, Serialize};
 
 use crate::html::{escape, href};
 use crate::view::write_view;
+use matup_core::degrade::{degrade_material, MaterialDegradation};
 use matup_core::io::{load_material, save_material, write_atomic, LoadOptions, Names, SaveOptions};
 use matup_core::lights::LightSetSpec;
 use matup_core::material::{FileFormat, Material, NormalConvention};
@@ -20,7 +23,10 @@ use matup_core::resample::Border;
 use matup_core::shading::shading_model;
 use matup_core::upsample::{check_scale, upsampler};
 use matup_core::{Error, PluginSpec, Result};
-use matup_eval::metrics::{evaluate, false_colour, new_structure, worst_new_structure, Evaluation};
+use matup_eval::metrics::{
+    evaluate, false_colour, new_structure, worst_invented_structure, worst_new_structure,
+    Evaluation,
+};
 use matup_method::config::{check_supported_scale, Config};
 use matup_method::per_map::upscale_per_map;
 use matup_method::pipeline::{detect_tileable, upscale};
@@ -65,11 +71,35 @@ pub struct Experiment {
     /// `grid`: every combination of the axes; `zip`: the i-th values of every axis together.
     #[serde(default)]
     pub mode: AxesMode,
+    /// Degradations of the LR inputs (`matup_core::degrade::MaterialDegradation`: `"bc1"`,
+    /// `"jpeg75"`, `"dds"`, …; `"clean"` for none), one or a list: each material runs once per
+    /// entry, named `MATERIAL+DEGRADATION`, against its clean truth. None: clean inputs.
+    #[serde(default, deserialize_with = "one_or_many")]
+    pub degrade: Vec<String>,
     /// Keep every run's maps in `outputs/MATERIAL/RUN/` (the truth in `outputs/MATERIAL/truth/`)
     /// and write `outputs/MATERIAL/view.html`, where a menu picks the method to compare.
     #[serde(default)]
     pub view: bool,
 }
+
+/// A string or a list of strings, as a list.
+fn one_or_many<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Vec<String>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum OneOrMany {
+        One(String),
+        Many(Vec<String>),
+    }
+    Ok(match OneOrMany::deserialize(d)? {
+        OneOrMany::One(s) => vec![s],
+        OneOrMany::Many(v) => v,
+    })
+}
+
+/// The name of clean inputs in [`Experiment::degrade`].
+pub const CLEAN: &str = "clean";
 
 fn default_factor() -> usize {
     4
@@ -106,6 +136,8 @@ pub struct Run {
     /// `material/method settings`: unique, and the key a resumed experiment skips by.
     pub id: String,
     pub material: PathBuf,
+    /// What the LR input goes through before the method sees it.
+    pub degrade: Option<MaterialDegradation>,
     pub method: Method,
     /// `per-map`, `matup` or `oracle`.
     pub kind: &'static str,
@@ -156,7 +188,7 @@ impl Row {
         };
         Row {
             id: run.id.clone(),
-            material: material_name(&run.material),
+            material: run.input_name(),
             kind: run.kind.into(),
             settings: run.settings.clone(),
             seconds: facts.seconds,
@@ -252,7 +284,20 @@ impl Experiment {
             .collect()
     }
 
-    /// Every run, materials outermost: baselines, then each sweep point (and its oracle).
+    /// The inputs' degradations, each checked: `None` for clean inputs.
+    pub fn degradations(&self) -> Result<Vec<Option<MaterialDegradation>>> {
+        if self.degrade.is_empty() {
+            return Ok(vec![None]);
+        }
+        (self.degrade.iter())
+            .map(|name| match name.as_str() {
+                CLEAN => Ok(None),
+                _ => name.parse().map(Some),
+            })
+            .collect()
+    }
+
+    /// Every run, materials outermost (each degradation of a material after it): baselines, then each sweep point (and its oracle).
     pub fn runs(&self) -> Result<Vec<Run>> {
         if self.materials.is_empty() {
             return Err(Error::Invalid("the experiment names no materials".into()));
@@ -272,9 +317,12 @@ impl Experiment {
                 )));
             }
         }
+        let degradations = self.degradations()?;
         let mut runs = Vec::new();
-        for material in &self.materials {
-            let name = material_name(material);
+        for (material, degrade) in
+            (self.materials.iter()).flat_map(|m| degradations.iter().map(move |d| (m, d)))
+        {
+            let name = input_name(material, degrade.as_ref());
             let run = |kind: &'static str, method: Method, settings: BTreeMap<String, String>| {
                 let label = settings
                     .iter()
@@ -284,6 +332,7 @@ impl Experiment {
                 Run {
                     id: format!("{name}/{kind} {label}").trim_end().to_string(),
                     material: material.clone(),
+                    degrade: degrade.clone(),
                     method,
                     kind,
                     settings,
@@ -349,7 +398,13 @@ struct Pair {
     lr: Material,
 }
 
-fn make_pair(path: &Path, experiment: &Experiment) -> Result<Pair> {
+/// The true material at `path` and its LR input, degraded as `degrade` says (with the same
+/// noise every time: a seed of the material's name).
+fn make_pair(
+    path: &Path,
+    degrade: Option<&MaterialDegradation>,
+    experiment: &Experiment,
+) -> Result<Pair> {
     let mut truth = load_material(Some(path), &LoadOptions::default())?;
     if let Some(c) = experiment.crop {
         let at = experiment.crop_at;
@@ -378,7 +433,12 @@ fn make_pair(path: &Path, experiment: &Experiment) -> Result<Pair> {
             ),
         ));
     }
-    let lr = truth.box_downsample(f);
+    let mut lr = truth.box_downsample(f);
+    if let Some(d) = degrade {
+        let seed = (material_name(path).bytes()).fold(0u64, |h, b| h.wrapping_mul(31) ^ b as u64);
+        lr = degrade_material(&lr, d, &mut StdRng::seed_from_u64(seed))
+            .map_err(|e| Error::material(path, format!("degraded as '{d}': {e}")))?;
+    }
     Ok(Pair { truth, lr })
 }
 
@@ -432,7 +492,7 @@ pub fn run_experiment(
     }
     let eval_model = shading_model(&experiment.eval_shading.parse::<PluginSpec>()?)?;
     let eval_lights = LightSetSpec::held_out(experiment.eval_lights);
-    let mut pair: Option<(PathBuf, Result<Pair>)> = None;
+    let mut pair: Option<(String, Result<Pair>)> = None;
     for (i, run) in runs.iter().enumerate() {
         if done.contains(&run.id) {
             continue;
@@ -441,8 +501,9 @@ pub fn run_experiment(
             return Err(Error::Cancelled { epochs_done: 0 });
         }
         progress.note(&format!("[{}/{}] {}", i + 1, runs.len(), run.id));
-        if pair.as_ref().is_none_or(|(p, _)| *p != run.material) {
-            pair = Some((run.material.clone(), make_pair(&run.material, experiment)));
+        if pair.as_ref().is_none_or(|(p, _)| *p != run.input_name()) {
+            let made = make_pair(&run.material, run.degrade.as_ref(), experiment);
+            pair = Some((run.input_name(), made));
         }
         let outcome = match &pair.as_ref().expect("set above").1 {
             Err(e) => Err(e.to_string()),
@@ -473,8 +534,11 @@ pub fn run_experiment(
                                 Some(&p.truth.base_color),
                                 facts.border,
                             )?);
-                            ev.new_structure = new_structure(&p.lr, &material, facts.border)?;
+                            ev.new_structure =
+                                new_structure(&p.lr, &material, Some(&p.truth), facts.border)?;
                             ev.new_structure_worst = Some(worst_new_structure(&ev.new_structure));
+                            ev.invented_structure_worst =
+                                Some(worst_invented_structure(&ev.new_structure));
                             Ok((facts, ev))
                         })
                         .map_err(|e| e.to_string())
@@ -506,7 +570,7 @@ pub fn run_experiment(
 
 /// Where [`Experiment::view`] keeps a material's outputs.
 fn outputs_folder(out: &Path, run: &Run) -> PathBuf {
-    out.join("outputs").join(material_name(&run.material))
+    out.join("outputs").join(run.input_name())
 }
 
 /// Saves `material` as `name` (the run's method and settings when empty) under the run's
@@ -605,6 +669,20 @@ fn subfolders(folder: &Path) -> Result<Vec<PathBuf>> {
 }
 
 /// A material's name in run ids and tables: its folder's name.
+impl Run {
+    /// The input's name: the material's folder name, `+DEGRADATION` where it is degraded.
+    pub fn input_name(&self) -> String {
+        input_name(&self.material, self.degrade.as_ref())
+    }
+}
+
+fn input_name(material: &Path, degrade: Option<&MaterialDegradation>) -> String {
+    match degrade {
+        Some(d) => format!("{}+{d}", material_name(material)),
+        None => material_name(material),
+    }
+}
+
 fn material_name(path: &Path) -> String {
     path.file_name().map_or_else(
         || path.display().to_string(),

@@ -49,6 +49,12 @@ pub struct BenchArgs {
     /// Held-out lights of the evaluation.
     #[arg(long, default_value_t = 16)]
     pub eval_lights: usize,
+    /// Degrade each LR input first, against its clean truth: bc1, bc3, bc4, bc5, dds (as games
+    /// ship them), jpegQ, jpegQ-444, noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs, or
+    /// several joined by '+'; comma-separated for several runs of each material ("clean" for
+    /// none).
+    #[arg(long, value_delimiter = ',')]
+    pub degrade: Vec<String>,
     /// Keep every method's maps (outputs/MATERIAL/METHOD/, the truth beside them) and write
     /// outputs/MATERIAL/view.html, a relightable page where a menu picks the method.
     #[arg(long)]
@@ -129,6 +135,7 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
             upsamplers.into_iter().map(toml::Value::String).collect(),
         )]),
         mode: Default::default(),
+        degrade: args.degrade.clone(),
         view: args.view,
     };
     execute(&experiment, &args.output, args.quiet)

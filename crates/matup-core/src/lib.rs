@@ -8,6 +8,8 @@
 //!   `file_format`, `normal_convention`: **formats and exporters' layouts** live here:
 //!   recognising a folder's files by exporters' names and packings (Unity's mask map, ORM…),
 //!   each file's channels (`layout`), reading and writing every format in bands.
+//! - `degrade`: what stored maps go through in the wild (block compression, JPEG, dithering,
+//!   noise, blur, halos), applied as files store them, for training and measurement.
 //! - `shading`, `render`, `lights`, `loss`, `tensor_shading`: **the `ShadingModel` trait**
 //!   and registry, the renderer and light sets, the loss norms, shading as candle tensors.
 //! - `upsample`, `resample`, `tileable`: **the `RgbUpsampler` trait** and registry, the
@@ -20,6 +22,7 @@
 //! The built-in plugins are in `matup-shading` and `matup-upsamplers`.
 
 pub mod color;
+pub mod degrade;
 pub mod device;
 pub mod device_maps;
 mod error;

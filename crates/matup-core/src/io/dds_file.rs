@@ -26,7 +26,21 @@ pub(crate) fn read_dds(
     path: &Path,
     check_size: impl Fn(usize, usize) -> Result<()>,
 ) -> Result<(Map, DdsFormat, Vec<String>)> {
-    let mut bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_dds_checked(bytes, path, check_size)
+}
+
+/// A DDS file's bytes decoded as [`read_dds`] reads them (`path` names it in errors); its
+/// map and format.
+pub(crate) fn decode_dds(bytes: Vec<u8>, path: &Path) -> Result<(Map, DdsFormat)> {
+    decode_dds_checked(bytes, path, |_, _| Ok(())).map(|(map, format, _)| (map, format))
+}
+
+fn decode_dds_checked(
+    mut bytes: Vec<u8>,
+    path: &Path,
+    check_size: impl Fn(usize, usize) -> Result<()>,
+) -> Result<(Map, DdsFormat, Vec<String>)> {
     let notes = lenient_dx10_header(&mut bytes);
     let mut decoder = Decoder::new(std::io::Cursor::new(bytes))
         .map_err(|e| Error::file(path, format!("not a readable DDS file: {e}")))?;

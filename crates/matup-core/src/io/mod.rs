@@ -2,7 +2,7 @@
 //! at this edge: the rest of matup sees only [`Material`]. Both go through the material's
 //! layout ([`crate::layout`]): what each channel of each file holds and how it is stored.
 
-mod dds_file;
+pub(crate) mod dds_file;
 mod discover;
 mod image_file;
 mod read;
