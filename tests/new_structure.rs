@@ -96,8 +96,8 @@ fn defaults_and_bicubic(folder: &Path) -> (Structures, Structures) {
     let kernel = KernelUpsampler::new(Kernel::Bicubic { a: -0.5 });
     let plain = upscale_per_map(&lr, &kernel, 4, Border::Mirror).unwrap();
     (
-        new_structure(&lr, &out, Border::Mirror).unwrap(),
-        new_structure(&lr, &plain, Border::Mirror).unwrap(),
+        new_structure(&lr, &out, None, Border::Mirror).unwrap(),
+        new_structure(&lr, &plain, None, Border::Mirror).unwrap(),
     )
 }
 

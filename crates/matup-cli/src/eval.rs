@@ -10,8 +10,8 @@ use matup_core::tileable::decide_tileable;
 use matup_core::{load_material, shading_model, LightSetSpec, LoadOptions, Material, PluginSpec};
 use matup_eval::metrics::{
     evaluate, false_colour, map_block_edges, map_seam_steps, new_structure, seam_ratios,
-    worst_new_structure, Evaluation, FalseColour, NewStructure, NEW_STRUCTURE_DEGREES,
-    NEW_STRUCTURE_LEVELS,
+    worst_invented_structure, worst_new_structure, Evaluation, FalseColour, NewStructure,
+    NEW_STRUCTURE_DEGREES, NEW_STRUCTURE_LEVELS,
 };
 
 #[derive(Args, Debug)]
@@ -72,7 +72,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             .map(|lr| false_colour(&lr.base_color, &candidate.base_color, None, border(lr)))
             .transpose()?;
         let new = (input.as_ref())
-            .map(|lr| new_structure(lr, &candidate, border(lr)))
+            .map(|lr| new_structure(lr, &candidate, None, border(lr)))
             .transpose()?;
         if args.json {
             let report = serde_json::json!({
@@ -83,6 +83,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 "false_colour": false_colour,
                 "new_structure": new,
                 "new_structure_worst": new.as_ref().map(worst_new_structure),
+                "invented_structure_worst": new.as_ref().map(worst_invented_structure),
             });
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
@@ -122,8 +123,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         })
         .transpose()?;
     if let Some(lr) = &input {
-        e.new_structure = new_structure(lr, &candidate, border(lr))?;
+        e.new_structure = new_structure(lr, &candidate, Some(&reference), border(lr))?;
         e.new_structure_worst = Some(worst_new_structure(&e.new_structure));
+        e.invented_structure_worst = Some(worst_invented_structure(&e.new_structure));
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&e)?);
@@ -164,18 +166,24 @@ fn print_new_structure(maps: Option<&BTreeMap<String, NewStructure>>) {
         "new structure per map: texels more than {NEW_STRUCTURE_LEVELS} levels outside every \
          input texel around them (luminance / any channel; normals: turned more than \
          {NEW_STRUCTURE_DEGREES}° from every input normal around them), and the blocks \
-         box-filtered back against their input texel (levels, mean / worst)"
+         box-filtered back against their input texel (levels, mean / worst); and invented \
+         structure: texels drawn where the input is flat within its noise, which a smooth \
+         upsampling (and the reference, where given) lacks"
     );
     for (map, n) in maps {
         let angle = n
             .normal_angle
             .map_or(String::new(), |a| format!(", angle {:.3}%", 100.0 * a));
         println!(
-            "  {map:<12} {:.3}% / {:.3}%{angle}; box-back {:.2} / {:.2}",
+            "  {map:<12} {:.3}% / {:.3}%{angle}; box-back {:.2} / {:.2}; invented {:.3}% \
+             (input flat {:.0}%, noise {:.1} levels)",
             100.0 * n.luminance,
             100.0 * n.channel,
             n.box_back_mean,
-            n.box_back_worst
+            n.box_back_worst,
+            100.0 * n.invented.share,
+            100.0 * n.invented.flat_share,
+            n.invented.noise_levels
         );
     }
 }

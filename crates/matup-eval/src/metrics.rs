@@ -18,6 +18,8 @@ use matup_core::shading::ShadingModel;
 use matup_core::tileable::{detect_tileable, wrap_seam_ratio};
 use matup_core::{Error, Result};
 
+use crate::invented::{invented_structure, Invented};
+
 /// PSNR of identical images: the mean squared error is floored at 1e-10, so PSNR tops out at
 /// 100 dB instead of infinity (JSON has no infinity).
 pub const MAX_PSNR: f64 = 100.0;
@@ -75,6 +77,9 @@ pub struct Evaluation {
     pub new_structure: BTreeMap<String, NewStructure>,
     /// Of those maps, the largest share of texels of new structure ([`worst_new_structure`]).
     pub new_structure_worst: Option<f64>,
+    /// Of those maps, the largest share of texels of invented structure
+    /// ([`worst_invented_structure`]).
+    pub invented_structure_worst: Option<f64>,
 }
 
 /// How many texels of an upscaled base colour have a hue that neither the input nor the truth
@@ -169,13 +174,18 @@ pub struct NewStructure {
     /// texel, in 8-bit levels of the stored values (colour averaged as light, in linear).
     pub box_back_mean: f64,
     pub box_back_worst: f64,
+    /// Structure drawn where the input is flat within its noise, which neither a smooth
+    /// upsampling of the input nor (where given) the truth has ([`invented_structure`]).
+    pub invented: Invented,
 }
 
 /// [`NewStructure`] of each map `candidate` (upscaled `scale`×) and `lr` both have: base colour,
-/// normal, roughness, metallic and height. Neighbours past the edge as `border` says.
+/// normal, roughness, metallic and height; invented structure against `truth` where given.
+/// Neighbours past the edge as `border` says.
 pub fn new_structure(
     lr: &Material,
     candidate: &Material,
+    truth: Option<&Material>,
     border: Border,
 ) -> Result<BTreeMap<String, NewStructure>> {
     let scale = candidate.width() / lr.width().max(1);
@@ -202,9 +212,10 @@ pub fn new_structure(
     let mut out = BTreeMap::new();
     for kind in kinds {
         if let (Some(lr_map), Some(up)) = (lr.map(kind), candidate.map(kind)) {
+            let truth = truth.and_then(|t| t.map(kind));
             out.insert(
                 kind.file_stem().to_string(),
-                map_new_structure(kind, lr_map, up, scale, border),
+                map_new_structure(kind, lr_map, up, truth, scale, border),
             );
         }
     }
@@ -218,11 +229,19 @@ pub fn worst_new_structure(maps: &BTreeMap<String, NewStructure>) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The largest share of texels of invented structure over `maps` ([`invented_structure`]).
+pub fn worst_invented_structure(maps: &BTreeMap<String, NewStructure>) -> f64 {
+    (maps.values())
+        .map(|m| m.invented.share)
+        .fold(0.0, f64::max)
+}
+
 /// [`new_structure`] of one map of `kind`.
 fn map_new_structure(
     kind: MapKind,
     lr: &Map,
     up: &Map,
+    truth: Option<&Map>,
     scale: usize,
     border: Border,
 ) -> NewStructure {
@@ -300,6 +319,7 @@ fn map_new_structure(
         normal_angle,
         box_back_mean: sum / lr.texels().max(1) as f64,
         box_back_worst: worst as f64,
+        invented: invented_structure(kind, lr, up, truth, border),
     }
 }
 
@@ -384,6 +404,7 @@ pub fn evaluate(
         false_colour: None,
         new_structure: BTreeMap::new(),
         new_structure_worst: None,
+        invented_structure_worst: None,
     })
 }
 
@@ -588,7 +609,7 @@ mod tests {
         lr.base_color = lr_colour.clone();
         let mut up = Material::uniform(64, [0.8; 3], 0.5, 0.0);
         up.base_color = Map::from_fn(64, 64, 3, |c, y, x| lr_colour.get(c, y / 4, x / 4));
-        let clean = new_structure(&lr, &up, Border::Wrap).unwrap();
+        let clean = new_structure(&lr, &up, None, Border::Wrap).unwrap();
         for (map, n) in &clean {
             assert_eq!((n.luminance, n.channel), (0.0, 0.0), "{map}");
             assert!(n.box_back_worst < 0.01, "{map}: {}", n.box_back_worst);
@@ -606,7 +627,7 @@ mod tests {
                 blob.base_color.plane_mut(c)[y * 64 + x] = 0.0;
             }
         }
-        let found = new_structure(&lr, &blob, Border::Wrap).unwrap();
+        let found = new_structure(&lr, &blob, None, Border::Wrap).unwrap();
         let colour = found["baseColor"];
         assert_eq!(colour.luminance, 4.0 / 4096.0);
         assert_eq!(colour.channel, 4.0 / 4096.0);
@@ -625,11 +646,11 @@ mod tests {
                 turned.normal.plane_mut(c)[i] = v;
             }
         }
-        let normal = new_structure(&lr, &turned, Border::Wrap).unwrap()["normal"];
+        let normal = new_structure(&lr, &turned, None, Border::Wrap).unwrap()["normal"];
         assert_eq!(normal.normal_angle, Some(1.0 / 4096.0));
         // Sizes that are no whole multiple are refused.
         let odd = Material::uniform(30, [0.8; 3], 0.5, 0.0);
-        assert!(new_structure(&lr, &odd, Border::Wrap).is_err());
+        assert!(new_structure(&lr, &odd, None, Border::Wrap).is_err());
     }
 
     #[test]
