@@ -2,10 +2,12 @@
 
 use std::path::{Path, PathBuf};
 
+use matup_core::degrade::MaterialDegradation;
 use matup_core::{Error, LossNorm, Result};
 use serde::{Deserialize, Serialize};
 
 use crate::data::Shares;
+use crate::degradations::Degradations;
 
 /// Which of the network's tensors a run trains; the others keep the base model's values.
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
@@ -126,6 +128,14 @@ pub struct LearnConfig {
     /// Held-out lights of the validation renders.
     #[serde(default = "default_val_lights")]
     pub val_lights: usize,
+    /// What the network's LR inputs go through (block compression, JPEG, dithering, noise,
+    /// blur, halos), drawn per crop and per map; the truth stays clean. None: clean inputs.
+    #[serde(default)]
+    pub degradations: Option<Degradations>,
+    /// Named degradations (`matup_core::degrade::MaterialDegradation`: `jpeg75`, `bc1`, …),
+    /// each adding a degraded copy of every validation material to the validation set.
+    #[serde(default)]
+    pub val_degrade: Vec<String>,
     pub seed: u64,
 }
 
@@ -242,6 +252,16 @@ impl LearnConfig {
         }
         if self.height_guide && self.target != Target::Normals {
             return Err("height_guide needs target = \"normals\"".into());
+        }
+        if let Some(d) = &self.degradations {
+            if self.target != Target::Maps {
+                return Err("degradations need target = \"maps\"".into());
+            }
+            d.validate()?;
+        }
+        for name in &self.val_degrade {
+            name.parse::<MaterialDegradation>()
+                .map_err(|e| format!("val_degrade: {e}"))?;
         }
         self.loss_norm().map_err(|e| e.to_string())?;
         Ok(())

@@ -2,8 +2,9 @@
 //! space. The result is written back into the ONNX file and validated by `matup upscale`.
 //!
 //! Rooms:
-//! - `config`, `data`, `floor_tiles`: the settings; training pairs made as matup makes its
-//!   inputs; floor tiles cut into training crops, which the corpus lacks.
+//! - `config`, `data`, `floor_tiles`, `degradations`: the settings; training pairs made as
+//!   matup makes its inputs; floor tiles cut into training crops, which the corpus lacks; the
+//!   compression, noise and sharpening the network's inputs go through.
 //! - `net`, `export`: the ONNX network rebuilt from candle operations, and written back.
 //! - `post_process`, `grid_term`: what `matup upscale` does with the network's maps, as
 //!   differentiable operations; a loss term on the output's texel grid.
@@ -11,6 +12,7 @@
 
 pub mod config;
 pub mod data;
+pub mod degradations;
 pub mod export;
 pub mod floor_tiles;
 pub mod grid_term;

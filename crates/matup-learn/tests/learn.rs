@@ -89,7 +89,15 @@ fn shipped_against_matup(scale: usize) -> (f32, f32) {
     let lr = corpus_crop("ambientcg_Rock029", 64 * scale).box_downsample(scale);
     let back_projection = BackProjection::new(64, scale, Border::Mirror, &device).unwrap();
     let route = (scale < 4).then(|| Route::new(64, 4, scale, Border::Mirror, &device).unwrap());
-    let (ours, _) = shipped_maps(&net, &[&lr], route.as_ref(), &back_projection, &device).unwrap();
+    let (ours, _) = shipped_maps(
+        &net,
+        &[&lr],
+        &[true],
+        route.as_ref(),
+        &back_projection,
+        &device,
+    )
+    .unwrap();
     let ours = ours.get(0).unwrap();
     // matup's defaults: the same network on matup's own executor, each map read with its
     // mirrored surroundings, ×4 and shrunk to ×`scale` where that is less, then back-projected.
@@ -374,6 +382,8 @@ fn tiny_run(dir: &Path, iterations: usize) -> LearnConfig {
         validate_every: 3,
         val_crop: 32,
         val_lights: 4,
+        degradations: None,
+        val_degrade: Vec::new(),
         seed: 3,
     }
 }
@@ -934,4 +944,47 @@ fn train_until(config: &LearnConfig, dir: &Path, steps: usize) -> matup_learn::S
         },
         other => panic!("expected the run to stop at step {steps}: {other:?}"),
     }
+}
+
+#[test]
+fn degradations_reach_the_network_input_only_and_are_drawn_again_on_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny_run(dir.path(), 2);
+    let degraded = LearnConfig {
+        degradations: Some(
+            toml::from_str(
+                "clean_share = 0.0\nblock = { probability = 1.0 }\njpeg = { probability = 1.0, quality = [30, 40] }\n",
+            )
+            .unwrap(),
+        ),
+        val_degrade: vec!["jpeg50".into()],
+        ..config.clone()
+    };
+    let loss = |c: &LearnConfig, step: usize| {
+        let trainer = matup_learn::train::Trainer::new(c, &Device::Cpu).unwrap();
+        trainer.loss(step).unwrap().1
+    };
+    let (clean, worse) = (loss(&config, 0), loss(&degraded, 0));
+    // The same crop and lights: blocks and JPEG in the input cost render loss against the
+    // clean truth, and a step draws the same degradations every time it is taken.
+    assert!(
+        worse.render > clean.render,
+        "{} vs {}",
+        worse.render,
+        clean.render
+    );
+    assert_eq!(loss(&degraded, 0).loss, worse.loss);
+    // The validation set: each material clean, then degraded as named.
+    let set = matup_learn::train::validation_set(&degraded).unwrap();
+    let names: Vec<&str> = set.iter().map(|v| v.name.as_str()).collect();
+    assert_eq!(names, ["b", "b+jpeg50"]);
+    assert_eq!(set[0].truth, set[1].truth);
+    assert_ne!(set[0].lr, set[1].lr);
+    // A mixture that cannot be drawn is refused with its key.
+    let path = dir.path().join("bad.toml");
+    let mut text = toml::to_string(&degraded).unwrap();
+    text = text.replace("quality = [30, 40]", "quality = [40, 30]");
+    std::fs::write(&path, text).unwrap();
+    let message = LearnConfig::load(&path).unwrap_err().to_string();
+    assert!(message.contains("jpeg.quality"), "{message}");
 }

@@ -141,12 +141,21 @@ impl Trainer {
     pub fn loss(&self, iteration: usize) -> Result<(Tensor, StepLoss)> {
         let mut rng = self.rng(iteration);
         let c = &self.config;
-        let pairs: Vec<_> = (0..c.batch)
+        let mut pairs: Vec<_> = (0..c.batch)
             .map(|_| random_pair(&self.corpus, c.crop_size(), c.scale, c.shares(), &mut rng))
             .collect();
         let lights = self.random_lights(c.lights, &mut rng);
+        // Drawn after the lights, so that runs without degradations draw what they always drew.
+        let mut projected = vec![true; pairs.len()];
+        if let Some(degradations) = &c.degradations {
+            for (pair, projected) in pairs.iter_mut().zip(&mut projected) {
+                let (lr, degraded) = degradations.apply(&pair.lr, &mut rng)?;
+                pair.lr = lr;
+                *projected = !degraded || degradations.project_degraded;
+            }
+        }
         match c.target {
-            Target::Maps => self.maps_loss(&pairs, &lights),
+            Target::Maps => self.maps_loss(&pairs, &projected, &lights),
             Target::Renders => self.renders_loss(&pairs, &lights),
             Target::Normals => self.normals_loss(&pairs, &lights),
         }
@@ -155,11 +164,17 @@ impl Trainer {
     /// The network's maps, decoded and back-projected as `matup upscale` ships them, rendered
     /// against the truth's renders (plus the normal term); only the crops' centres are scored,
     /// without the `context` around them.
-    fn maps_loss(&self, pairs: &[Pair], lights: &[Light]) -> Result<(Tensor, StepLoss)> {
+    fn maps_loss(
+        &self,
+        pairs: &[Pair],
+        projected: &[bool],
+        lights: &[Light],
+    ) -> Result<(Tensor, StepLoss)> {
         let lrs: Vec<&Material> = pairs.iter().map(|p| &p.lr).collect();
         let (hr, fixed) = shipped_maps(
             &self.net,
             &lrs,
+            projected,
             self.route.as_ref(),
             &self.back_projection,
             &self.device,
@@ -281,10 +296,13 @@ impl TrueTexels {
 /// features `[B, 7, H, W]`, decoded and back-projected, and per material the features held
 /// constant. The network reads each LR crop whole, zero padded at its edges, which inference
 /// inside an image never meets: [`centre`] keeps what lies out of the padding's reach. A
-/// `route` shrinks the network's outputs to the scale trained for.
+/// `route` shrinks the network's outputs to the scale trained for. The materials `projected`
+/// marks false keep the network's decoded maps unprojected (`filter.back_project = false`: a
+/// degraded input is not what the output should box-filter back to).
 pub fn shipped_maps(
     net: &TrainableNet,
     lrs: &[&Material],
+    projected: &[bool],
     route: Option<&Route>,
     back_projection: &BackProjection,
     device: &Device,
@@ -295,8 +313,21 @@ pub fn shipped_maps(
     if let Some(route) = route {
         outputs = route.apply(&outputs)?;
     }
-    let hr = back_projection.apply(&decode_outputs(&outputs)?, &lr)?;
-    Ok((hr, fixed))
+    let decoded = decode_outputs(&outputs)?;
+    let hr = back_projection.apply(&decoded, &lr)?;
+    if projected.iter().all(|&p| p) {
+        return Ok((hr, fixed));
+    }
+    let each = (0..lrs.len())
+        .map(|b| {
+            if projected[b] {
+                hr.narrow(0, b, 1)
+            } else {
+                decoded.narrow(0, b, 1)
+            }
+        })
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    Ok((Tensor::cat(&each, 0)?, fixed))
 }
 
 /// Maps `[B, C, H, W]` without `margin` texels at each edge.

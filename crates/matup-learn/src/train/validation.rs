@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use candle_core::Device;
+use matup_core::degrade::{degrade_material, MaterialDegradation};
 use matup_core::map::Map;
 use matup_core::render::render;
 use matup_core::resample::Border;
@@ -13,6 +14,8 @@ use matup_core::upsample::upsampler as rgb_upsampler;
 use matup_core::{Error, LightSetSpec, Material, PluginSpec, Result};
 use matup_eval::metrics::{evaluate, flip, psnr, rmse, sharpness, Evaluation};
 use matup_method::{upscale, Config, RunOptions};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
 
 use super::checkpoint::{append, RunFiles};
 use super::loss::{shipped_normals, CROP_RENDERS};
@@ -28,11 +31,12 @@ pub struct ValMaterial {
     pub lr: Material,
 }
 
-/// The validation crops of `config.val` (top-left `val_crop²` of each).
+/// The validation crops of `config.val` (top-left `val_crop²` of each), and for each of
+/// `config.val_degrade` a copy of them whose LR input is degraded so (named `NAME+DEGRADATION`).
 pub fn validation_set(config: &LearnConfig) -> Result<Vec<ValMaterial>> {
     // Any size will do: a validation crop is at most the material.
     let corpus = Corpus::load(&config.corpus, &config.val, 0)?;
-    Ok(corpus
+    let clean: Vec<ValMaterial> = corpus
         .names
         .into_iter()
         .zip(corpus.materials)
@@ -46,7 +50,22 @@ pub fn validation_set(config: &LearnConfig) -> Result<Vec<ValMaterial>> {
                 lr: pair.lr,
             }
         })
-        .collect())
+        .collect();
+    let mut set = Vec::with_capacity(clean.len() * (1 + config.val_degrade.len()));
+    for name in &config.val_degrade {
+        let degradation: MaterialDegradation = name.parse()?;
+        for (i, v) in clean.iter().enumerate() {
+            // The same noise at every validation.
+            let mut rng = StdRng::seed_from_u64(i as u64);
+            set.push(ValMaterial {
+                name: format!("{}+{name}", v.name),
+                truth: v.truth.clone(),
+                lr: degrade_material(&v.lr, &degradation, &mut rng)?,
+            });
+        }
+    }
+    set.splice(0..0, clean);
+    Ok(set)
 }
 
 /// A validation's numbers for one material.
