@@ -10,17 +10,19 @@
 //!    Laplacian-difference operator (robust to the texture itself);
 //! 2. flat input texels: those whose 3×3 neighbourhood's standard deviation is at most
 //!    [`FLAT_NOISE_MULTIPLE`]`· σ` (and at least 1 level);
-//! 3. in their blocks of the output, the texels more than `T =`
-//!    max([`INVENTED_LEVELS`], [`INVENTED_NOISE_MULTIPLE`]` · σ`) from the input's bilinear
-//!    upsampling; with a truth, only where the truth lies within `T` of it too.
+//! 3. in their blocks of the output, the texels whose detail (the output less its Gaussian blur
+//!    of σ = half the scale: what is finer than an input texel) exceeds `T =`
+//!    max([`INVENTED_LEVELS`], [`INVENTED_NOISE_MULTIPLE`]` · σ`) where the input's bilinear
+//!    upsampling has none so large; with a truth, only where the truth has none either.
 //!
 //! The share of the output's texels so counted is its invented structure. A smooth upsampling
-//! reads about 0; a network that amplifies the input's noise into strokes reads above it.
+//! reads about 0, and so does an output that removes the input's noise (detail, not departure
+//! from the input, is counted); a network that amplifies the noise into strokes reads above.
 
 use matup_core::color::linear_to_srgb;
 use matup_core::map::Map;
 use matup_core::material::MapKind;
-use matup_core::resample::{lr_texel, upsample, Border, Kernel};
+use matup_core::resample::{gaussian_blur, lr_texel, upsample, Border, Kernel};
 
 /// How many noise deviations a neighbourhood's spread may reach and still count as flat.
 pub const FLAT_NOISE_MULTIPLE: f32 = 2.0;
@@ -56,7 +58,16 @@ pub fn invented_structure(
         truth.map(|t| signal(kind, t)),
     );
     let smooth = upsample(&lr, scale, Kernel::Bilinear, border);
-    let (w, lw) = (up.width(), lr.width());
+    let sigma_hr = 0.5 * scale as f32;
+    let (w, h, lw) = (up.width(), up.height(), lr.width());
+    let detail = |plane: &[f32]| -> Vec<f32> {
+        let blurred = gaussian_blur(plane, w, h, sigma_hr, border);
+        plane
+            .iter()
+            .zip(&blurred)
+            .map(|(v, b)| (v - b).abs())
+            .collect()
+    };
     let (mut invented, mut noise_levels) = (0usize, 0f32);
     let mut counted = vec![false; up.texels()];
     let mut flat_anywhere = vec![false; lr.texels()];
@@ -69,15 +80,14 @@ pub fn invented_structure(
             *any |= f;
         }
         let limit = INVENTED_LEVELS.max(INVENTED_NOISE_MULTIPLE * sigma);
-        let (u, s) = (up.plane(c), smooth.plane(c));
+        let (u, s) = (detail(up.plane(c)), detail(smooth.plane(c)));
+        let t = truth.as_ref().map(|t| detail(t.plane(c)));
         for i in 0..up.texels() {
             if counted[i] || !flat[lr_texel(i, w, scale, lw)] {
                 continue;
             }
-            let truth_has_it = truth
-                .as_ref()
-                .is_some_and(|t| (t.plane(c)[i] - s[i]).abs() > limit);
-            if (u[i] - s[i]).abs() > limit && !truth_has_it {
+            let elsewhere = s[i] > limit || t.as_ref().is_some_and(|t| t[i] > limit);
+            if u[i] > limit && !elsewhere {
                 counted[i] = true;
                 invented += 1;
             }
@@ -202,6 +212,10 @@ mod tests {
         }
         let drawn = invented_structure(MapKind::Roughness, &lr, &wormy, None, border);
         assert!((drawn.share - 1.0 / 8.0).abs() < 0.01, "{drawn:?}");
+        // An output that removes the input's noise draws nothing.
+        let clean = Map::from_fn(128, 128, 1, |_, _, x| 0.4 + 0.1 * x as f32 / 128.0);
+        let denoised = invented_structure(MapKind::Roughness, &lr, &clean, None, border);
+        assert!(denoised.share < 0.001, "denoised: {denoised:?}");
         // Where the truth has those lines, they are not invented.
         let known = invented_structure(MapKind::Roughness, &lr, &wormy, Some(&wormy), border);
         assert!(known.share < 0.001, "{known:?}");
