@@ -1,8 +1,10 @@
 """ComfyUI nodes over the matup package: whole materials upscaled, not one image at a time.
 
 Maps travel as ComfyUI's IMAGE tensors ([B, H, W, C] float in [0, 1], as the files' codes:
-sRGB base colour, normals as colours) and alpha as a MASK ([B, H, W]). A folder travels as a
-MATUP_MATERIAL, which keeps its files' names, packing and formats for "matup: Save material".
+sRGB base colour, normals as colours) and alpha as a MASK ([B, H, W]) in ComfyUI's meaning,
+1 − alpha (masks.py). A folder travels as a MATUP_MATERIAL, which keeps its files' names,
+packing and formats for "matup: Save material"; folders are read within ComfyUI's input
+folder and written within its output folder (folders.py).
 """
 
 from __future__ import annotations
@@ -14,6 +16,9 @@ import numpy as np
 import torch
 
 import matup
+
+from .folders import inside, stamp
+from .masks import alpha_codes, mask_of
 
 MAP_INPUTS = ("normal", "roughness", "metallic", "height", "occlusion", "emission")
 GREY = ("roughness", "metallic", "height", "occlusion")
@@ -130,8 +135,10 @@ class UpscaleMaterial:
                 for name, image in given.items()
             }
             if alpha is not None:
-                mask = alpha[min(b, alpha.shape[0] - 1)].detach().float().clamp(0, 1).cpu().numpy()
-                arrays["alpha"] = np.round(mask * 65535.0).astype(np.uint16)
+                mask = alpha[min(b, alpha.shape[0] - 1)].detach().float().cpu().numpy()
+                codes = alpha_codes(mask, arrays["base_color"].shape[:2])
+                if codes is not None:
+                    arrays["alpha"] = codes
             big = matup.upscale(
                 arrays,
                 scale=None if size else int(scale),
@@ -143,13 +150,7 @@ class UpscaleMaterial:
             side = big["base_color"].shape[:2]
             for name in self.RETURN_NAMES:
                 if name == "alpha":
-                    codes = big.get("alpha")
-                    mask = (
-                        torch.ones(side)
-                        if codes is None
-                        else torch.from_numpy(codes.astype(np.float32) / 65535.0)
-                    )
-                    outputs[name].append(mask)
+                    outputs[name].append(torch.from_numpy(mask_of(big.get("alpha"), side)))
                 elif name in big:
                     outputs[name].append(to_image(big[name]))
                 else:
@@ -182,8 +183,13 @@ class LoadMaterial:
     def INPUT_TYPES(cls) -> Dict[str, Any]:
         return {"required": {"folder": ("STRING", {"default": ""})}}
 
+    @classmethod
+    def IS_CHANGED(cls, folder: str) -> str:
+        """A new stamp when a file of the folder changes, so ComfyUI does not reuse the cache."""
+        return stamp(inside(comfy_folder("input"), folder, "Load material"))
+
     def load(self, folder: str) -> Tuple[Any, ...]:
-        material = matup.read_material(os.path.expanduser(folder))
+        material = matup.read_material(inside(comfy_folder("input"), folder, "Load material"))
         maps = material.maps
         linear = maps["base_color"][:, :, :3]
         srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
@@ -256,20 +262,21 @@ class SaveMaterial:
         }
 
     def save(self, material, folder: str, format: str = "as loaded"):
-        folder = os.path.expanduser(folder)
-        if not os.path.isabs(folder):
-            folder = os.path.join(comfy_output_folder(), folder)
+        folder = inside(comfy_folder("output"), folder, "Save material")
         written = matup.write_material(material, folder, None if format == "as loaded" else format)
         return {"ui": {"text": written}, "result": ("\n".join(written),)}
 
 
-def comfy_output_folder() -> str:
+def comfy_folder(kind: str) -> str:
+    """ComfyUI's input or output folder (`folder_paths`), or the working folder outside
+    ComfyUI."""
     try:
         import folder_paths
-
-        return folder_paths.get_output_directory()
     except ImportError:
         return os.getcwd()
+    if kind == "input":
+        return folder_paths.get_input_directory()
+    return folder_paths.get_output_directory()
 
 
 NODE_CLASS_MAPPINGS = {

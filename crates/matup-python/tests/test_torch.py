@@ -73,14 +73,16 @@ def test_the_upscale_node_takes_comfyui_tensors_and_a_spandrel_model():
     base = as_comfy(sample("baseColor.png"))
     normal = as_comfy(sample("normal.png"))
     rough = as_comfy(sample("roughness.png", grey=True))
-    mask = torch.ones(1, 128, 128)
+    # LoadImage's mask of an image without alpha: 64×64 zeros, meaning opaque.
+    mask = torch.zeros(1, 64, 64)
     out = node.upscale(
         base, "4", "auto", "auto", upscale_model=span_model(), normal=normal, roughness=rough, alpha=mask
     )
     names = dict(zip(node.RETURN_NAMES, out))
     assert names["base_color"].shape == (1, 512, 512, 3) and names["base_color"].dtype == torch.float32
     assert names["normal"].shape == (1, 512, 512, 3)
-    assert names["alpha"].shape == (1, 512, 512)
+    # Opaque out as ComfyUI means it: a zero mask, which JoinImageWithAlpha reads as alpha 1.
+    assert names["alpha"].shape == (1, 512, 512) and not names["alpha"].any()
     # A map not given comes back as its stand-in; a given one box-filters back to its input.
     assert torch.allclose(names["metallic"], torch.zeros(1, 512, 512, 3))
     back = box_back(names["roughness"][0, :, :, 0].numpy(), 4)
@@ -94,11 +96,14 @@ def test_the_built_in_network_runs_without_a_model_and_matches_the_package():
     assert out[0].shape == (1, 256, 256, 3)
 
 
-def test_load_upscale_save_keeps_the_folders_names(tmp_path):
+def test_load_upscale_save_keeps_the_folders_names(tmp_path, monkeypatch):
+    # Outside ComfyUI the working folder stands for its input and output folders.
+    monkeypatch.chdir(REPO)
     material, base, normal, rough, metal, height, sources = nodes.LoadMaterial().load(str(SAMPLE))
     assert base.shape == (1, 128, 128, 3) and "baseColor.png" in sources
     (big,) = nodes.UpscaleMaterialFolder().upscale(material, "2", "auto", "auto", span_model())
-    result = nodes.SaveMaterial().save(big, str(tmp_path / "saved"), "as loaded")
+    monkeypatch.chdir(tmp_path)
+    result = nodes.SaveMaterial().save(big, "saved", "as loaded")
     written = result["result"][0].splitlines()
     assert sorted(Path(p).name for p in written) == sorted(p.name for p in SAMPLE.glob("*.png"))
     assert matup.read_image(tmp_path / "saved" / "baseColor.png").shape == (256, 256, 3)
