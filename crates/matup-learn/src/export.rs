@@ -33,9 +33,23 @@ pub fn export(
             config.loss, config.normal_weight
         ),
     };
+    // Inputs degraded as stored maps are (`[degradations]`), and how their outputs were scored.
+    let degraded = match &config.degradations {
+        Some(d) => format!(
+            ", then degraded (block compression, JPEG, dithering, noise, blur, halos) in {:.0}% \
+             of the crops{}",
+            100.0 * (1.0 - d.clean_share),
+            if d.project_degraded {
+                ""
+            } else {
+                ", whose outputs were scored without back-projection"
+            }
+        ),
+        None => String::new(),
+    };
     let description = format!(
         "{} fine-tuned by `matup learn` for {iteration} steps on {} materials, box-filtered \
-         ×{}: {trained_on}",
+         ×{}{degraded}: {trained_on}",
         base_name(config),
         config.train.len(),
         config.scale,
