@@ -297,7 +297,8 @@ impl Experiment {
             .collect()
     }
 
-    /// Every run, materials outermost (each degradation of a material after it): baselines, then each sweep point (and its oracle).
+    /// Every run, materials outermost (each degradation of a material after it): baselines,
+    /// then each sweep point (and its oracle).
     pub fn runs(&self) -> Result<Vec<Run>> {
         if self.materials.is_empty() {
             return Err(Error::Invalid("the experiment names no materials".into()));

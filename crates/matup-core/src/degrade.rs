@@ -12,7 +12,6 @@ use rand::Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 use serde::{Deserialize, Serialize};
 
-use crate::color::{linear_to_srgb, srgb_to_linear};
 use crate::file_format::{BlockQuality, DdsCodec, DdsFormat};
 use crate::io::dds_file::{decode_dds, write_dds};
 use crate::map::Map;
@@ -294,15 +293,10 @@ fn parse_step(text: &str) -> Result<Step> {
 /// The blur radius of a named halo (`haloA`): a sharpening filter's usual 1–2 texels.
 const HALO_SIGMA: f32 = 1.5;
 
-/// The map as its file stores it, in [0, 1]: colour sRGB-encoded, normals `(n + 1) / 2`.
+/// The map as its file stores it, in [0, 1] ([`MapKind::stored`]).
 fn to_stored(kind: MapKind, map: &Map) -> Map {
     Map::from_fn(map.width(), map.height(), map.channels(), |c, y, x| {
-        let v = map.plane(c)[y * map.width() + x];
-        match kind {
-            MapKind::BaseColor if c < 3 => linear_to_srgb(v),
-            MapKind::Normal => 0.5 * (v + 1.0),
-            _ => v,
-        }
+        kind.stored(c, map.plane(c)[y * map.width() + x])
     })
 }
 
@@ -312,14 +306,7 @@ fn from_stored(kind: MapKind, stored: &Map) -> Map {
         stored.width(),
         stored.height(),
         stored.channels(),
-        |c, y, x| {
-            let v = stored.plane(c)[y * stored.width() + x];
-            match kind {
-                MapKind::BaseColor if c < 3 => srgb_to_linear(v),
-                MapKind::Normal => 2.0 * v - 1.0,
-                _ => v,
-            }
-        },
+        |c, y, x| kind.from_stored(c, stored.plane(c)[y * stored.width() + x]),
     );
     if kind == MapKind::Normal && map.channels() == 3 {
         let [x, y, z] = map.planes_mut::<3>();

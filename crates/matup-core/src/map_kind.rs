@@ -84,6 +84,26 @@ impl MapKind {
         }
     }
 
+    /// A value of channel `channel` of this map as an 8-bit file stores it, in [0, 1] (not
+    /// quantised): colour sRGB-encoded (alpha as it is), a normal's component as `(v + 1) / 2`,
+    /// other maps as their values. What degradations act on and new structure is measured in.
+    pub fn stored(self, channel: usize, v: f32) -> f32 {
+        match self {
+            MapKind::BaseColor if channel < 3 => crate::color::linear_to_srgb(v),
+            MapKind::Normal => 0.5 * (v + 1.0),
+            _ => v,
+        }
+    }
+
+    /// [`MapKind::stored`] undone (a normal still to be renormalised).
+    pub fn from_stored(self, channel: usize, v: f32) -> f32 {
+        match self {
+            MapKind::BaseColor if channel < 3 => crate::color::srgb_to_linear(v),
+            MapKind::Normal => 2.0 * v - 1.0,
+            _ => v,
+        }
+    }
+
     /// The file stem matup writes this map under.
     pub fn file_stem(self) -> &'static str {
         match self {

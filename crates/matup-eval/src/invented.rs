@@ -19,7 +19,6 @@
 //! reads about 0, and so does an output that removes the input's noise (detail, not departure
 //! from the input, is counted); a network that amplifies the noise into strokes reads above.
 
-use matup_core::color::linear_to_srgb;
 use matup_core::map::Map;
 use matup_core::material::MapKind;
 use matup_core::resample::{gaussian_blur, lr_texel, upsample, Border, Kernel};
@@ -103,14 +102,7 @@ pub fn invented_structure(
 /// What the measure reads of a map, in 8-bit levels: a colour's luminance of its sRGB values,
 /// a normal's x and y, another map's channels.
 fn signal(kind: MapKind, map: &Map) -> Map {
-    let levels = |c: usize, i: usize| {
-        let v = map.plane(c)[i];
-        match kind {
-            MapKind::BaseColor => 255.0 * linear_to_srgb(v),
-            MapKind::Normal => 127.5 * (v + 1.0),
-            _ => 255.0 * v,
-        }
-    };
+    let levels = |c: usize, i: usize| 255.0 * kind.stored(c, map.plane(c)[i]);
     let (w, h) = (map.width(), map.height());
     match kind {
         MapKind::BaseColor if map.channels() >= 3 => Map::from_fn(w, h, 1, |_, y, x| {

@@ -245,19 +245,15 @@ fn map_new_structure(
     scale: usize,
     border: Border,
 ) -> NewStructure {
-    // The values as stored, in 8-bit levels: colour sRGB, normals (n + 1) / 2.
-    let stored = |v: f32| match kind {
-        MapKind::BaseColor => 255.0 * linear_to_srgb(v),
-        MapKind::Normal => 127.5 * (v + 1.0),
-        _ => 255.0 * v,
-    };
+    // The values as stored, in 8-bit levels.
+    let stored = |c: usize, v: f32| 255.0 * kind.stored(c, v);
     let channels = lr.channels().min(up.channels()).min(3);
     let levels = |m: &Map| -> Vec<[f32; 4]> {
         (0..m.texels())
             .map(|i| {
                 let mut v = [0.0; 4];
                 for (c, value) in v.iter_mut().enumerate().take(channels) {
-                    *value = stored(m.plane(c)[i]);
+                    *value = stored(c, m.plane(c)[i]);
                 }
                 // The luminance (Rec. 709 weights) of colours, else the first channel.
                 v[3] = match channels {
@@ -308,7 +304,7 @@ fn map_new_structure(
             mean = unit.to_array();
         }
         let miss = (0..channels)
-            .map(|c| (stored(mean[c]) - stored(lr.plane(c)[i])).abs())
+            .map(|c| (stored(c, mean[c]) - stored(c, lr.plane(c)[i])).abs())
             .fold(0.0f32, f32::max);
         sum += miss as f64;
         worst = worst.max(miss);

@@ -1,6 +1,7 @@
 //! What each degradation does, measured in the file's 8-bit levels.
 
 use super::*;
+use crate::color::srgb_to_linear;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
