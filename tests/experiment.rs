@@ -340,6 +340,16 @@ fn degraded_inputs_run_beside_clean_ones_against_the_clean_truth() {
         psnr(0)
     );
     assert_eq!(rows[1].material, "polyhaven_denim_fabric+jpeg30");
+    // Each row measures invented structure against the input it was given, in results.csv too.
+    assert!(rows
+        .iter()
+        .all(|r| r.metric("invented_structure_worst").is_finite()));
+    let csv = std::fs::read_to_string(out.path().join("results.csv")).unwrap();
+    assert!(csv
+        .lines()
+        .next()
+        .unwrap()
+        .contains("invented_structure_worst"));
     // The same noise every time: a second run of the same input gives the same numbers.
     let again = run_experiment(
         &exp,

@@ -772,7 +772,7 @@ fn append_journal(path: &Path, row: &Row) -> Result<()> {
 }
 
 /// The metric columns, in table order.
-pub const METRICS: [&str; 14] = [
+pub const METRICS: [&str; 15] = [
     "render_psnr",
     "render_ssim",
     "render_flip",
@@ -784,6 +784,7 @@ pub const METRICS: [&str; 14] = [
     "metallic_rmse",
     "false_colour_texels",
     "new_structure_worst",
+    "invented_structure_worst",
     "seam_ratio",
     "reference_seam_ratio",
     "lights",
