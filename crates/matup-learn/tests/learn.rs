@@ -974,6 +974,16 @@ fn degradations_reach_the_network_input_only_and_are_drawn_again_on_resume() {
         clean.render
     );
     assert_eq!(loss(&degraded, 0).loss, worse.loss);
+    // Scored unprojected, a degraded crop's maps are the network's own: another loss, finite.
+    let mut unprojected = degraded.clone();
+    if let Some(d) = unprojected.degradations.as_mut() {
+        d.project_degraded = false;
+    }
+    let raw = loss(&unprojected, 0);
+    assert!(
+        raw.loss.is_finite() && raw.render != worse.render,
+        "{raw:?} vs {worse:?}"
+    );
     // The validation set: each material clean, then degraded as named.
     let set = matup_learn::train::validation_set(&degraded).unwrap();
     let names: Vec<&str> = set.iter().map(|v| v.name.as_str()).collect();
