@@ -34,6 +34,19 @@ pub enum BlockFormat {
     Bc5,
 }
 
+impl BlockFormat {
+    /// The DDS codec of this format.
+    fn codec(self) -> DdsCodec {
+        let name = match self {
+            BlockFormat::Bc1 => "bc1",
+            BlockFormat::Bc3 => "bc3",
+            BlockFormat::Bc4 => "bc4",
+            BlockFormat::Bc5 => "bc5",
+        };
+        DdsCodec::named(name).expect("a row of DDS_CODECS")
+    }
+}
+
 /// JPEG's chroma subsampling.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Subsampling {
@@ -227,6 +240,11 @@ fn parse_step(text: &str) -> Result<Step> {
              noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs (joined by '+')"
         ))
     };
+    let integer = |digits: &str, range: std::ops::RangeInclusive<u16>, why: &str| {
+        (digits.parse::<u16>().ok())
+            .filter(|v| range.contains(v))
+            .ok_or_else(|| bad(why))
+    };
     let number = |rest: &str| -> Result<f32> {
         rest.parse::<f32>()
             .ok()
@@ -245,13 +263,8 @@ fn parse_step(text: &str) -> Result<Step> {
                     Some(q) => (q, Subsampling::Full),
                     None => (rest, Subsampling::Half),
                 };
-                let quality = q
-                    .parse::<u8>()
-                    .ok()
-                    .filter(|q| (1..=100).contains(q))
-                    .ok_or_else(|| bad("JPEG quality is 1 to 100"))?;
                 Degradation::Jpeg {
-                    quality,
+                    quality: integer(q, 1..=100, "JPEG quality is 1 to 100")? as u8,
                     subsampling,
                 }
             } else if let Some(rest) = text.strip_prefix("noise") {
@@ -276,12 +289,10 @@ fn parse_step(text: &str) -> Result<Step> {
                     Some(n) => (n, DitherMethod::ErrorDiffusion),
                     None => (rest, DitherMethod::Ordered),
                 };
-                let levels = n
-                    .parse::<u16>()
-                    .ok()
-                    .filter(|l| (2..=256).contains(l))
-                    .ok_or_else(|| bad("dithering takes 2 to 256 levels"))?;
-                Degradation::Dither { levels, method }
+                Degradation::Dither {
+                    levels: integer(n, 2..=256, "dithering takes 2 to 256 levels")?,
+                    method,
+                }
             } else {
                 return Err(bad("unknown"));
             }
@@ -319,11 +330,7 @@ fn from_stored(kind: MapKind, stored: &Map) -> Map {
 }
 
 fn clamped(map: Map) -> Map {
-    let mut map = map;
-    map.data_mut()
-        .iter_mut()
-        .for_each(|v| *v = v.clamp(0.0, 1.0));
-    map
+    map.map_values(|v| v.clamp(0.0, 1.0))
 }
 
 fn per_value(map: &Map, mut f: impl FnMut(f32) -> f32) -> Map {
@@ -339,17 +346,16 @@ fn blurred(map: &Map, sigma: f32) -> Map {
     Map::from_planar(w, h, map.channels(), data)
 }
 
-/// Texels interleaved, as encoders take them.
+/// `channels` of `map` interleaved texel by texel, as encoders take them.
 fn interleaved(map: &Map, channels: &[usize]) -> Vec<f32> {
-    (0..map.texels())
-        .flat_map(|i| channels.iter().map(move |&c| map.plane(c)[i]))
-        .collect()
+    crate::io::stream::interleaved(channels.len(), map.height(), map.width(), |k, i| {
+        map.plane(channels[k])[i]
+    })
 }
 
 /// `stored` through a DDS file of `format` and back (matup's own writer and reader).
 fn block_round_trip(kind: MapKind, stored: &Map, format: BlockFormat) -> Result<Map> {
     let (w, h, n) = (stored.width(), stored.height(), stored.channels());
-    let codec = |name: &str| DdsCodec::named(name).expect("a row of DDS_CODECS");
     let through = |codec: DdsCodec, samples: Vec<f32>, channels: usize| -> Result<Map> {
         let format = DdsFormat {
             codec: Some(codec),
@@ -375,36 +381,26 @@ fn block_round_trip(kind: MapKind, stored: &Map, format: BlockFormat) -> Result<
     Ok(match (format, n) {
         // One grey channel as a grey RGB image; its decoded RGB averaged.
         (BlockFormat::Bc1 | BlockFormat::Bc3, 1) => {
-            let name = if format == BlockFormat::Bc1 {
-                "bc1"
-            } else {
-                "bc3"
-            };
             let rgb = interleaved(stored, &[0, 0, 0]);
-            let decoded = through(codec(name), rgb, 3)?;
+            let decoded = through(format.codec(), rgb, 3)?;
             Map::from_fn(w, h, 1, |_, y, x| {
                 let i = y * w + x;
                 (0..3).map(|c| decoded.plane(c)[i]).sum::<f32>() / 3.0
             })
         }
         (BlockFormat::Bc1 | BlockFormat::Bc3, _) => {
-            let name = if format == BlockFormat::Bc1 {
-                "bc1"
-            } else {
-                "bc3"
-            };
-            let decoded = through(codec(name), interleaved(stored, &channels), 3)?;
+            let decoded = through(format.codec(), interleaved(stored, &channels), 3)?;
             with_channels(stored, &decoded, &channels)
         }
         // A normal's x and y, its z rebuilt (the decoder rebuilds it).
         (BlockFormat::Bc5, 3) if kind == MapKind::Normal => {
-            through(codec("bc5"), interleaved(stored, &[0, 1, 2]), 3)?
+            through(format.codec(), interleaved(stored, &[0, 1, 2]), 3)?
         }
         // BC5 is two BC4 channels: every other map channel by channel.
         (BlockFormat::Bc4 | BlockFormat::Bc5, _) => {
             let mut out = stored.clone();
             for c in channels {
-                let decoded = through(codec("bc4"), stored.plane(c).to_vec(), 1)?;
+                let decoded = through(BlockFormat::Bc4.codec(), stored.plane(c).to_vec(), 1)?;
                 out.plane_mut(c).copy_from_slice(decoded.plane(0));
             }
             out

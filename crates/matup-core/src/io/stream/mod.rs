@@ -680,7 +680,7 @@ pub(crate) fn persist(temporary: NamedTempFile, path: &Path) -> Result<()> {
 /// `rows` rows `width` wide of `channels` channels, each sample `sample(channel, index in
 /// its plane)`, interleaved texel by texel (as files store them), a row a task on rayon's
 /// threads.
-fn interleaved<T: Copy + Default + Send>(
+pub(crate) fn interleaved<T: Copy + Default + Send>(
     channels: usize,
     rows: usize,
     width: usize,
