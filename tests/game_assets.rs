@@ -10,7 +10,7 @@ use std::path::Path;
 use dds::header::Header;
 use dds::{ColorFormat, Decoder, Encoder, ImageView, ImageViewMut, Size};
 use image::ImageEncoder;
-use matup::config::Config;
+use matup::config::{Config, InputQuality};
 use matup::progress::Silent;
 use matup::{load_material, save_material, shading_model, LightSetSpec, LoadOptions, SaveOptions};
 
@@ -162,6 +162,17 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
 
     let material = load_material(Some(&input), &LoadOptions::default()).unwrap();
     let expected = load_material(Some(&twin), &LoadOptions::default()).unwrap();
+    // Block-compressed: read as degraded, as `--input-quality auto` routes it.
+    let lossy: Vec<String> = material.lossy.values().cloned().collect();
+    assert_eq!(
+        lossy,
+        [
+            "BC1 blocks (baseColor.dds)",
+            "BC5 blocks (normal.dds)",
+            "BC4 blocks (roughness.dds)"
+        ]
+    );
+    assert!(expected.lossy.is_empty());
     let model = shading_model(&"ggx".parse().unwrap()).unwrap();
     let same = matup::eval::metrics::evaluate(
         &expected,
@@ -181,7 +192,13 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
         same.render_psnr
     );
 
-    common::upscale_into(&material, &Config::default(), &out, &SaveOptions::default()).unwrap();
+    // Told the maps are clean, the defaults back-project them: every block comes back to its
+    // input. By default they are read as degraded and not projected (below).
+    let clean = Config {
+        input_quality: InputQuality::Clean,
+        ..Config::default()
+    };
+    common::upscale_into(&material, &clean, &out, &SaveOptions::default()).unwrap();
     let mut off = Vec::new();
     for (name, _, format, srgb, mipmaps, channels) in files {
         let before = decode(&input.join(name));
@@ -202,6 +219,41 @@ fn a_dds_material_reads_as_its_data_and_comes_back_in_its_own_formats() {
         }
     }
     assert!(off.is_empty(), "{off:#?}");
+
+    // The defaults: the network for degraded maps, unprojected. The files come back in their
+    // formats, each map in its role: on average within a few levels of its input, block by
+    // block (what the compression put there is not all put back).
+    let routed = dir.path().join("routed");
+    let report = common::upscale_into(
+        &material,
+        &Config::default(),
+        &routed,
+        &SaveOptions::default(),
+    )
+    .unwrap()
+    .report;
+    assert_eq!(report.upsampler_used, "onnx:span_x4_degraded");
+    assert!(
+        report.input_route.starts_with("input: degraded"),
+        "{}",
+        report.input_route
+    );
+    for (name, _, format, srgb, _, channels) in files {
+        let (before, after) = (decode(&input.join(name)), decode(&routed.join(name)));
+        assert_eq!((after.format, after.srgb), (format, srgb), "{name}");
+        for c in 0..channels {
+            let levels =
+                common::box_back_levels(&before.planes[c], &after.planes[c], 4 * SIZE, 4, srgb);
+            let mean = levels.iter().sum::<f32>() / levels.len() as f32;
+            println!(
+                "{name} channel {c}, routed: box-filters back within {mean:.2} levels on average"
+            );
+            assert!(
+                mean < 3.0,
+                "{name} channel {c}: {mean:.2} levels on average"
+            );
+        }
+    }
 
     // PNG in, `--format dds` out: BC7 colour flagged sRGB, BC5 normals, BC4 grey, each with
     // a full mip chain.
@@ -428,9 +480,14 @@ fn check_textures(
 
 /// `matup upscale MODEL -o OUT` with the defaults.
 fn upscale_model_with_defaults(model: &Path, out: &Path) -> matup::apps::model::ModelRun {
+    upscale_model_with(model, out, &Config::default())
+}
+
+/// `matup upscale MODEL -o OUT` with `config`.
+fn upscale_model_with(model: &Path, out: &Path, config: &Config) -> matup::apps::model::ModelRun {
     matup::apps::model::upscale_model(
         model,
-        &Config::default(),
+        config,
         out,
         &SaveOptions::default(),
         &LoadOptions::default(),
@@ -647,7 +704,13 @@ fn a_web_model_keeps_its_webp_textures_webp_and_its_fallbacks_in_their_own_forma
     std::fs::write(input.join("quad.gltf"), serde_json::to_vec(&json).unwrap()).unwrap();
 
     let out = dir.path().join("out");
-    let run = upscale_model_with_defaults(&input.join("quad.gltf"), &out);
+    // Lossy WebP reads as degraded, whose outputs are not projected; told the maps are clean,
+    // each texture box-filters back to its input, which checks that it kept its role.
+    let clean = Config {
+        input_quality: InputQuality::Clean,
+        ..Config::default()
+    };
+    let run = upscale_model_with(&input.join("quad.gltf"), &out, &clean);
     let labels: Vec<&str> = run.runs.iter().map(|(label, _)| label.as_str()).collect();
     assert_eq!(labels, ["0-Bricks", "0-Bricks-fallback"]);
     let written: serde_json::Value =

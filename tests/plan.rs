@@ -5,8 +5,12 @@ mod common;
 
 use std::sync::Arc;
 
-use matup::config::{Config, Selection};
-use matup::plan::{Plan, Reach, TilingGrounds};
+use matup::config::{Config, InputQuality, Selection};
+use matup::degrade::{Degradation, Subsampling};
+use matup::material::MapKind;
+use matup::plan::{Plan, Reach, TilingGrounds, DEGRADED_NETWORK, MATERIAL_NETWORK};
+use matup::{load_material, LoadOptions, Material};
+use rand::SeedableRng;
 
 #[test]
 fn a_plan_resolves_the_size_and_chooses_for_every_candidate_once() {
@@ -65,4 +69,73 @@ fn a_plan_resolves_the_size_and_chooses_for_every_candidate_once() {
     };
     let e = Plan::new(&material, &bad).err().expect("×5 is refused");
     assert!(e.to_string().contains("unsupported scale ×5"), "{e}");
+}
+
+#[test]
+fn a_lossily_stored_input_runs_the_network_for_degraded_maps_unprojected() {
+    let clean = Material::uniform(16, [0.5, 0.4, 0.3], 0.6, 0.0);
+    let mut jpeg = clean.clone();
+    (jpeg.lossy).insert(MapKind::BaseColor, "JPEG (albedo.jpg)".into());
+    let plan = |m: &Material, quality| {
+        let settings = Config {
+            input_quality: quality,
+            ..Config::default()
+        };
+        Plan::new(m, &settings).unwrap()
+    };
+    // As the files say.
+    let auto = plan(&jpeg, InputQuality::Auto);
+    assert!(auto.input.degraded && !auto.input.given);
+    assert_eq!(auto.setup.upsampler_name, DEGRADED_NETWORK);
+    assert!(!auto.setup.settings.filter.back_project);
+    assert_eq!(auto.setup.settings.input_quality, InputQuality::Degraded);
+    let why = auto.input.describe();
+    assert!(why.contains("base colour from JPEG (albedo.jpg)"), "{why}");
+    assert!(why.contains("--input-quality clean"), "{why}");
+    let plain = plan(&clean, InputQuality::Auto);
+    assert!(!plain.input.degraded);
+    assert_eq!(plain.setup.upsampler_name, MATERIAL_NETWORK);
+    assert!(plain.setup.settings.filter.back_project);
+    assert!(plain.input.describe().contains("--input-quality degraded"));
+    // As given, either way.
+    let told_clean = plan(&jpeg, InputQuality::Clean);
+    assert!(!told_clean.input.degraded && told_clean.input.given);
+    assert_eq!(told_clean.setup.upsampler_name, MATERIAL_NETWORK);
+    let told_degraded = plan(&clean, InputQuality::Degraded);
+    assert!(told_degraded.input.degraded);
+    assert_eq!(told_degraded.setup.upsampler_name, DEGRADED_NETWORK);
+    // A map once a JPEG, kept losslessly: its texels say so.
+    let folder = common::test_material("ambientcg_Bricks059");
+    let mut resaved = load_material(Some(&folder), &LoadOptions::default()).unwrap();
+    assert!(!plan(&resaved, InputQuality::Auto).input.degraded);
+    let quality_85 = Degradation::Jpeg {
+        quality: 85,
+        subsampling: Subsampling::Half,
+    };
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0);
+    resaved.base_color = (quality_85.apply(MapKind::BaseColor, &resaved.base_color, &mut rng))
+        .unwrap()
+        .crop(2, 2, 240, 240);
+    resaved = resaved.crop(0, 0, 240, 240);
+    let by_texels = plan(&resaved, InputQuality::Auto).input;
+    assert!(by_texels.degraded, "{by_texels:?}");
+    assert_eq!(
+        by_texels.lossy,
+        ["base colour from a JPEG, by its texels (a JPEG's 8×8 grid at x 6, y 6)"]
+    );
+    // A named upsampler stays; the route still leaves projection off.
+    let named = Config {
+        upsampler: "lanczos3".into(),
+        ..Config::default()
+    };
+    let p = Plan::new(&jpeg, &named).unwrap();
+    assert_eq!(p.setup.upsampler_name, "lanczos3");
+    assert!(!p.setup.settings.filter.back_project);
+    // The decided route is part of the settings reported, and reads back from TOML.
+    let reported = auto.reported_settings();
+    assert_eq!(
+        Config::from_toml(&reported.to_toml(), "run").unwrap(),
+        reported
+    );
+    assert!(reported.to_toml().contains("input_quality = \"degraded\""));
 }

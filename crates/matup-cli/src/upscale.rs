@@ -11,8 +11,8 @@ use matup_core::io::Names;
 use matup_core::{BlockQuality, FileFormat, LossNorm, SaveOptions};
 use matup_method::bands::default_memory_limit;
 use matup_method::config::{
-    Activation, Backend, Chain, EnsembleMaps, Interpolation, ResidualBase, Schedule, Selection,
-    TargetKind, TargetSize, UpsampledMaps,
+    Activation, Backend, Chain, EnsembleMaps, InputQuality, Interpolation, ResidualBase, Schedule,
+    Selection, TargetKind, TargetSize, UpsampledMaps,
 };
 use matup_method::report::RunReport;
 use matup_method::train::Stop;
@@ -64,9 +64,16 @@ pub struct SettingsArgs {
     pub chain: Option<Chain>,
     /// RGB upsampler of the renders (see `matup list`); default `auto`: the shipped SR network,
     /// tuned for materials (onnx:span_x4_materials) where no filter is trained and the maps are
-    /// back-projected, else stock (onnx:span_x4_ch48), where it applies, else lanczos3.
+    /// back-projected, and for degraded maps (onnx:span_x4_degraded) where the input is
+    /// degraded; else stock (onnx:span_x4_ch48), where it applies, else lanczos3.
     #[arg(long)]
     pub upsampler: Option<String>,
+    /// Whether the input maps are clean or degraded: auto (degraded where a map's file is a
+    /// JPEG, a lossy WebP or BC1–BC5 blocks), clean, or degraded (noisy scans, maps once
+    /// compressed and saved again losslessly). Degraded maps run the network trained on
+    /// degraded inputs and are not back-projected.
+    #[arg(long, value_name = "auto|clean|degraded")]
+    pub input_quality: Option<InputQuality>,
     /// Shading model (see `matup list`).
     #[arg(long)]
     pub shading: Option<String>,
@@ -265,6 +272,7 @@ impl SettingsArgs {
         }
         set!(
             chain => chain, upsampler => upsampler, shading => shading, seed => seed,
+            input_quality => input_quality,
             lights => lights.count, light_distance => lights.distance,
             window => filter.window, hidden_width => filter.hidden_width,
             hidden_layers => filter.hidden_layers, activation => filter.activation,

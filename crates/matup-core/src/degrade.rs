@@ -92,6 +92,18 @@ pub enum Degradation {
 }
 
 impl Degradation {
+    /// The lossy file storage this degradation is, as
+    /// [`crate::file_format::FileFormat::lossy_storage`] names it: "JPEG", "BC1 blocks".
+    pub fn lossy_storage(&self) -> Option<String> {
+        match *self {
+            Degradation::Block(format) => {
+                Some(format!("{} blocks", format.codec().name().to_uppercase()))
+            }
+            Degradation::Jpeg { .. } => Some("JPEG".into()),
+            _ => None,
+        }
+    }
+
     /// `map` of `kind` degraded (a new map; the random draws of noise from `rng`).
     pub fn apply(&self, kind: MapKind, map: &Map, rng: &mut impl Rng) -> Result<Map> {
         let stored = to_stored(kind, map);
@@ -142,7 +154,9 @@ impl Degradation {
 }
 
 /// Every map of `material` that files store as images (base colour, normal, roughness,
-/// metallic, height), degraded by `degradation`.
+/// metallic, height), degraded by `degradation`. The maps a lossy file format would have
+/// degraded so (JPEG, BC blocks) are marked so in [`Material::lossy`], as reading such files
+/// marks them; noise, blur, halos and dithering leave no trace a file's format tells.
 pub fn degrade_material(
     material: &Material,
     degradation: &MaterialDegradation,
@@ -150,10 +164,16 @@ pub fn degrade_material(
 ) -> Result<Material> {
     let mut out = material.clone();
     for kind in STORED_KINDS {
-        if let Some(map) = out.map_mut(kind) {
-            for d in degradation.for_kind(kind) {
-                *map = d.apply(kind, map, rng)?;
-            }
+        let Some(map) = out.map_mut(kind) else {
+            continue;
+        };
+        let steps = degradation.for_kind(kind);
+        for d in &steps {
+            *map = d.apply(kind, map, rng)?;
+        }
+        if let Some(storage) = steps.iter().rev().find_map(Degradation::lossy_storage) {
+            let simulated = format!("{storage} (simulated: {degradation})");
+            out.lossy.insert(kind, simulated);
         }
     }
     Ok(out)

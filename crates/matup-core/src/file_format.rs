@@ -150,6 +150,22 @@ pub enum SampleDepth {
 }
 
 impl FileFormat {
+    /// What lossy storage in this format did to a map's texels, where it was lossy: "JPEG",
+    /// "lossy WebP", "BC1 blocks" (the block formats BC1–BC5; BC7 keeps maps within a level
+    /// or two, BC6H is HDR). `None` for lossless files.
+    pub fn lossy_storage(self) -> Option<String> {
+        match self {
+            FileFormat::Jpeg => Some("JPEG".into()),
+            FileFormat::WebpLossy => Some("lossy WebP".into()),
+            FileFormat::Dds(DdsFormat {
+                codec: Some(codec), ..
+            }) if ["bc1", "bc2", "bc3", "bc4", "bc5"].contains(&codec.name()) => {
+                Some(format!("{} blocks", codec.name().to_uppercase()))
+            }
+            _ => None,
+        }
+    }
+
     /// The type of the samples the file's encoder takes.
     pub fn sample_depth(self) -> SampleDepth {
         match self {

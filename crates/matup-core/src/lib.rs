@@ -28,6 +28,7 @@ pub mod device_maps;
 mod error;
 mod file_format;
 pub mod io;
+pub mod jpeg_trace;
 pub mod layout;
 pub mod lights;
 pub mod loss;

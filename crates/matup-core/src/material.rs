@@ -101,6 +101,11 @@ pub struct Material {
     /// Alpha channels and the folder's other maps, carried through unrendered.
     pub carried: Carried,
     pub origin: Option<MaterialOrigin>,
+    /// The maps whose texels went through lossy storage on their way here, each with what it
+    /// was ("JPEG", "BC1 blocks"): read from their files' formats, or set by a simulated
+    /// degradation (`crate::degrade`). An upscale run reads these maps as degraded
+    /// (`input_quality = "auto"`). Averaging blocks of texels (`box_downsample`) clears it.
+    pub lossy: BTreeMap<MapKind, String>,
 }
 
 /// What a material carries beside the maps it is rendered with: matup upsamples these as
@@ -176,6 +181,7 @@ impl Material {
             anisotropy_angle: None,
             carried: Carried::default(),
             origin: None,
+            lossy: BTreeMap::new(),
         }
     }
 
@@ -259,6 +265,7 @@ impl Material {
             anisotropy_angle: self.anisotropy_angle.as_ref().map(&f),
             carried: self.carried.map_maps(&f),
             origin: self.origin.clone(),
+            lossy: self.lossy.clone(),
         }
     }
 
@@ -302,9 +309,13 @@ impl Material {
     }
 
     /// Averages `factor × factor` blocks of every map: linear base colour, averaged then
-    /// renormalised normals, averaged roughness, metallic and height.
+    /// renormalised normals, averaged roughness, metallic and height. The result is no longer
+    /// what a lossy file stored: its [`Material::lossy`] is empty.
     pub fn box_downsample(&self, factor: usize) -> Material {
-        self.map_every(|m| box_downsample(m, factor))
+        Material {
+            lossy: BTreeMap::new(),
+            ..self.map_every(|m| box_downsample(m, factor))
+        }
     }
 
     /// Every map shrunk to `width × height` by area averaging (linear base colour; normals

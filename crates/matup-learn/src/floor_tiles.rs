@@ -201,6 +201,7 @@ impl TileLayout {
             anisotropy_angle: tile.anisotropy_angle.clone(),
             carried: Default::default(),
             origin: None,
+            lossy: Default::default(),
         }
     }
 }

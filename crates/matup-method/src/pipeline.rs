@@ -123,6 +123,7 @@ fn run_levels(
     let mut timings = Vec::new();
     let mut skipped = Vec::new();
     progress.note(&tiling_note(&plan.tiling));
+    progress.note(&plan.input.describe());
     let sources: Vec<String> = (material.origin.iter())
         .flat_map(|o| o.sources().into_iter().chain(o.notes.iter().cloned()))
         .collect();
@@ -221,6 +222,7 @@ fn run_levels(
             TilingGrounds::Source(why) => Some(why.clone()),
             _ => None,
         },
+        input_route: plan.input.describe(),
         selection,
         levels,
         timings,

@@ -7,8 +7,12 @@
 
 use std::sync::Arc;
 
-use crate::config::{Config, Selection, TargetSize, LEVEL_SCALES, SCALES};
+use crate::config::{
+    Config, InputQuality, ResidualBase, Selection, TargetSize, LEVEL_SCALES, SCALES,
+};
+use crate::features::FEATURE_MAPS;
 use crate::select::candidates;
+use matup_core::jpeg_trace::jpeg_trace;
 use matup_core::lights::Light;
 use matup_core::material::Material;
 use matup_core::resample::Border;
@@ -24,6 +28,8 @@ pub struct Plan {
     pub asked_size: Option<TargetSize>,
     pub reach: Reach,
     pub tiling: Tiling,
+    /// Whether the input is read as clean or degraded, and why.
+    pub input: InputRoute,
     pub shading: Arc<dyn ShadingModel>,
     /// The training light set the renders are made under (`[lights]`).
     pub lights: Vec<Light>,
@@ -94,6 +100,86 @@ impl Tiling {
     }
 }
 
+/// Whether a run reads its input as clean or degraded by lossy storage, and on what grounds.
+/// A degraded input runs [`DEGRADED_NETWORK`] (where the upsampler is `auto`) and is not
+/// back-projected: projection makes the output box-filter back to the input, which puts its
+/// blocks and noise back (docs/experiments/2026-11-29-degraded-inputs.md).
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputRoute {
+    pub degraded: bool,
+    /// Whether the settings said so (`input_quality`, `--input-quality`); else the files did.
+    pub given: bool,
+    /// The maps stored lossily, each with what its storage was: its file's format
+    /// (`Material::lossy`), or a JPEG's grid in its texels (`matup_core::jpeg_trace`).
+    pub lossy: Vec<String>,
+}
+
+impl InputRoute {
+    /// The settings' word, else the material's files', else its texels'.
+    pub fn of(material: &Material, settings: &Config) -> InputRoute {
+        let lossy = match settings.input_quality {
+            InputQuality::Auto => lossy_maps(material),
+            _ => Vec::new(),
+        };
+        let (degraded, given) = match settings.input_quality {
+            InputQuality::Auto => (!lossy.is_empty(), false),
+            InputQuality::Clean => (false, true),
+            InputQuality::Degraded => (true, true),
+        };
+        InputRoute {
+            degraded,
+            given,
+            lossy,
+        }
+    }
+
+    /// `settings` as this route runs them: `input_quality` decided, and a degraded input not
+    /// back-projected.
+    pub fn settings(&self, settings: &Config) -> Config {
+        let mut config = settings.clone();
+        if self.degraded {
+            config.input_quality = InputQuality::Degraded;
+            config.filter.back_project = false;
+        } else {
+            config.input_quality = InputQuality::Clean;
+        }
+        config
+    }
+
+    /// The route taken, why, and how to decide otherwise, in words.
+    pub fn describe(&self) -> String {
+        const DEGRADED: &str = "the network for degraded maps, not back-projected";
+        match (self.degraded, self.given) {
+            (true, true) => format!("input: degraded (as given): {DEGRADED}"),
+            (false, true) => "input: clean (as given)".to_string(),
+            (true, false) => format!(
+                "input: degraded, stored lossily ({}): {DEGRADED}; --input-quality clean \
+                 decides otherwise",
+                self.lossy.join(", ")
+            ),
+            (false, false) => "input: clean (no map was stored lossily; --input-quality degraded \
+                               decides otherwise, for noisy or once-compressed maps)"
+                .to_string(),
+        }
+    }
+}
+
+/// The maps of `material` stored lossily, in words: those its files' formats say
+/// (`Material::lossy`), and those of the features whose texels show a JPEG's grid.
+fn lossy_maps(material: &Material) -> Vec<String> {
+    let by_file = (material.lossy.iter()).map(|(kind, storage)| format!("{kind} from {storage}"));
+    let by_texels = (FEATURE_MAPS.into_iter())
+        .filter(|kind| !material.lossy.contains_key(kind))
+        .filter_map(|kind| {
+            let trace = jpeg_trace(kind, material.map(kind)?)?;
+            let [x, y] = trace.offset;
+            Some(format!(
+                "{kind} from a JPEG, by its texels (a JPEG's 8×8 grid at x {x}, y {y})"
+            ))
+        });
+    by_file.chain(by_texels).collect()
+}
+
 impl Plan {
     /// Plans a run of `material` with `settings`: refused, saying why, where the settings
     /// cannot run (a bad value, an unknown or unfitting upsampler or shading model, a size
@@ -101,10 +187,11 @@ impl Plan {
     pub fn new(material: &Material, settings: &Config) -> Result<Plan> {
         settings.validate()?;
         let reach = Reach::of(settings, [material.width(), material.height_px()])?;
+        let input = InputRoute::of(material, settings);
         let resolved = Config {
             scale: reach.scale,
             size: None,
-            ..settings.clone()
+            ..input.settings(settings)
         };
         let candidates = match resolved.select {
             Selection::Off => Vec::new(),
@@ -116,6 +203,7 @@ impl Plan {
             asked_size: settings.size,
             reach,
             tiling: Tiling::of(material, settings),
+            input,
             shading: Arc::from(shading_model(&settings.shading.parse::<PluginSpec>()?)?),
             lights: settings.lights.build(),
             setup: Setup::new(resolved)?,
@@ -269,6 +357,11 @@ impl Reach {
 /// learned. So `auto` runs it first only where [`Config::upsamples_maps_only`].
 pub const MATERIAL_NETWORK: &str = "onnx:span_x4_materials";
 
+/// SPAN tuned for material maps further, on inputs degraded as lossy files degrade them (JPEG,
+/// BC blocks, noise; models/README.md has its card), its outputs scored unprojected. `auto`
+/// runs it first where the input is degraded ([`InputRoute`]) and the per-map base is the result.
+pub const DEGRADED_NETWORK: &str = "onnx:span_x4_degraded";
+
 /// What `upsampler = "auto"` tries otherwise (and after [`MATERIAL_NETWORK`], where a models
 /// folder lacks it), best first: stock SPAN, then Lanczos.
 pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
@@ -295,8 +388,8 @@ pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
 }
 
 /// The configured upsampler, or for `auto` the first that loads and supports every level's
-/// scale: [`MATERIAL_NETWORK`] where the configuration only upsamples maps, then
-/// [`AUTO_UPSAMPLERS`].
+/// scale: where the configuration only upsamples maps, [`DEGRADED_NETWORK`] for a degraded
+/// input, else [`MATERIAL_NETWORK`]; then [`AUTO_UPSAMPLERS`].
 pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
     let levels = levels_of(config.scale);
     let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
@@ -310,7 +403,12 @@ pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler
     if config.upsampler != "auto" {
         return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
     }
-    let material = config.upsamples_maps_only().then_some(MATERIAL_NETWORK);
+    let maps_only =
+        config.filter.residual_base == ResidualBase::Upsampler && config.train.epochs == 0;
+    let material = match config.input_quality {
+        InputQuality::Degraded => maps_only.then_some(DEGRADED_NETWORK),
+        _ => config.upsamples_maps_only().then_some(MATERIAL_NETWORK),
+    };
     let mut last = None;
     for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
         match fits(spec) {

@@ -33,6 +33,9 @@ pub struct RunReport {
     /// Why the source decided the tiling, where it did (a glTF model's UV atlas).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tiling_source: Option<String>,
+    /// Whether the input was read as clean or degraded, and why (`crate::plan::InputRoute`).
+    #[serde(default)]
+    pub input_route: String,
     /// How the settings were chosen, with `select = "auto"` (`config` is the chosen one).
     pub selection: Option<SelectionReport>,
     pub levels: Vec<LevelReport>,

@@ -277,3 +277,28 @@ fn named_degradations_parse_and_reach_every_stored_map() {
         assert!((1.5..4.0).contains(&moved), "{kind:?}: {moved:.2} levels");
     }
 }
+
+#[test]
+fn lossy_storage_is_marked_as_a_lossy_file_would_be() {
+    let material = Material::uniform(16, [0.5; 3], 0.5, 0.5);
+    let marked = |name: &str| {
+        let d: MaterialDegradation = name.parse().unwrap();
+        degrade_material(&material, &d, &mut rng()).unwrap().lossy
+    };
+    let jpeg = marked("noise2+jpeg75");
+    assert_eq!(
+        jpeg.len(),
+        STORED_KINDS.len() - 1,
+        "no height map: {jpeg:?}"
+    );
+    assert_eq!(jpeg[&MapKind::BaseColor], "JPEG (simulated: noise2+jpeg75)");
+    let dds = marked("dds");
+    assert_eq!(dds[&MapKind::Normal], "BC5 blocks (simulated: dds)");
+    assert_eq!(dds[&MapKind::Roughness], "BC4 blocks (simulated: dds)");
+    // Noise, blur, halos and dithering leave nothing a file's format tells.
+    assert!(marked("noise3+blur0.5+halo0.5+dither32").is_empty());
+    // Averaged blocks are no longer what the file stored.
+    let degraded = degrade_material(&material, &"bc1".parse().unwrap(), &mut rng()).unwrap();
+    assert!(degraded.crop(0, 0, 8, 8).lossy.len() == 4);
+    assert!(degraded.box_downsample(2).lossy.is_empty());
+}

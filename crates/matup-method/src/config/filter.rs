@@ -53,6 +53,10 @@ pub struct FilterConfig {
     /// pays for a network's dark stroke with bright texels around it and pins texels at 0:
     /// structure the input has nowhere near (docs/experiments/2026-11-28-no-new-structure.md).
     pub neighbourhood_margin: f32,
+    /// With `back_project`: trust only the low frequencies of the input's mismatch, a Gaussian
+    /// of this many LR texels (0: all of it, the exact projection). A degraded input's JPEG
+    /// noise and blocks are its high frequencies.
+    pub projection_blur: f32,
 }
 
 impl FilterConfig {
@@ -120,13 +124,14 @@ impl Default for FilterConfig {
             // network, ×16 block edges at or below bicubic's on all 11 shared materials; settling
             // instead leaves denim_fabric's above it and victorian_wood's just below.
             clamp_back_project: true,
-            // Measured (docs/experiments/2026-11-28-no-new-structure.md): no texel of
-            // DamagedHelmet's colour, roughness or metallic 16 levels past its input around
-            // it; −0.034 dB on the shared set (Tiles012 −0.34), +0.001 on the val sets.
+            // Off (docs/experiments/2026-11-29-degraded-inputs.md): the strokes it was added
+            // against come from degraded inputs, which now run the network trained on them; on
+            // clean inputs it cost Tiles012 0.34 dB and a partly metallic facade 1.66 dB.
             neighbourhood_margin: NEIGHBOURHOOD_MARGIN,
+            projection_blur: 0.0,
         }
     }
 }
 
-/// The default [`FilterConfig::neighbourhood_margin`].
-pub const NEIGHBOURHOOD_MARGIN: f32 = 0.06;
+/// The default [`FilterConfig::neighbourhood_margin`]: every value kept.
+pub const NEIGHBOURHOOD_MARGIN: f32 = 1.0;

@@ -19,8 +19,8 @@ use matup_core::{Error, Result};
 pub(crate) use train::FUSED_ONLY_TERMS;
 pub use train::{EarlyStopConfig, PriorConfig, TrainConfig};
 pub use values::{
-    Activation, Backend, Chain, Chroma, Interpolation, ResidualBase, Schedule, Selection,
-    TargetKind, TargetSize,
+    Activation, Backend, Chain, Chroma, InputQuality, Interpolation, ResidualBase, Schedule,
+    Selection, TargetKind, TargetSize,
 };
 
 /// `tileable`: a boolean, or `"auto"` (decided from the edges).
@@ -78,6 +78,10 @@ pub struct Config {
     /// feature). On a GPU the SR networks run there (the `onnx` upsampler's `device`), and the
     /// filter trains there.
     pub device: String,
+    /// Whether the input maps are clean or degraded by lossy storage (`auto`: as their files
+    /// say): a degraded material runs the network trained on degraded inputs, unprojected
+    /// (`crate::plan::InputRoute`).
+    pub input_quality: InputQuality,
 }
 
 impl Default for Config {
@@ -97,6 +101,7 @@ impl Default for Config {
             filter: FilterConfig::default(),
             train: TrainConfig::default(),
             device: "cpu".into(),
+            input_quality: InputQuality::Auto,
         }
     }
 }

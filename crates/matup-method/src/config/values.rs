@@ -72,7 +72,8 @@ strings_through_serde!(
     Chain: "chain",
     TargetKind: "targets",
     Selection: "selection",
-    Backend: "backend"
+    Backend: "backend",
+    InputQuality: "input quality"
 );
 
 /// The hidden layers' nonlinearity.
@@ -302,6 +303,20 @@ pub enum Selection {
     /// As `Auto`, with only the upsampler as candidates: the configured one and each of
     /// `Config::select_upsamplers`, the settings otherwise as given.
     Upsampler,
+}
+
+/// What the input maps are taken to be: as their files were stored, or as the run is told.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum InputQuality {
+    /// Degraded where a map's file was stored lossily (JPEG, lossy WebP, BC1–BC5 blocks:
+    /// `Material::lossy`), clean otherwise.
+    Auto,
+    /// Clean maps: the material network, its output back-projected onto the input.
+    Clean,
+    /// Degraded maps: the network trained on degraded inputs, its output not back-projected
+    /// (projection would put the input's blocks and noise back).
+    Degraded,
 }
 
 /// How training steps are computed.

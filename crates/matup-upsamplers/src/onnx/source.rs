@@ -58,9 +58,10 @@ pub struct BuiltIn {
 }
 
 /// The networks matup's defaults name: the SPAN ×4 tuned for material maps
-/// (`onnx:span_x4_materials`, the default at every scale) and stock SPAN ×4
+/// (`onnx:span_x4_materials`, the default at every scale), its tuning for maps from lossy files
+/// (`onnx:span_x4_degraded`, the default where the input is degraded) and stock SPAN ×4
 /// (`onnx:span_x4_ch48`). `models/README.md` is their model card.
-pub const BUILT_IN: [BuiltIn; 2] = [
+pub const BUILT_IN: [BuiltIn; 3] = [
     BuiltIn {
         name: "span_x4_materials",
         onnx: include_bytes!("../../../../models/span_x4_materials.onnx"),
@@ -70,6 +71,11 @@ pub const BUILT_IN: [BuiltIn; 2] = [
         name: "span_x4_ch48",
         onnx: include_bytes!("../../../../models/span_x4_ch48.onnx"),
         sidecar: include_str!("../../../../models/span_x4_ch48.toml"),
+    },
+    BuiltIn {
+        name: "span_x4_degraded",
+        onnx: include_bytes!("../../../../models/span_x4_degraded.onnx"),
+        sidecar: include_str!("../../../../models/span_x4_degraded.toml"),
     },
 ];
 
