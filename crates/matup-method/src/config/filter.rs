@@ -53,10 +53,6 @@ pub struct FilterConfig {
     /// pays for a network's dark stroke with bright texels around it and pins texels at 0:
     /// structure the input has nowhere near (docs/experiments/2026-11-28-no-new-structure.md).
     pub neighbourhood_margin: f32,
-    /// With `back_project`: trust only the low frequencies of the input's mismatch, a Gaussian
-    /// of this many LR texels (0: all of it, the exact projection). A degraded input's JPEG
-    /// noise and blocks are its high frequencies.
-    pub projection_blur: f32,
 }
 
 impl FilterConfig {
@@ -128,7 +124,6 @@ impl Default for FilterConfig {
             // against come from degraded inputs, which now run the network trained on them; on
             // clean inputs it cost Tiles012 0.34 dB and a partly metallic facade 1.66 dB.
             neighbourhood_margin: NEIGHBOURHOOD_MARGIN,
-            projection_blur: 0.0,
         }
     }
 }

@@ -18,8 +18,8 @@ use matup_core::device_maps::{self, Separable};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::{
-    box_downsample_channels, for_each_upsampled_row, gaussian_blur, lr_texel, neighbourhood_ranges,
-    rows_per_task, upsample, Border, Kernel,
+    box_downsample_channels, for_each_upsampled_row, lr_texel, neighbourhood_ranges, rows_per_task,
+    upsample, Border, Kernel,
 };
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
@@ -69,8 +69,7 @@ pub fn project_onto_input(
     let lr_features = features(lr);
     let margin = config.neighbourhood_margin;
     if config.back_project {
-        let target = projection_target(base, &lr_features, scale, border, config.projection_blur);
-        back_project(base, &target, scale, border, margin);
+        back_project(base, &lr_features, scale, border, margin);
     }
     if config.clamp_chroma {
         // The base colour is the features' first three channels, linear.
@@ -449,29 +448,6 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin
     // Alpha was made by squaring r (`pack_features`), and √(r²) rounds back to r exactly, so a
     // texel no correction moved gets its alpha back bit for bit.
     hr.plane_mut(ALPHA).iter_mut().for_each(|r| *r *= *r);
-}
-
-/// The LR features a projection of `base` makes it box-filter back to: `lr` itself where
-/// `sigma` is 0, else what `base` box-filters to plus the low frequencies of the mismatch (a
-/// Gaussian of `sigma` LR texels), so that an input's high-frequency noise is not put back.
-fn projection_target(base: &Map, lr: &Map, scale: usize, border: Border, sigma: f32) -> Map {
-    if sigma <= 0.0 {
-        return lr.clone();
-    }
-    let seen = box_downsample_channels(base, scale, 0..base.channels());
-    let (w, h) = (lr.width(), lr.height());
-    let mut target = seen.clone();
-    for c in 0..lr.channels() {
-        let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
-            .map(|(l, s)| l - s)
-            .collect();
-        let low = gaussian_blur(&mismatch, w, h, sigma, border);
-        let (lo, hi) = stored_range(c);
-        for (t, m) in target.plane_mut(c).iter_mut().zip(low) {
-            *t = (*t + m).clamp(lo, hi);
-        }
-    }
-    target
 }
 
 /// Features with alpha (r²) as its file stores it, the roughness r.
