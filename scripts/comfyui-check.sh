@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # A real ComfyUI running matup's nodes, by hand: ComfyUI is not on a package registry, so this
-# stays out of CI. Starts ComfyUI headless on the CPU with comfyui/ linked into custom_nodes,
+# stays out of CI. Starts ComfyUI headless on the CPU with this repository in custom_nodes (as a
+# clone there would be, under the name matup-nodes),
 # posts comfyui/example_workflow_api.json to its /prompt API, waits for the run, and checks
 # the images ComfyUI saved against matup.upscale on the same maps.
 #
@@ -12,7 +13,7 @@ repo=$(cd "$(dirname "$0")/.." && pwd)
 comfy=$(realpath "$1")
 python=$2
 port=${3:-8188}
-ln -sfn "$repo/comfyui" "$comfy/custom_nodes/matup"
+ln -sfn "$repo" "$comfy/custom_nodes/matup-nodes"
 for map in baseColor normal roughness; do
     cp "$repo/samples/victorian_wood/$map.png" "$comfy/input/victorian_wood_$map.png"
 done

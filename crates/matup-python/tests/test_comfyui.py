@@ -3,6 +3,8 @@ kept within ComfyUI's folders (comfyui/masks.py, comfyui/folders.py)."""
 
 import importlib.util
 import os
+import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -66,3 +68,41 @@ def test_a_changed_file_changes_the_folders_stamp(tmp_path):
     assert folders.stamp(str(tmp_path)) == before
     (tmp_path / "baseColor.png").write_bytes(b"ab")
     assert folders.stamp(str(tmp_path)) != before
+
+
+def load_pack(name, monkeypatch):
+    """The repository root loaded as ComfyUI's ``load_custom_node`` loads a cloned pack: a module
+    of ``name`` from its ``__init__.py``, in ``sys.modules`` before it runs."""
+    if importlib.util.find_spec("torch") is None:
+        # The nodes use torch only when they run (their annotations are strings).
+        monkeypatch.setitem(sys.modules, "torch", types.ModuleType("torch"))
+    spec = importlib.util.spec_from_file_location(name, REPO / "__init__.py")
+    pack = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, name, pack)
+    spec.loader.exec_module(pack)
+    return pack
+
+
+def test_the_repository_cloned_into_custom_nodes_registers_the_nodes(monkeypatch):
+    pytest.importorskip("matup")
+    # Today's ComfyUI names the module after the folder's full path, dots replaced.
+    pack = load_pack(str(REPO / "custom_nodes" / "matup-nodes").replace(".", "_x_"), monkeypatch)
+    assert set(pack.NODE_CLASS_MAPPINGS) == {
+        "MatupUpscaleMaterial",
+        "MatupLoadMaterial",
+        "MatupUpscaleLoadedMaterial",
+        "MatupSaveMaterial",
+    }
+    assert set(pack.NODE_DISPLAY_NAME_MAPPINGS) == set(pack.NODE_CLASS_MAPPINGS)
+    for node in pack.NODE_CLASS_MAPPINGS.values():
+        assert callable(getattr(node, node.FUNCTION))
+        assert "required" in node.INPUT_TYPES()
+    # The nodes import the package itself, not the pack.
+    assert hasattr(sys.modules["matup"], "upscale_folder")
+
+
+def test_a_pack_loaded_as_matup_says_how_to_clone_it(monkeypatch):
+    # An older ComfyUI named the module after the folder alone: `custom_nodes/matup` would be
+    # `matup`, the package's own name.
+    with pytest.raises(ImportError, match="clone the repository as custom_nodes/matup-nodes"):
+        load_pack("matup", monkeypatch)

@@ -155,7 +155,8 @@ def test_list_names_the_plugins_and_the_callable():
     "change, error, message",
     [
         (lambda m: m.update(roughness=m["roughness"][:64, :64]), ValueError, "one size"),
-        (lambda m: m.update(roughness=m["roughness"].astype(np.float64)), ValueError, "float64"),
+        (lambda m: m.update(roughness=m["roughness"].astype(np.int32)), ValueError, "int32"),
+        (lambda m: m.update(height=np.full(m["height"].shape, 1e300)), ValueError, "infinity"),
         (
             lambda m: m.update(height=np.full(m["height"].shape, np.nan, np.float32)),
             ValueError,
@@ -165,6 +166,25 @@ def test_list_names_the_plugins_and_the_callable():
         (lambda m: m.clear(), ValueError, "non-empty"),
     ],
 )
+def test_float64_and_float16_arrays_come_back_as_float32_ones_do_in_their_own_dtype():
+    # NumPy's default float64, and half floats, are worked on as float32: the same maps.
+    maps = {role: a.astype(np.float32) / 255.0 for role, a in sample_maps().items()}
+    want = matup.upscale(maps, progress=False)
+    for dtype in (np.float64, np.float16):
+        given = {role: a.astype(dtype) for role, a in maps.items()}
+        if dtype == np.float16:
+            # What float16 rounds is the input; compare with float32 maps of the same values.
+            want_here = matup.upscale(
+                {role: a.astype(np.float32) for role, a in given.items()}, progress=False
+            )
+        else:
+            want_here = want
+        got = matup.upscale(given, progress=False)
+        for role in maps:
+            assert got[role].dtype == dtype, role
+            assert np.array_equal(got[role], want_here[role].astype(dtype)), role
+
+
 def test_bad_arrays_are_refused_by_name(change, error, message):
     maps = sample_maps()
     change(maps)

@@ -334,6 +334,9 @@ _ROLE_STEMS = {
     "opacity": "opacity",
 }
 _EXTENSIONS = {np.dtype(np.uint8): ".png", np.dtype(np.uint16): ".png", np.dtype(np.float32): ".exr"}
+# Float arrays of other widths (NumPy's default float64, half floats) are worked on as float32,
+# matup's own precision, and given back in their own dtype.
+_AS_FLOAT32 = (np.dtype(np.float16), np.dtype(np.float64))
 
 
 def _checked_maps(maps: Mapping[str, Any]) -> Dict[str, np.ndarray]:
@@ -345,9 +348,12 @@ def _checked_maps(maps: Mapping[str, Any]) -> Dict[str, np.ndarray]:
         if not isinstance(key, str) or not key or any(c in key for c in "/\\:\0") or key[0] == ".":
             raise InvalidInput(f"map name {key!r} cannot name a file")
         array = np.asarray(value)
+        if array.dtype in _AS_FLOAT32:
+            array = array.astype(np.float32)
         if array.dtype not in _EXTENSIONS:
             raise InvalidInput(
-                f"maps[{key!r}]: dtype {array.dtype} is not uint8, uint16 or float32"
+                f"maps[{key!r}]: dtype {array.dtype} is not uint8, uint16 or a float "
+                "(float16, float32, float64)"
             )
         if not (array.ndim == 2 or (array.ndim == 3 and 1 <= array.shape[2] <= 4)):
             raise InvalidInput(
@@ -385,7 +391,8 @@ def upscale(
     """Upscales a material given as arrays; returns the same keys, dtypes and conventions.
 
     ``maps`` holds NumPy arrays by role, as files would hold them: H×W or H×W×C, uint8,
-    uint16 or float32 (float colour is linear, as in EXR). Roles: ``base_color`` (RGB, or RGBA
+    uint16 or float (float16, float32 or float64, worked on as float32; float colour is
+    linear, as in EXR). Roles: ``base_color`` (RGB, or RGBA
     with alpha), ``normal`` (tangent-space, OpenGL unless ``normal_convention="directx"``),
     ``roughness``, ``metallic``, ``height``, ``occlusion``, ``emission``, ``alpha``; any other
     key is carried as a folder's other maps are (upsampled on its own). Every map is one
@@ -434,7 +441,8 @@ def upscale(
             if path is None:
                 raise MatupError(f"the run wrote no file for maps[{key!r}]")
             array, _ = _matup.read_image(os.fspath(path))
-            result[key] = array[:, :, 0] if checked[key].ndim == 2 else array
+            array = array[:, :, 0] if checked[key].ndim == 2 else array
+            result[key] = array.astype(np.asarray(maps[key]).dtype, copy=False)
         return result
 
 
