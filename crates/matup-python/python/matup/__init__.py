@@ -349,6 +349,8 @@ def _checked_maps(maps: Mapping[str, Any]) -> Dict[str, np.ndarray]:
             raise InvalidInput(f"map name {key!r} cannot name a file")
         array = np.asarray(value)
         if array.dtype in _AS_FLOAT32:
+            if np.isfinite(array).all() and np.abs(array).max(initial=0) > np.finfo(np.float32).max:
+                raise InvalidInput(f"maps[{key!r}] holds values beyond float32's range")
             array = array.astype(np.float32)
         if array.dtype not in _EXTENSIONS:
             raise InvalidInput(
