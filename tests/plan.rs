@@ -121,7 +121,7 @@ fn a_lossily_stored_input_runs_the_network_for_degraded_maps_unprojected() {
     assert!(by_texels.degraded, "{by_texels:?}");
     assert_eq!(
         by_texels.lossy,
-        ["base colour from a JPEG, by its texels (a JPEG's 8×8 grid at x 6, y 6)"]
+        ["base colour from a JPEG, by its texels (its 8×8 grid at x 6, y 6)"]
     );
     // A named upsampler stays; the route still leaves projection off.
     let named = Config {

@@ -60,7 +60,7 @@ pub struct JpegTrace {
 /// would store (sRGB colour, normals as colours) are taken as JPEG's luma, and each of the 64
 /// grid offsets is tested for DCT coefficients clustered at multiples of a step.
 pub fn jpeg_trace(kind: MapKind, map: &Map) -> Option<JpegTrace> {
-    let (luma, w, h) = stored_luma(kind, map)?;
+    let ((luma, w, h), [x0, y0]) = (stored_luma(kind, map)?, window_origin(map));
     let evidence: Vec<f64> = (0..64)
         .map(|o| grid_evidence(&luma, w, h, [o % 8, o / 8]))
         .collect();
@@ -72,7 +72,7 @@ pub fn jpeg_trace(kind: MapKind, map: &Map) -> Option<JpegTrace> {
     let median = sorted[32].max(1.0);
     let blocks = ((w / 8) * (h / 8)).max(1) as f64;
     let trace = JpegTrace {
-        offset: [best % 8, best / 8],
+        offset: [(x0 + best % 8) % 8, (y0 + best / 8) % 8],
         strength: strongest / blocks,
         contrast: strongest / median,
     };
@@ -86,7 +86,7 @@ fn stored_luma(kind: MapKind, map: &Map) -> Option<(Vec<f64>, usize, usize)> {
     if w < 32 || h < 32 {
         return None;
     }
-    let (x0, y0) = ((map.width() - w) / 2, (map.height() - h) / 2);
+    let [x0, y0] = window_origin(map);
     let stored = |c: usize, i: usize| {
         let v = kind.stored(c, map.plane(c)[i]).clamp(0.0, 1.0);
         (v * 255.0).round() as f64
@@ -104,6 +104,12 @@ fn stored_luma(kind: MapKind, map: &Map) -> Option<(Vec<f64>, usize, usize)> {
         }
     }
     Some((luma, w, h))
+}
+
+/// The top-left texel of the window examined: the map's centre [`WINDOW`]².
+fn window_origin(map: &Map) -> [usize; 2] {
+    let (w, h) = (map.width().min(WINDOW), map.height().min(WINDOW));
+    [(map.width() - w) / 2, (map.height() - h) / 2]
 }
 
 /// The evidence of a JPEG grid at `offset`: for each tested frequency, the strongest step's
@@ -208,6 +214,13 @@ mod tests {
             println!("{name}: {trace:?}");
             // The grid of the JPEG, 8 − 3 and 8 − 5 texels into the crop.
             assert_eq!(trace.offset, [5, 3], "{name}");
+            // On a map wider than the window examined, the offset is still the map's own: the
+            // JPEG placed 20 texels in, its grid at 20 % 8 = 4.
+            let jpeg = as_jpeg(MapKind::BaseColor, &m.base_color, 85);
+            let at = |v: usize| v.saturating_sub(20).min(255);
+            let wide = Map::from_fn(300, 300, 3, |c, y, x| jpeg.plane(c)[at(y) * 256 + at(x)]);
+            let trace = jpeg_trace(MapKind::BaseColor, &wide).expect("found past the window");
+            assert_eq!(trace.offset, [4, 4], "{name}");
             assert!(trace.strength > 2.0 * MIN_STRENGTH, "{name}: {trace:?}");
         }
     }

@@ -148,14 +148,15 @@ impl InputRoute {
 
     /// The route taken, why, and how to decide otherwise, in words.
     pub fn describe(&self) -> String {
-        const DEGRADED: &str = "the network for degraded maps, not back-projected";
+        const DEGRADED: &str =
+            "not back-projected, run by the network for degraded maps where the upsampler is auto";
         match (self.degraded, self.given) {
             (true, true) => format!("input: degraded (as given): {DEGRADED}"),
             (false, true) => "input: clean (as given)".to_string(),
             (true, false) => format!(
-                "input: degraded, stored lossily ({}): {DEGRADED}; --input-quality clean \
-                 decides otherwise",
-                self.lossy.join(", ")
+                "input: degraded, stored lossily: {}; {DEGRADED}; --input-quality clean decides \
+                 otherwise",
+                self.lossy.join("; ")
             ),
             (false, false) => "input: clean (no map was stored lossily; --input-quality degraded \
                                decides otherwise, for noisy or once-compressed maps)"
@@ -174,7 +175,7 @@ fn lossy_maps(material: &Material) -> Vec<String> {
             let trace = jpeg_trace(kind, material.map(kind)?)?;
             let [x, y] = trace.offset;
             Some(format!(
-                "{kind} from a JPEG, by its texels (a JPEG's 8×8 grid at x {x}, y {y})"
+                "{kind} from a JPEG, by its texels (its 8×8 grid at x {x}, y {y})"
             ))
         });
     by_file.chain(by_texels).collect()
