@@ -12,7 +12,7 @@ use rand::Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 use serde::{Deserialize, Serialize};
 
-use crate::file_format::{BlockQuality, DdsCodec, DdsFormat};
+use crate::file_format::{BlockQuality, DdsCodec, DdsFormat, FileFormat};
 use crate::io::dds_file::{decode_dds, write_dds};
 use crate::map::Map;
 use crate::map_kind::MapKind;
@@ -96,10 +96,8 @@ impl Degradation {
     /// [`crate::file_format::FileFormat::lossy_storage`] names it: "JPEG", "BC1 blocks".
     pub fn lossy_storage(&self) -> Option<String> {
         match *self {
-            Degradation::Block(format) => {
-                Some(format!("{} blocks", format.codec().name().to_uppercase()))
-            }
-            Degradation::Jpeg { .. } => Some("JPEG".into()),
+            Degradation::Block(format) => format.codec().lossy_storage(),
+            Degradation::Jpeg { .. } => FileFormat::Jpeg.lossy_storage(),
             _ => None,
         }
     }

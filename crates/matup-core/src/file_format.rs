@@ -118,6 +118,15 @@ impl DdsCodec {
     pub fn is_float(self) -> bool {
         self.row().3
     }
+
+    /// "BC1 blocks" for the block formats that lose what their blocks cannot hold (BC1–BC5;
+    /// BC7 keeps maps within a level or two); `None` for the others.
+    pub fn lossy_storage(self) -> Option<String> {
+        let name = self.name();
+        ["bc1", "bc2", "bc3", "bc4", "bc5"]
+            .contains(&name)
+            .then(|| format!("{} blocks", name.to_uppercase()))
+    }
 }
 
 /// How hard the block encoders (BC1–BC7) search: slower is closer to the uncompressed map.
@@ -151,17 +160,14 @@ pub enum SampleDepth {
 
 impl FileFormat {
     /// What lossy storage in this format did to a map's texels, where it was lossy: "JPEG",
-    /// "lossy WebP", "BC1 blocks" (the block formats BC1–BC5; BC7 keeps maps within a level
-    /// or two, BC6H is HDR). `None` for lossless files.
+    /// "lossy WebP", "BC1 blocks" ([`DdsCodec::lossy_storage`]). `None` for lossless files.
     pub fn lossy_storage(self) -> Option<String> {
         match self {
             FileFormat::Jpeg => Some("JPEG".into()),
             FileFormat::WebpLossy => Some("lossy WebP".into()),
             FileFormat::Dds(DdsFormat {
                 codec: Some(codec), ..
-            }) if ["bc1", "bc2", "bc3", "bc4", "bc5"].contains(&codec.name()) => {
-                Some(format!("{} blocks", codec.name().to_uppercase()))
-            }
+            }) => codec.lossy_storage(),
             _ => None,
         }
     }
