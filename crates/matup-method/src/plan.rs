@@ -7,9 +7,7 @@
 
 use std::sync::Arc;
 
-use crate::config::{
-    Config, InputQuality, ResidualBase, Selection, TargetSize, LEVEL_SCALES, SCALES,
-};
+use crate::config::{Config, InputQuality, Selection, TargetSize, LEVEL_SCALES, SCALES};
 use crate::features::FEATURE_MAPS;
 use crate::select::candidates;
 use matup_core::jpeg_trace::jpeg_trace;
@@ -355,7 +353,7 @@ impl Reach {
 /// SPAN tuned for material maps (models/README.md has its card). It was trained and measured
 /// through the per-map base back-projected onto the LR maps, and only there beats stock SPAN:
 /// each map on its own it loses (docs/experiments/2026-11-25-blend-default.md), and renders are not what it
-/// learned. So `auto` runs it first only where [`Config::upsamples_maps_only`].
+/// learned. So `auto` runs it first only where [`Config::upsamples_maps_only`], back-projected.
 pub const MATERIAL_NETWORK: &str = "onnx:span_x4_materials";
 
 /// SPAN tuned for material maps further, on inputs degraded as lossy files degrade them (JPEG,
@@ -390,7 +388,8 @@ pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
 
 /// The configured upsampler, or for `auto` the first that loads and supports every level's
 /// scale: where the configuration only upsamples maps, [`DEGRADED_NETWORK`] for a degraded
-/// input, else [`MATERIAL_NETWORK`]; then [`AUTO_UPSAMPLERS`].
+/// input, else [`MATERIAL_NETWORK`] where the maps are back-projected; then
+/// [`AUTO_UPSAMPLERS`].
 pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
     let levels = levels_of(config.scale);
     let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
@@ -404,12 +403,13 @@ pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler
     if config.upsampler != "auto" {
         return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
     }
-    let maps_only =
-        config.filter.residual_base == ResidualBase::Upsampler && config.train.epochs == 0;
+    // Each material network where it was trained for: the clean one back-projected, the
+    // degraded one as its route runs it (unprojected).
     let material = match config.input_quality {
-        InputQuality::Degraded => maps_only.then_some(DEGRADED_NETWORK),
-        _ => config.upsamples_maps_only().then_some(MATERIAL_NETWORK),
+        InputQuality::Degraded => Some(DEGRADED_NETWORK),
+        _ => config.filter.back_project.then_some(MATERIAL_NETWORK),
     };
+    let material = material.filter(|_| config.upsamples_maps_only());
     let mut last = None;
     for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
         match fits(spec) {

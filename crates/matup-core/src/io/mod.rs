@@ -20,7 +20,7 @@ pub use image_file::{
 pub use stream::{ChannelRows, ImageWriter, Samples, WriteHints};
 pub use write::{check_output_folder, retag, MaterialWriter, Names, SaveOptions};
 
-use crate::layout::{FileLayout, Packing, Stored};
+use crate::layout::{Packing, Stored};
 use crate::map::Map;
 use crate::material::{
     normalize_normals, Carried, FileFormat, MapKind, Material, MaterialOrigin, NormalConvention,
@@ -263,7 +263,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         let value = kind.stand_in().expect("the core maps have stand-ins");
         Map::from_fn(w, h, channels, |c, _, _| value[c])
     };
-    Ok(Material {
+    let material = Material {
         base_color: reader
             .map(MapKind::BaseColor)
             .unwrap_or_else(|| stand_in(MapKind::BaseColor, 3)),
@@ -283,7 +283,6 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
             alpha: std::mem::take(&mut reader.alpha),
             extras: std::mem::take(&mut reader.extras),
         },
-        lossy: lossy_maps(&reader.layout),
         origin: Some(MaterialOrigin {
             folder: origin_folder,
             layout: reader.layout,
@@ -294,16 +293,20 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
             notes,
             tiling: None,
         }),
-    })
+        lossy: Default::default(),
+    };
+    let lossy = (material.origin.as_ref())
+        .map(lossy_maps)
+        .unwrap_or_default();
+    Ok(Material { lossy, ..material })
 }
 
-/// The maps of `layout` read from lossy files, with what the file was: "JPEG
-/// (Default_albedo.jpg)" ([`crate::file_format::FileFormat::lossy_storage`]). A map is read
-/// from the first file that holds it.
-fn lossy_maps(layout: &[FileLayout]) -> std::collections::BTreeMap<MapKind, String> {
+/// The maps of `origin` read from lossy files, with what the file was: "JPEG
+/// (Default_albedo.jpg)" ([`crate::file_format::FileFormat::lossy_storage`]).
+fn lossy_maps(origin: &MaterialOrigin) -> std::collections::BTreeMap<MapKind, String> {
     (MapKind::ALL.into_iter())
         .filter_map(|kind| {
-            let file = layout.iter().find(|f| f.holds(kind))?;
+            let file = origin.source(kind)?;
             let storage = file.format.lossy_storage()?;
             let name = file.path.file_name().unwrap_or_default().to_string_lossy();
             Some((kind, format!("{storage} ({name})")))

@@ -125,13 +125,11 @@ pub fn check_supported_scale(scale: usize, what: &str) -> Result<()> {
 pub const SCALES: [usize; 5] = [2, 3, 4, 8, 16];
 
 impl Config {
-    /// Whether the upsampler's only work is the per-map base back-projected onto the LR maps,
-    /// which is then the result (no filter trained, so no renders upsampled): the use the
-    /// material network (`crate::plan::MATERIAL_NETWORK`) was trained and measured for.
+    /// Whether the upsampler's only work is the per-map base, which is then the result (no
+    /// filter trained, so no renders upsampled): the use the material networks
+    /// (`crate::plan::MATERIAL_NETWORK`, `crate::plan::DEGRADED_NETWORK`) were trained for.
     pub fn upsamples_maps_only(&self) -> bool {
-        self.filter.residual_base == ResidualBase::Upsampler
-            && self.filter.back_project
-            && self.train.epochs == 0
+        self.filter.residual_base == ResidualBase::Upsampler && self.train.epochs == 0
     }
 
     /// METHOD.md's settings, the paper's: the filter trained for 10 epochs on the renders
