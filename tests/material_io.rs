@@ -6,6 +6,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use matup::material::{FileFormat, MapKind, Material, NormalConvention};
+use matup::progress::Silent;
 use matup::{load_material, save_material, LoadOptions, Map, MaterialPaths, SaveOptions};
 
 fn load(folder: &Path) -> matup::Result<Material> {
@@ -1057,4 +1058,124 @@ fn pictures_of_the_material_are_passed_over_by_name_and_the_run_names_them() {
         origin.notes
     );
     assert!((origin.layout.iter()).all(|f| !f.path.ends_with("preview.png")));
+}
+
+/// The images of `folder` as a caller holding them in memory gives them: file names and the
+/// samples matup's reader decodes.
+fn images_of(folder: &Path) -> Vec<(String, matup::io::ImageFile)> {
+    let mut paths: Vec<PathBuf> = (fs::read_dir(folder).unwrap())
+        .map(|e| e.unwrap().path())
+        .filter(|p| matup::io::is_image_file(p))
+        .collect();
+    paths.sort();
+    (paths.iter())
+        .map(|p| {
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            (name, matup::io::read_image(p, u64::MAX).unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn images_in_memory_upscale_to_the_samples_a_folder_run_writes() {
+    // The sample with its base colour stored as a JPEG, as a web texture would be.
+    let dir = tempfile::tempdir().unwrap();
+    for entry in fs::read_dir(common::sample_material()).unwrap() {
+        let path = entry.unwrap().path();
+        fs::copy(&path, dir.path().join(path.file_name().unwrap())).unwrap();
+    }
+    let colour = dir.path().join("baseColor.png");
+    image::open(&colour)
+        .unwrap()
+        .to_rgb8()
+        .save(dir.path().join("baseColor.jpg"))
+        .unwrap();
+    fs::remove_file(&colour).unwrap();
+
+    let config = matup::config::Config {
+        upsampler: "lanczos3".into(),
+        ..Default::default()
+    };
+    let save = SaveOptions::default();
+    let out = tempfile::tempdir().unwrap();
+    let from_disk = load(dir.path()).unwrap();
+    common::upscale_into(&from_disk, &config, out.path(), &save).unwrap();
+
+    let arrays = Path::new("arrays");
+    let images = images_of(dir.path());
+    let in_memory = matup::load_material_from_images(arrays, images, &LoadOptions::default());
+    let in_memory = in_memory.unwrap();
+    assert_eq!(in_memory.lossy, from_disk.lossy);
+    assert!(in_memory.lossy.contains_key(&MapKind::BaseColor));
+    let run = matup::folder::upscale_in_memory(&in_memory, &config, &save, None, &Silent);
+    let run = run.unwrap();
+
+    let names: Vec<&str> = run.images.iter().map(|i| i.name.as_str()).collect();
+    let mut written: Vec<String> = (fs::read_dir(out.path()).unwrap())
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n != "preview.png" && n != "run.json")
+        .collect();
+    written.sort();
+    let mut sorted = names.clone();
+    sorted.sort();
+    assert_eq!(sorted, written);
+    for image in &run.images {
+        assert_eq!([image.width, image.height], [512, 512], "{}", image.name);
+        let file = matup::io::read_image(&out.path().join(&image.name), u64::MAX).unwrap();
+        assert_eq!(image.format, file.format, "{}", image.name);
+        let matup::io::Samples::U8(samples) = &image.samples else {
+            panic!("{}: 8-bit samples expected", image.name)
+        };
+        // The file's samples texel by texel, as 8-bit levels.
+        let map = &file.map;
+        let stored: Vec<u8> = (0..map.texels() * map.channels())
+            .map(|i| (map.plane(i % map.channels())[i / map.channels()] * 255.0).round() as u8)
+            .collect();
+        if image.format == FileFormat::Jpeg {
+            // The samples before JPEG's lossy encoding, which the file holds after it.
+            let mean = (samples.iter().zip(&stored))
+                .map(|(&a, &b)| (a as f64 - b as f64).abs())
+                .sum::<f64>()
+                / samples.len() as f64;
+            assert!(mean > 0.0 && mean < 3.0, "{}: {mean} levels", image.name);
+        } else {
+            assert!(samples == &stored, "{}", image.name);
+        }
+    }
+}
+
+#[test]
+fn images_in_memory_are_refused_by_name_when_they_cannot_be_a_folder() {
+    let arrays = Path::new("arrays");
+    let mut images = images_of(&common::sample_material());
+    let refused =
+        |images: Vec<(String, matup::io::ImageFile)>| match matup::load_material_from_images(
+            arrays,
+            images,
+            &LoadOptions::default(),
+        ) {
+            Ok(_) => panic!("refused"),
+            Err(e) => e.to_string(),
+        };
+    let mut unnamed = images_of(&common::sample_material());
+    unnamed[0].0 = "baseColor".into();
+    let e = refused(unnamed);
+    assert!(
+        e.contains("baseColor") && e.contains("not an image file's name"),
+        "{e}"
+    );
+    let small = Map::from_fn(64, 64, 1, |_, _, _| 0.5);
+    images.push((
+        "ambient_occlusion.png".into(),
+        matup::io::ImageFile {
+            map: small,
+            format: FileFormat::Png8,
+            notes: Vec::new(),
+        },
+    ));
+    let e = refused(images);
+    assert!(
+        e.contains("ambient_occlusion.png") && e.contains("another size"),
+        "{e}"
+    );
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use matup_core::io::{
     check_output_folder, file_name, load_material, save_png, write_atomic, LoadOptions,
-    MaterialPaths, MaterialWriter, SaveOptions,
+    MaterialPaths, MaterialWriter, SaveOptions, StoredImage,
 };
 use matup_core::material::{Material, OtherSizeFile};
 use matup_core::progress::Progress;
@@ -89,6 +89,48 @@ pub fn upscale_to_folder(
     written.push(run_json);
     let _ = std::fs::remove_dir_all(&checkpoints); // finished: nothing to resume
     Ok(FolderRun { report, written })
+}
+
+/// What [`upscale_in_memory`] made.
+pub struct MemoryRun {
+    pub report: RunReport,
+    /// The maps' files, in the order [`upscale_to_folder`] writes them.
+    pub images: Vec<StoredImage>,
+}
+
+/// Upscales `material` as [`upscale_to_folder`] does, its files kept in memory rather than
+/// written: each as its file stores it (PNG, EXR and TIFF exactly; a lossy or block format
+/// before its encoding). There is no preview, `run.json` or checkpoint; a material with
+/// images of another size (which are loaded again from disk) is refused.
+pub fn upscale_in_memory(
+    material: &Material,
+    config: &Config,
+    save: &SaveOptions,
+    memory_limit: Option<u64>,
+    progress: &dyn Progress,
+) -> Result<MemoryRun> {
+    if let Some(other) = material.origin.as_ref().and_then(|o| o.other_sizes.first()) {
+        return Err(Error::file(
+            &other.path,
+            "another size than the maps: upscaled apart, it needs the folder on disk",
+        ));
+    }
+    let plan = Plan::new(material, config)?;
+    let size = plan.output_size([material.width(), material.height_px()]);
+    let options = RunOptions {
+        checkpoint_folder: None,
+        resume: false,
+        oracle: None,
+        memory_limit,
+    };
+    let mut maps = MaterialWriter::in_memory(size, material.origin.as_ref(), save)?;
+    let report = upscale_streamed(material, &plan, &options, progress, &mut |_, band| {
+        maps.write_band(band)
+    })?;
+    Ok(MemoryRun {
+        report,
+        images: maps.finish_in_memory()?,
+    })
 }
 
 /// The folder's images of another size than its maps

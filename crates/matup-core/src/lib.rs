@@ -48,7 +48,10 @@ pub mod tileable;
 pub mod upsample;
 
 pub use error::{Error, Result};
-pub use io::{load_material, save_material, LoadOptions, MaterialPaths, SaveOptions};
+pub use io::{
+    load_material, load_material_from_images, save_material, LoadOptions, MaterialPaths,
+    SaveOptions,
+};
 pub use lights::{Light, LightSample, LightSetSpec};
 pub use loss::LossNorm;
 pub use map::{Dihedral, Map};

@@ -15,10 +15,13 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods}
 use pyo3::prelude::*;
 use pyo3::types::PyAnyMethods;
 
-use matup::apps::folder::{upscale_to_folder, FolderRun};
+use matup::apps::folder::{upscale_in_memory, upscale_to_folder, FolderRun};
 use matup::apps::model::upscale_model as run_model;
-use matup::core::io::{read_image as read_image_file, write_image as write_image_file};
-use matup::core::material::SampleDepth;
+use matup::core::io::{
+    load_material_from_images, read_image as read_image_file, write_image as write_image_file,
+    ImageFile, Samples, StoredImage,
+};
+use matup::core::material::{Material, SampleDepth};
 use matup::core::{
     load_material, shading_model, shading_models, upsamplers, Error, FileFormat, LightSetSpec,
     LoadOptions, Map, NormalConvention, PluginSpec, SaveOptions,
@@ -196,6 +199,79 @@ fn upscale_folder(
     })?;
     json_text(py, &report)
 }
+
+/// Images given as `(file name, array, format)`, as matup's reader would decode those files.
+fn images_of(py: Python<'_>, images: Vec<StoredArray<'_>>) -> PyResult<Vec<(String, ImageFile)>> {
+    (images.into_iter())
+        .map(|(name, array, format)| {
+            let (map, depth) = map_of(py, &array)?;
+            let format = parsed::<FileFormat>(py, "format", Some(&format))?.expect("given");
+            if format.sample_depth() != depth {
+                return Err(exception(
+                    py,
+                    "InvalidInput",
+                    format!(
+                        "{name}: {depth:?} samples for a {format} file, which stores {:?}",
+                        format.sample_depth()
+                    ),
+                ));
+            }
+            let notes = Vec::new();
+            Ok((name, ImageFile { map, format, notes }))
+        })
+        .collect()
+}
+
+/// An image as its file stores it: `(file name, H×W×C array, format)`.
+fn stored_array<'py>(py: Python<'py>, image: StoredImage) -> PyResult<StoredArray<'py>> {
+    let shape = [image.height, image.width, image.channels];
+    let array = match image.samples {
+        Samples::U8(v) => PyArray1::from_vec(py, v).reshape(shape)?.into_any(),
+        Samples::U16(v) => PyArray1::from_vec(py, v).reshape(shape)?.into_any(),
+        Samples::F32(v) => PyArray1::from_vec(py, v).reshape(shape)?.into_any(),
+    };
+    Ok((image.name, array, image.format.to_string()))
+}
+
+/// Upscales the material that files named and stored as `images` (`(file name, array,
+/// format)`) would be, in memory, as `matup upscale` upscales their folder: returns run.json's
+/// text (without a preview or files) and each output file as `(name, array, format)`, its
+/// samples as the file stores them.
+#[pyfunction]
+#[pyo3(signature = (images, settings, network=None, format=None, names=None,
+                    normal_convention=None, memory_limit=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn upscale_images<'py>(
+    py: Python<'py>,
+    images: Vec<StoredArray<'py>>,
+    settings: &str,
+    network: Option<&Network>,
+    format: Option<&str>,
+    names: Option<&str>,
+    normal_convention: Option<&str>,
+    memory_limit: Option<u64>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(String, Vec<StoredArray<'py>>)> {
+    let save = save_options(py, format, names, None)?;
+    let load = load_options(py, normal_convention)?;
+    let images = images_of(py, images)?;
+    let progress = PyProgress::new(progress);
+    let raised = progress.raised();
+    let registered = network.map(|n| n.register(py, &raised)).transpose()?;
+    let config = settings::config(py, settings, registered.as_ref())?;
+    let limit = memory_limit.unwrap_or_else(default_memory_limit);
+    let run = detached(py, &raised, || {
+        let material = load_material_from_images(Path::new(ARRAYS), images, &load)?;
+        upscale_in_memory(&material, &config, &save, Some(limit), &progress)
+    })?;
+    let images = (run.images.into_iter())
+        .map(|image| stored_array(py, image))
+        .collect::<PyResult<_>>()?;
+    Ok((json_text(py, &run.report)?, images))
+}
+
+/// What names the material of arrays in messages: the folder their files would be in.
+const ARRAYS: &str = "arrays";
 
 /// Upscales every texture of the glTF model `path` into `out`, as `matup upscale MODEL -o OUT`
 /// does; returns each material's report by label, and the notes, as JSON.
@@ -386,6 +462,9 @@ fn transposed(data: &[f32], rows: usize) -> Vec<f32> {
 /// Arrays by name, in the order matup holds them.
 type NamedArrays<'py> = Vec<(String, Bound<'py, PyAny>)>;
 
+/// An image file's samples held in Python: `(file name, H×W×C array, format)`.
+type StoredArray<'py> = (String, Bound<'py, PyAny>, String);
+
 /// A material folder as matup reads it, as JSON: its size, each map in matup's working
 /// encoding (linear base colour, unit OpenGL normals, roughness, metallic; as `maps` arrays),
 /// the layout it was read from and the normal convention with its evidence.
@@ -399,6 +478,33 @@ fn read_material<'py>(
     let load = load_options(py, normal_convention)?;
     let raised = Raised::default();
     let material = detached(py, &raised, || load_material(Some(&path), &load))?;
+    described(py, &path, &material)
+}
+
+/// [`read_material`] of the files `images` (`(file name, array, format)`) would be.
+#[pyfunction]
+#[pyo3(signature = (images, normal_convention=None))]
+fn read_material_images<'py>(
+    py: Python<'py>,
+    images: Vec<StoredArray<'py>>,
+    normal_convention: Option<&str>,
+) -> PyResult<(String, NamedArrays<'py>)> {
+    let load = load_options(py, normal_convention)?;
+    let images = images_of(py, images)?;
+    let raised = Raised::default();
+    let folder = Path::new(ARRAYS);
+    let material = detached(py, &raised, || {
+        load_material_from_images(folder, images, &load)
+    })?;
+    described(py, folder, &material)
+}
+
+/// A material as [`read_material`] gives it.
+fn described<'py>(
+    py: Python<'py>,
+    path: &Path,
+    material: &Material,
+) -> PyResult<(String, NamedArrays<'py>)> {
     let origin = material.origin.as_ref();
     let description = serde_json::json!({
         "folder": path,
@@ -535,12 +641,14 @@ fn _matup(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Network>()?;
     for f in [
         wrap_pyfunction!(upscale_folder, m)?,
+        wrap_pyfunction!(upscale_images, m)?,
         wrap_pyfunction!(upscale_model, m)?,
         wrap_pyfunction!(settings_toml, m)?,
         wrap_pyfunction!(read_image, m)?,
         wrap_pyfunction!(write_image, m)?,
         wrap_pyfunction!(extension_of, m)?,
         wrap_pyfunction!(read_material, m)?,
+        wrap_pyfunction!(read_material_images, m)?,
         wrap_pyfunction!(evaluate, m)?,
         wrap_pyfunction!(render, m)?,
         wrap_pyfunction!(plugins, m)?,

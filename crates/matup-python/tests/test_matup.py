@@ -5,6 +5,7 @@ import json
 import os
 import shutil
 import subprocess
+import tempfile
 import threading
 import time
 import _thread
@@ -74,6 +75,26 @@ def test_arrays_come_back_as_the_command_line_writes_their_files(cli_run):
         got = big[role] if big[role].ndim == 3 else big[role][:, :, None]
         assert got.shape == want.shape == (512, 512, want.shape[2])
         assert np.array_equal(got, want), role
+
+
+def test_arrays_reach_matup_in_memory_with_no_file_written(tmp_path, monkeypatch):
+    # Python's temporary folder does not exist and the working folder is empty: a run that
+    # wrote its arrays to files would fail or leave them.
+    monkeypatch.setattr(tempfile, "tempdir", os.fspath(tmp_path / "no-such-folder"))
+    monkeypatch.chdir(tmp_path)
+    big = matup.upscale(sample_maps(), upsampler="lanczos3", progress=False)
+    assert big["base_color"].shape == (512, 512, 3)
+    assert sorted(os.listdir(tmp_path)) == []
+
+
+def test_a_material_comes_back_with_the_command_lines_files(cli_run):
+    big = matup.upscale(matup.read_material(SAMPLE), progress=False)
+    assert sorted(big.files) == sorted(ROLES.values())
+    for name in ROLES.values():
+        assert np.array_equal(big.files[name], matup.read_image(cli_run / name)), name
+        assert big.formats[name] == "png"
+    # Its maps are those files as matup reads them.
+    assert np.allclose(big.maps["roughness"][:, :, 0], big.files["roughness.png"][:, :, 0] / 255.0)
 
 
 def bicubic(batch: np.ndarray, scale: int = 4, a: float = -0.5) -> np.ndarray:

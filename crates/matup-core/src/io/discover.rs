@@ -329,6 +329,16 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
         }
     }
     let images: Vec<PathBuf> = paths.into_iter().filter(|p| is_image_file(p)).collect();
+    discover_among(folder, &images, preferred)
+}
+
+/// [`discover`] of the images `images` (sorted by name), the files of `folder` or images held
+/// in memory under names a folder would give them.
+pub fn discover_among(
+    folder: &Path,
+    images: &[PathBuf],
+    preferred: NormalConvention,
+) -> Result<Discovered> {
     if images.is_empty() {
         return Err(Error::material(
             folder,
@@ -338,7 +348,7 @@ pub fn discover(folder: &Path, preferred: NormalConvention) -> Result<Discovered
             ),
         ));
     }
-
+    let stem_words = |p: &Path| words(&p.file_stem().unwrap_or_default().to_string_lossy());
     let stems: Vec<Vec<String>> = images.iter().map(|p| stem_words(p)).collect();
     // The material's own name ("metal_plate_…") is a prefix shared by every file; its words
     // must not be read as roles.

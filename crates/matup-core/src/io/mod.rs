@@ -11,13 +11,14 @@ pub(crate) mod stream;
 mod write;
 
 use std::borrow::Cow;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-pub use discover::{discover, file_name, Discovered, FileRole, Role};
+pub use discover::{discover, discover_among, file_name, Discovered, FileRole, Role};
 pub use image_file::{
     encoded_size, is_image_file, read_image, write_atomic, write_image, ImageFile, IMAGE_EXTENSIONS,
 };
-pub use stream::{ChannelRows, ImageWriter, Samples, WriteHints};
+pub use stream::{ChannelRows, ImageWriter, Samples, StoredImage, WriteHints};
 pub use write::{check_output_folder, retag, MaterialWriter, Names, SaveOptions};
 
 use crate::layout::{Packing, Stored};
@@ -141,6 +142,67 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
         Some(f) => discover(f, preferred)?,
         None => Discovered::default(),
     };
+    load_discovered(folder, discovered, options, BTreeMap::new())
+}
+
+/// The material a folder holding `images` would be, each image already decoded (a Python
+/// caller's arrays) under the file name it would have there (`basecolor.png`): loaded as
+/// [`load_material`] loads that folder, names deciding roles as they do there, no file read.
+/// `folder` names the material in messages; `options.paths` are not used.
+pub fn load_material_from_images(
+    folder: &Path,
+    images: Vec<(String, ImageFile)>,
+    options: &LoadOptions,
+) -> Result<Material> {
+    let mut in_memory = BTreeMap::new();
+    for (name, image) in images {
+        let path = folder.join(&name);
+        if Path::new(&name).file_name() != Some(name.as_ref()) || !is_image_file(&path) {
+            return Err(Error::file(
+                &path,
+                format!(
+                    "not an image file's name (a name and one of the extensions {})",
+                    IMAGE_EXTENSIONS.join(", ")
+                ),
+            ));
+        }
+        if in_memory.insert(path.clone(), image).is_some() {
+            return Err(Error::file(&path, "two images under one name"));
+        }
+    }
+    let names: Vec<PathBuf> = in_memory.keys().cloned().collect();
+    let preferred = options.normal_convention.unwrap_or_default();
+    let discovered = discover_among(folder, &names, preferred)?;
+    let options = LoadOptions {
+        paths: MaterialPaths::default(),
+        ..options.clone()
+    };
+    let material = load_discovered(Some(folder), discovered, &options, in_memory)?;
+    // A folder's files of another size are loaded again from disk as a material of their
+    // own; these have no file to be loaded from.
+    if let Some(other) = material.origin.as_ref().and_then(|o| o.other_sizes.first()) {
+        let [w, h] = other.size;
+        return Err(Error::file(
+            &other.path,
+            format!(
+                "{w}×{h}, another size than the maps' {}×{}: every image must be one size",
+                material.width(),
+                material.height_px()
+            ),
+        ));
+    }
+    Ok(material)
+}
+
+/// [`load_material`] of the files `discovered` in `folder` and those `options` name, the
+/// images of `in_memory` taken from there.
+fn load_discovered(
+    folder: Option<&Path>,
+    discovered: Discovered,
+    options: &LoadOptions,
+    in_memory: BTreeMap<PathBuf, ImageFile>,
+) -> Result<Material> {
+    let preferred = options.normal_convention.unwrap_or_default();
     let explicit = options.paths.files();
     let origin_folder = folder
         .map(Path::to_path_buf)
@@ -199,6 +261,7 @@ pub fn load_material(folder: Option<&Path>, options: &LoadOptions) -> Result<Mat
     // The maps' files first: their size is the material's, which carried files must share.
     files.sort_by_key(|(_, role, _)| matches!(role, FileRole::Carried { .. }));
     let mut reader = Reader::new(options.max_texels);
+    reader.in_memory = in_memory;
     for (path, role, how) in &files {
         reader.read(path, role, how)?;
     }

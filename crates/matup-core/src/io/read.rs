@@ -35,6 +35,8 @@ pub(crate) struct Reader {
     pub other_sizes: Vec<OtherSizeFile>,
     /// What files were read leniently, each note naming its file.
     pub notes: Vec<String>,
+    /// Images already decoded, by the path they stand for: read from here, not from disk.
+    pub in_memory: BTreeMap<PathBuf, ImageFile>,
 }
 
 /// How many components a map of `kind` has.
@@ -60,7 +62,10 @@ impl Reader {
 
     /// Reads `path`, which holds what `role` says, recognised as `recognised_as`.
     pub fn read(&mut self, path: &Path, role: &FileRole, recognised_as: &str) -> Result<()> {
-        let file = read_image(path, self.max_texels)?;
+        let file = match self.in_memory.remove(path) {
+            Some(file) => file,
+            None => read_image(path, self.max_texels)?,
+        };
         let name = file_stem(path);
         (self.notes).extend(file.notes.iter().map(|n| format!("{name}: {n}")));
         let size = (file.map.width(), file.map.height());

@@ -8,7 +8,7 @@ use candle_core::Tensor;
 use rayon::prelude::*;
 
 use super::read::file_stem;
-use super::stream::{ChannelRows, ImageWriter, Samples, WriteHints};
+use super::stream::{ChannelRows, ImageWriter, Samples, StoredImage, WriteHints};
 use crate::device_maps::stored_samples;
 use crate::layout::{Channel, Holds, Stored};
 use crate::material::{
@@ -63,6 +63,8 @@ pub struct MaterialWriter {
     files: Vec<FileWriter>,
     /// Files another writer wrote into the folder, which this one must not overwrite.
     taken: Vec<PathBuf>,
+    /// The files are kept in memory ([`MaterialWriter::in_memory`]), not written.
+    in_memory: bool,
 }
 
 /// A file to write: what each channel holds and how it is stored.
@@ -98,17 +100,7 @@ impl MaterialWriter {
         options: &SaveOptions,
     ) -> Result<MaterialWriter> {
         check_output_folder(out_dir, origin)?;
-        // A size the files' formats cannot hold is refused before any work, not when the
-        // first band is written.
-        let [w, h] = size;
-        match options.format {
-            Some(format) => super::stream::check_side(out_dir, format, w, h)?,
-            None => {
-                for file in origin.map_or(&[][..], |o| o.layout.as_slice()) {
-                    super::stream::check_side(&file.path, file.format, w, h)?;
-                }
-            }
-        }
+        Self::check_sizes(out_dir, size, origin, options)?;
         std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
         Ok(MaterialWriter {
             out_dir: out_dir.to_path_buf(),
@@ -117,7 +109,44 @@ impl MaterialWriter {
             options: options.clone(),
             files: Vec::new(),
             taken: Vec::new(),
+            in_memory: false,
         })
+    }
+
+    /// [`MaterialWriter::new`]'s files kept in memory, under their names alone: what each
+    /// would store, before a lossy or block format's encoding, comes back from
+    /// [`MaterialWriter::finish_in_memory`].
+    pub fn in_memory(
+        size: [usize; 2],
+        origin: Option<&MaterialOrigin>,
+        options: &SaveOptions,
+    ) -> Result<MaterialWriter> {
+        let names = PathBuf::new();
+        Self::check_sizes(&names, size, origin, options)?;
+        Ok(MaterialWriter {
+            out_dir: names,
+            size,
+            origin: origin.cloned(),
+            options: options.clone(),
+            files: Vec::new(),
+            taken: Vec::new(),
+            in_memory: true,
+        })
+    }
+
+    /// A size the files' formats cannot hold is refused before any work, not when the first
+    /// band is written.
+    fn check_sizes(
+        out_dir: &Path,
+        [w, h]: [usize; 2],
+        origin: Option<&MaterialOrigin>,
+        options: &SaveOptions,
+    ) -> Result<()> {
+        match options.format {
+            Some(format) => super::stream::check_side(out_dir, format, w, h),
+            None => (origin.map_or(&[][..], |o| o.layout.as_slice()).iter())
+                .try_for_each(|file| super::stream::check_side(&file.path, file.format, w, h)),
+        }
     }
 
     /// The writer, refusing to write any of `taken` (another material's files in the same
@@ -191,18 +220,32 @@ impl MaterialWriter {
     /// Completes every file (each on its own thread: JPEG and TIFF are encoded here); returns
     /// their paths.
     pub fn finish(self) -> Result<Vec<PathBuf>> {
-        // A stand-in never changed is dropped: its temporary file goes with it.
-        let kept: Vec<FileWriter> = (self.files.into_iter())
-            .filter(|file| !(file.stand_in.is_some() && file.all_stand_in))
-            .collect();
+        let taken = self.taken.clone();
+        let kept = self.kept();
         if let Some(file) = kept
             .iter()
-            .find(|f| self.taken.iter().any(|t| t == f.file.path()))
+            .find(|f| taken.iter().any(|t| t == f.file.path()))
         {
             return Err(Error::file(file.file.path(), TWO_FILES_IN_ONE));
         }
         kept.into_par_iter()
             .map(|file| file.file.finish())
+            .collect()
+    }
+
+    /// The images of a [`MaterialWriter::in_memory`], in the order files would be written.
+    pub fn finish_in_memory(self) -> Result<Vec<StoredImage>> {
+        self.kept()
+            .into_iter()
+            .map(|file| file.file.into_stored())
+            .collect()
+    }
+
+    /// The files to complete: a stand-in never changed is dropped (its temporary file goes
+    /// with it).
+    fn kept(self) -> Vec<FileWriter> {
+        (self.files.into_iter())
+            .filter(|file| !(file.stand_in.is_some() && file.all_stand_in))
             .collect()
     }
 
@@ -376,18 +419,16 @@ impl MaterialWriter {
                 super::dds_file::check_fits(channels, dds, &stored)
                     .map_err(|why| Error::file(&path, why))?;
             }
+            let hints = WriteHints {
+                stored,
+                block_quality: self.options.block_quality,
+            };
+            let open = match self.in_memory {
+                true => ImageWriter::in_memory,
+                false => ImageWriter::create_with,
+            };
             self.files.push(FileWriter {
-                file: ImageWriter::create_with(
-                    &path,
-                    w,
-                    h,
-                    channels,
-                    planned.format,
-                    WriteHints {
-                        stored,
-                        block_quality: self.options.block_quality,
-                    },
-                )?,
+                file: open(&path, w, h, channels, planned.format, hints)?,
                 channels: planned.channels,
                 stand_in: planned.stand_in,
                 all_stand_in: true,

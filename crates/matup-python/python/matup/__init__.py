@@ -24,7 +24,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Union
@@ -334,6 +333,7 @@ _ROLE_STEMS = {
     "opacity": "opacity",
 }
 _EXTENSIONS = {np.dtype(np.uint8): ".png", np.dtype(np.uint16): ".png", np.dtype(np.float32): ".exr"}
+_FORMATS = {np.dtype(np.uint8): "png", np.dtype(np.uint16): "png16", np.dtype(np.float32): "exr-float"}
 # Float arrays of other widths (NumPy's default float64, half floats) are worked on as float32,
 # matup's own precision, and given back in their own dtype.
 _AS_FLOAT32 = (np.dtype(np.float16), np.dtype(np.float64))
@@ -401,51 +401,66 @@ def upscale(
     size. A :class:`Material` (from :func:`read_material`) is upscaled with its own files'
     layout, and a :class:`Material` comes back.
 
-    The other arguments and ``settings`` are :func:`upscale_folder`'s. The result is exactly
-    what ``matup upscale`` writes for the same files.
+    The other arguments and ``settings`` are :func:`upscale_folder`'s. The arrays go to matup
+    in memory, and no file is written: the result holds exactly the samples ``matup upscale``
+    writes for the same files (for a :class:`Material`'s JPEG, WebP or DDS files, the samples
+    before that format's lossy encoding, which :func:`write_material` applies).
     """
-    with tempfile.TemporaryDirectory(prefix="matup-") as work:
-        src, out = Path(work, "in"), Path(work, "out")
-        if isinstance(maps, Material):
-            write_material(maps, src)
-        else:
-            checked = _checked_maps(maps)
-            src.mkdir()
-            files = {}
-            for key, array in checked.items():
-                stem = _ROLE_STEMS.get(key.lower(), key)
-                files[key] = stem
-                write_image(src / (stem + _EXTENSIONS[array.dtype]), array)
-        upscale_folder(
-            src,
-            out,
-            scale=scale,
-            size=size,
-            tileable=tileable,
-            normal_convention=normal_convention,
-            device=device,
-            upsampler=upsampler,
+    network, text = _run_settings(settings, scale, size, tileable, device, upsampler)
+    if isinstance(maps, Material):
+        images = [
+            (name, np.ascontiguousarray(array), maps.formats.get(name) or _FORMATS[array.dtype])
+            for name, array in maps.files.items()
+        ]
+    else:
+        checked = _checked_maps(maps)
+        stems = {key: _ROLE_STEMS.get(key.lower(), key) for key in checked}
+        images = [
+            (stems[key] + _EXTENSIONS[array.dtype], array, _FORMATS[array.dtype])
+            for key, array in checked.items()
+        ]
+    with _Progress(progress) as callback:
+        _, written = _matup.upscale_images(
+            images,
+            text,
+            network=network,
             names="keep",
-            progress=progress,
-            **settings,
+            normal_convention=normal_convention,
+            progress=callback,
         )
-        if isinstance(maps, Material):
-            # The input's files come back under their names; the run's preview is not one.
-            result = read_material(out, normal_convention=normal_convention)
-            stems = {Path(name).stem.lower() for name in maps.files}
-            result.files = {n: a for n, a in result.files.items() if Path(n).stem.lower() in stems}
-            result.formats = {n: f for n, f in result.formats.items() if n in result.files}
-            return result
-        by_stem = {p.stem.lower(): p for p in out.iterdir() if p.suffix in (".png", ".exr")}
-        result = {}
-        for key, stem in files.items():
-            path = by_stem.get(stem.lower())
-            if path is None:
-                raise MatupError(f"the run wrote no file for maps[{key!r}]")
-            array, _ = _matup.read_image(os.fspath(path))
-            array = array[:, :, 0] if checked[key].ndim == 2 else array
-            result[key] = array.astype(np.asarray(maps[key]).dtype, copy=False)
-        return result
+    if isinstance(maps, Material):
+        return _material_of_images(written, maps, normal_convention)
+    by_stem = {Path(name).stem.lower(): array for name, array, _ in written}
+    result = {}
+    for key, stem in stems.items():
+        array = by_stem.get(stem.lower())
+        if array is None:
+            raise MatupError(f"the run made no file for maps[{key!r}]")
+        array = array[:, :, 0] if checked[key].ndim == 2 else array
+        result[key] = array.astype(np.asarray(maps[key]).dtype, copy=False)
+    return result
+
+
+def _material_of_images(written: List[tuple], given: "Material", normal_convention: Optional[str]) -> "Material":
+    """The upscaled :class:`Material`: its files those of ``written`` (``(name, array,
+    format)``) that ``given`` has (by stem: a resolution tag is rewritten), read as matup reads
+    a folder of them."""
+    text, arrays = _matup.read_material_images(written, normal_convention)
+    description = json.loads(text)
+    stems = {Path(name).stem.lower() for name in given.files}
+    kept = [(n, a, f) for n, a, f in written if Path(n).stem.lower() in stems]
+    return Material(
+        folder="",
+        size=tuple(description["size"]),
+        maps=dict(arrays),
+        files={name: array for name, array, _ in kept},
+        formats={name: format for name, _, format in kept},
+        sources=description["sources"],
+        notes=description["notes"],
+        normal_convention=description["normal_convention"],
+        normal_evidence=description["normal_evidence"],
+        stand_ins=description["stand_ins"],
+    )
 
 
 @dataclass

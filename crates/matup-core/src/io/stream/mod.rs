@@ -42,8 +42,22 @@ pub struct ImageWriter {
     format: FileFormat,
     hints: WriteHints,
     rows_written: usize,
-    temporary: NamedTempFile,
+    /// The file being written; `None` for an image kept in memory.
+    temporary: Option<NamedTempFile>,
     encoder: Encoder,
+}
+
+/// An image an [`ImageWriter::in_memory`] gathered: its samples as its file would store them
+/// before encoding (at the format's [`SampleDepth`], texel by texel).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StoredImage {
+    /// The file name it stands for.
+    pub name: String,
+    pub format: FileFormat,
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub samples: Samples,
 }
 
 /// What formats that filter or compress a file need to know beyond its values: how each
@@ -173,19 +187,7 @@ impl ImageWriter {
         format: FileFormat,
         hints: WriteHints,
     ) -> Result<ImageWriter> {
-        if !(1..=4).contains(&channels) {
-            return Err(Error::file(
-                path,
-                format!("{channels} channels: files hold grey or RGB, with or without alpha"),
-            ));
-        }
-        check_side(path, format, width, height)?;
-        if format == FileFormat::Jpeg && channels % 2 == 0 {
-            return Err(Error::file(
-                path,
-                "JPEG holds no alpha channel; write this map as PNG, TIFF, TGA or EXR (--format)",
-            ));
-        }
+        Self::check(path, width, height, channels, format)?;
         let temporary = temporary_beside(path)?;
         let file = || {
             temporary
@@ -262,9 +264,64 @@ impl ImageWriter {
             format,
             hints,
             rows_written: 0,
-            temporary,
+            temporary: Some(temporary),
             encoder,
         })
+    }
+
+    /// An image like the file [`ImageWriter::create_with`] writes, kept in memory: its samples
+    /// (as the file stores them before a lossy or block format's encoding) come back from
+    /// [`ImageWriter::into_stored`]. `path` names it.
+    pub fn in_memory(
+        path: &Path,
+        width: usize,
+        height: usize,
+        channels: usize,
+        format: FileFormat,
+        hints: WriteHints,
+    ) -> Result<ImageWriter> {
+        Self::check(path, width, height, channels, format)?;
+        let texels = width * height * channels;
+        let samples = match format.sample_depth() {
+            SampleDepth::U8 => Samples::U8(Vec::with_capacity(texels)),
+            SampleDepth::U16 => Samples::U16(Vec::with_capacity(texels)),
+            SampleDepth::F32 => Samples::F32(Vec::with_capacity(texels)),
+        };
+        Ok(ImageWriter {
+            path: path.to_path_buf(),
+            width,
+            height,
+            channels,
+            format,
+            hints,
+            rows_written: 0,
+            temporary: None,
+            encoder: Encoder::Gathered(samples),
+        })
+    }
+
+    /// Whether `format` holds an image of `width × height` texels of `channels`.
+    fn check(
+        path: &Path,
+        width: usize,
+        height: usize,
+        channels: usize,
+        format: FileFormat,
+    ) -> Result<()> {
+        if !(1..=4).contains(&channels) {
+            return Err(Error::file(
+                path,
+                format!("{channels} channels: files hold grey or RGB, with or without alpha"),
+            ));
+        }
+        check_side(path, format, width, height)?;
+        if format == FileFormat::Jpeg && channels % 2 == 0 {
+            return Err(Error::file(
+                path,
+                "JPEG holds no alpha channel; write this map as PNG, TIFF, TGA or EXR (--format)",
+            ));
+        }
+        Ok(())
     }
 
     /// The file it writes.
@@ -387,8 +444,8 @@ impl ImageWriter {
         }
     }
 
-    /// Completes the file (every row must have been written) and moves it to its path.
-    pub fn finish(mut self) -> Result<PathBuf> {
+    /// Every row must have been written.
+    fn check_complete(&self) -> Result<()> {
         if self.rows_written != self.height {
             return Err(Error::file(
                 &self.path,
@@ -398,6 +455,37 @@ impl ImageWriter {
                 ),
             ));
         }
+        Ok(())
+    }
+
+    /// The samples of an image made by [`ImageWriter::in_memory`] (every row written).
+    pub fn into_stored(self) -> Result<StoredImage> {
+        self.check_complete()?;
+        match (self.temporary, self.encoder) {
+            (None, Encoder::Gathered(samples)) => Ok(StoredImage {
+                name: super::file_name(&self.path),
+                format: self.format,
+                width: self.width,
+                height: self.height,
+                channels: self.channels,
+                samples,
+            }),
+            _ => Err(Error::file(
+                &self.path,
+                "written to a file, not kept in memory: ImageWriter::finish completes it",
+            )),
+        }
+    }
+
+    /// Completes the file (every row must have been written) and moves it to its path.
+    pub fn finish(mut self) -> Result<PathBuf> {
+        self.check_complete()?;
+        let Some(temporary) = self.temporary.take() else {
+            return Err(Error::file(
+                &self.path,
+                "kept in memory, not written to a file: ImageWriter::into_stored gives it",
+            ));
+        };
         match &mut self.encoder {
             Encoder::Png { stream, error, .. } => {
                 let stream = stream.take().expect("open until finished");
@@ -412,7 +500,7 @@ impl ImageWriter {
             Encoder::Gathered(samples) => {
                 let samples = std::mem::replace(samples, Samples::U8(Vec::new()));
                 let mut out = BufWriter::new(
-                    self.temporary
+                    temporary
                         .as_file()
                         .try_clone()
                         .map_err(|e| Error::io(&self.path, e))?,
@@ -434,7 +522,7 @@ impl ImageWriter {
                 self.exr_error()?;
             }
         }
-        let (path, temporary) = (self.path.clone(), self.temporary);
+        let path = self.path.clone();
         persist(temporary, &path)?;
         Ok(path)
     }
