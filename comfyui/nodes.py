@@ -128,7 +128,7 @@ class UpscaleMaterial:
         network = network_of(upscale_model) if upscale_model is not None else None
         settings = settings_of(tileable, normal_convention)
         outputs: Dict[str, list] = {name: [] for name in self.RETURN_NAMES}
-        progress = comfy_progress(base_color.shape[0])
+        progress = comfy_progress()
         for b in range(base_color.shape[0]):
             arrays = {
                 name: to_codes(image[min(b, image.shape[0] - 1)], name in GREY)
@@ -144,7 +144,7 @@ class UpscaleMaterial:
                 scale=None if size else int(scale),
                 size=size or None,
                 upsampler=network if network is not None else "auto",
-                progress=False,
+                progress=progress,
                 **settings,
             )
             side = big["base_color"].shape[:2]
@@ -155,19 +155,27 @@ class UpscaleMaterial:
                     outputs[name].append(to_image(big[name]))
                 else:
                     outputs[name].append(torch.tensor(STAND_INS[name]).expand(*side, 3).clone())
-            progress(b + 1)
         return tuple(torch.stack(outputs[name]) for name in self.RETURN_NAMES)
 
 
-def comfy_progress(total: int):
-    """ComfyUI's progress bar over the batch, where ComfyUI runs."""
+def comfy_progress() -> Any:
+    """matup's progress callback inside ComfyUI: each network call's tiles on ComfyUI's
+    progress bar, and ComfyUI's cancel checked at every event, so a cancel stops the run at
+    the next tile (the exception it raises ends the run and reaches ComfyUI). Outside ComfyUI,
+    no progress."""
     try:
         import comfy.utils
-
-        bar = comfy.utils.ProgressBar(total)
-        return lambda done: bar.update_absolute(done, total)
+        from comfy import model_management
     except ImportError:
-        return lambda done: None
+        return False
+    bar = comfy.utils.ProgressBar(1)
+
+    def callback(kind: str, text: str, count: int, number: Any) -> None:
+        if kind == "tiles":
+            bar.update_absolute(count, int(number))
+        model_management.throw_exception_if_processing_interrupted()
+
+    return callback
 
 
 class LoadMaterial:
@@ -234,7 +242,7 @@ class UpscaleMaterialFolder:
             material,
             scale=int(scale),
             upsampler=network if network is not None else "auto",
-            progress=False,
+            progress=comfy_progress(),
             **settings_of(tileable, normal_convention),
         )
         return (big,)

@@ -488,3 +488,51 @@ fn graphs_with_other_operators_fall_back_to_tract_and_say_why() {
     .unwrap();
     assert_eq!(shipped.engine(), "matup");
 }
+
+/// Records what a call reports and stops it at the `stop_at`-th report.
+struct StopAt {
+    seen: std::sync::Mutex<Vec<(usize, usize)>>,
+    stop_at: usize,
+}
+
+impl matup::Watch for StopAt {
+    fn pieces_done(&self, done: usize, total: usize) -> matup::Result<()> {
+        let mut seen = self.seen.lock().unwrap();
+        seen.push((done, total));
+        match seen.len() == self.stop_at {
+            true => Err(matup::Error::Interrupted),
+            false => Ok(()),
+        }
+    }
+}
+
+#[test]
+fn a_network_reports_each_batch_of_tiles_and_stops_where_its_watch_says() {
+    let image = real_render();
+    let images = std::slice::from_ref(&image);
+    // matup's executor on the host, and candle's engine (a GPU's path) on the CPU.
+    for engine in ["", ",engine=candle"] {
+        let spec = format!("onnx:span_x4_materials,tile=16,batch=1{engine}");
+        let up = build(&spec);
+        let stopping = StopAt {
+            seen: Default::default(),
+            stop_at: 3,
+        };
+        let e = (up.upsample_watched(images, 4, Border::Mirror, &stopping)).unwrap_err();
+        assert!(matches!(e, matup::Error::Interrupted), "{spec}: {e}");
+        // 64² in 16² tiles, one a call: each reported as it finishes, none run after the stop.
+        let seen = stopping.seen.into_inner().unwrap();
+        assert_eq!(seen, [(1, 16), (2, 16), (3, 16)], "{spec}");
+
+        // Watched to the end, the call makes the unwatched call's output.
+        let all = StopAt {
+            seen: Default::default(),
+            stop_at: usize::MAX,
+        };
+        let watched = (up.upsample_watched(images, 4, Border::Mirror, &all)).unwrap();
+        let seen = all.seen.into_inner().unwrap();
+        assert_eq!((seen.len(), seen.last().copied()), (16, Some((16, 16))));
+        let plain = up.upsample(images, 4, Border::Mirror).unwrap();
+        assert_eq!(watched[0].data(), plain[0].data(), "{spec}");
+    }
+}

@@ -62,7 +62,7 @@ pub use resample::{Border, Kernel};
 pub use shading::{
     shading_model, shading_models, ShadingModel, ShadingModelRegistration, Svbrdf, Texel,
 };
-pub use upsample::{upsampler, upsamplers, RgbUpsampler, UpsamplerRegistration};
+pub use upsample::{upsampler, upsamplers, RgbUpsampler, Unwatched, UpsamplerRegistration, Watch};
 
 // Re-exported so plugin crates register without naming the same `inventory` version, and
 // write tensor forms against the same `candle_core`.

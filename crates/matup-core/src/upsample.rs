@@ -48,6 +48,20 @@ pub trait RgbUpsampler: Send + Sync {
     /// [`Border::Wrap`] for tileable materials, whose output must tile too.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>>;
 
+    /// [`RgbUpsampler::upsample`], telling `watch` how far the call has got after each of its
+    /// pieces of work (a batch of a network's tiles) and stopping where `watch` says so. An
+    /// upsampler that works in pieces implements it (and `upsample` as it, [`Unwatched`]);
+    /// the default makes the call whole.
+    fn upsample_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        _watch: &dyn Watch,
+    ) -> Result<Vec<Map>> {
+        self.upsample(images, scale, border)
+    }
+
     /// The candle device it computes on, where it can leave its outputs there
     /// ([`RgbUpsampler::upsample_on_device`]): the stages after it then run on that device
     /// too, and only the finished maps come back to the host.
@@ -66,6 +80,33 @@ pub trait RgbUpsampler: Send + Sync {
         Err(Error::Invalid(
             "this upsampler keeps no outputs on a device".into(),
         ))
+    }
+
+    /// [`RgbUpsampler::upsample_on_device`] as [`RgbUpsampler::upsample_watched`] watches.
+    fn upsample_on_device_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        _watch: &dyn Watch,
+    ) -> Result<Vec<Tensor>> {
+        self.upsample_on_device(images, scale, border)
+    }
+}
+
+/// Follows an upsampler's call piece by piece ([`RgbUpsampler::upsample_watched`]): a run's
+/// progress per tile, and where it asks to stop, the stop.
+pub trait Watch: Sync {
+    /// `done` of the call's `total` pieces are finished; an error ends the call with it.
+    fn pieces_done(&self, done: usize, total: usize) -> Result<()>;
+}
+
+/// Watches nothing: [`RgbUpsampler::upsample`] as [`RgbUpsampler::upsample_watched`].
+pub struct Unwatched;
+
+impl Watch for Unwatched {
+    fn pieces_done(&self, _done: usize, _total: usize) -> Result<()> {
+        Ok(())
     }
 }
 
@@ -90,6 +131,15 @@ impl<T: RgbUpsampler + ?Sized> RgbUpsampler for std::sync::Arc<T> {
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         (**self).upsample(images, scale, border)
     }
+    fn upsample_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<Map>> {
+        (**self).upsample_watched(images, scale, border, watch)
+    }
     fn device(&self) -> Option<Device> {
         (**self).device()
     }
@@ -100,6 +150,15 @@ impl<T: RgbUpsampler + ?Sized> RgbUpsampler for std::sync::Arc<T> {
         border: Border,
     ) -> Result<Vec<Tensor>> {
         (**self).upsample_on_device(images, scale, border)
+    }
+    fn upsample_on_device_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<Tensor>> {
+        (**self).upsample_on_device_watched(images, scale, border, watch)
     }
 }
 
@@ -311,10 +370,20 @@ impl RgbUpsampler for ThroughNative {
         scale: usize,
         border: Border,
     ) -> Result<Vec<Tensor>> {
+        self.upsample_on_device_watched(images, scale, border, &Unwatched)
+    }
+
+    fn upsample_on_device_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<Tensor>> {
         if scale >= self.native {
-            return self.inner.upsample_on_device(images, scale, border);
+            return (self.inner).upsample_on_device_watched(images, scale, border, watch);
         }
-        let large = self.inner.upsample_on_device(images, self.native, border)?;
+        let large = (self.inner).upsample_on_device_watched(images, self.native, border, watch)?;
         let mut out = Vec::with_capacity(large.len());
         let mut shrinks = Vec::new();
         for (up, image) in large.into_iter().zip(images) {
@@ -334,11 +403,23 @@ impl RgbUpsampler for ThroughNative {
     }
 
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        self.upsample_watched(images, scale, border, &Unwatched)
+    }
+
+    fn upsample_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<Map>> {
         if scale >= self.native {
             // Its own scale, or one it refuses.
-            return self.inner.upsample(images, scale, border);
+            return self.inner.upsample_watched(images, scale, border, watch);
         }
-        let large = self.inner.upsample(images, self.native, border)?;
+        let large = self
+            .inner
+            .upsample_watched(images, self.native, border, watch)?;
         Ok((large.into_iter().zip(images))
             .map(|(up, image)| {
                 let native = [image.width(), image.height()].map(|n| n * self.native);

@@ -12,7 +12,7 @@ use matup_core::material::Material;
 use matup_core::progress::Progress;
 use matup_core::resample::Border;
 use matup_core::shading::ShadingModel;
-use matup_core::upsample::RgbUpsampler;
+use matup_core::upsample::{RgbUpsampler, Watch};
 use matup_core::{Error, Result};
 
 /// Where a run may keep checkpoints, and whether to continue from them.
@@ -45,7 +45,8 @@ pub(crate) struct Context<'a> {
 }
 
 /// The run's upsampler, stopping the run where the caller asks ([`Progress::cancelled`]):
-/// each call checks first, so Ctrl-C stops a run between maps, not only between stages.
+/// each call checks first, and a network's calls at every batch of tiles, which they report
+/// ([`Progress::tiles`]), so Ctrl-C stops a run within a tile's time.
 pub(crate) struct StopsOnRequest<'a> {
     pub(crate) inner: &'a dyn RgbUpsampler,
     pub(crate) progress: &'a dyn Progress,
@@ -78,7 +79,7 @@ impl RgbUpsampler for StopsOnRequest<'_> {
     }
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         self.go_on()?;
-        self.inner.upsample(images, scale, border)
+        self.inner.upsample_watched(images, scale, border, self)
     }
     fn device(&self) -> Option<Device> {
         self.inner.device()
@@ -90,6 +91,14 @@ impl RgbUpsampler for StopsOnRequest<'_> {
         border: Border,
     ) -> Result<Vec<Tensor>> {
         self.go_on()?;
-        self.inner.upsample_on_device(images, scale, border)
+        self.inner
+            .upsample_on_device_watched(images, scale, border, self)
+    }
+}
+
+impl Watch for StopsOnRequest<'_> {
+    fn pieces_done(&self, done: usize, total: usize) -> Result<()> {
+        self.progress.tiles(done as u64, total as u64);
+        self.go_on()
     }
 }

@@ -28,8 +28,9 @@ impl Raised {
     }
 }
 
-/// A run's progress: each event handed to `callback(kind, text, count, loss)` — `("stage",
-/// name, total, None)`, `("advance", "", done, loss)` or `("note", message, 0, None)`.
+/// A run's progress: each event handed to `callback(kind, text, count, number)` — `("stage",
+/// name, total, None)`, `("advance", "", done, loss)`, `("tiles", "", done, total)` (the tiles
+/// of the network's call in progress) or `("note", message, 0, None)`.
 pub struct PyProgress {
     callback: Option<Py<PyAny>>,
     raised: Raised,
@@ -47,7 +48,11 @@ impl PyProgress {
         self.raised.clone()
     }
 
-    fn call(&self, kind: &str, text: &str, count: u64, loss: Option<f64>) {
+    /// `number` is the loss (a float or `None`), or for tiles their total.
+    fn call<N>(&self, kind: &str, text: &str, count: u64, number: N)
+    where
+        N: for<'py> IntoPyObject<'py> + Copy,
+    {
         let Some(callback) = &self.callback else {
             return;
         };
@@ -55,7 +60,7 @@ impl PyProgress {
             return;
         }
         Python::attach(|py| {
-            if let Err(e) = callback.call1(py, (kind, text, count, loss)) {
+            if let Err(e) = callback.call1(py, (kind, text, count, number)) {
                 self.raised.keep(e);
             }
         });
@@ -64,15 +69,19 @@ impl PyProgress {
 
 impl Progress for PyProgress {
     fn stage(&self, name: &str, total: u64) {
-        self.call("stage", name, total, None);
+        self.call("stage", name, total, None::<f64>);
     }
 
     fn advance(&self, done: u64, loss: Option<f64>) {
         self.call("advance", "", done, loss);
     }
 
+    fn tiles(&self, done: u64, total: u64) {
+        self.call("tiles", "", done, total);
+    }
+
     fn note(&self, message: &str) {
-        self.call("note", message, 0, None);
+        self.call("note", message, 0, None::<f64>);
     }
 
     /// Python's pending signals (Ctrl-C is `KeyboardInterrupt`), or an exception already

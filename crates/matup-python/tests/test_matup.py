@@ -293,6 +293,32 @@ def test_progress_reaches_a_callback():
     assert any("tileable" in e[1] for e in events if e[0] == "note")
 
 
+class Cancelled(Exception):
+    """What a host application's cancel raises from the progress callback."""
+
+
+def test_a_cancel_raised_at_a_tile_stops_the_run_before_the_next_tile():
+    calls, tiles = [], []
+
+    def network(batch):
+        calls.append(len(batch))
+        return bicubic(batch)
+
+    def progress(kind, text, count, number):
+        if kind == "tiles":
+            tiles.append((count, number))
+            if len(tiles) == 3:
+                raise Cancelled("cancelled at the third tile")
+
+    net = matup.Network(network, scale=4, tile=32, batch=1)
+    with pytest.raises(Cancelled, match="third tile"):
+        matup.upscale(sample_maps(), upsampler=net, progress=progress)
+    # A 128² map in 32² tiles, its two self-ensemble passes in one call: 32 tiles, each
+    # reported as it finishes; none ran after the cancel.
+    assert tiles == [(1, 32), (2, 32), (3, 32)]
+    assert len(calls) == 3
+
+
 def test_a_material_reads_and_writes_back_with_its_layout(tmp_path):
     material = matup.read_material(SAMPLE)
     assert material.size == (128, 128)

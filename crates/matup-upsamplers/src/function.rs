@@ -11,10 +11,10 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use matup_core::resample::Border;
-use matup_core::upsample::{RgbUpsampler, UpsamplerRegistration};
+use matup_core::upsample::{RgbUpsampler, Unwatched, UpsamplerRegistration, Watch};
 use matup_core::{Error, Map, Result};
 
-use crate::tiled::{by_size, upsample_tiled, TileAxis, Tiling};
+use crate::tiled::{by_size, upsample_tiled, PieceCount, TileAxis, Tiling};
 
 /// Runs the network on a batch of tiles: each tile three planes (R, G, B) of `h × w` texels in
 /// [0, 1], row by row; returns each tile upsampled, as a 3-channel [`Map`].
@@ -120,6 +120,17 @@ impl RgbUpsampler for FunctionUpsampler {
     }
 
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        self.upsample_watched(images, scale, border, &Unwatched)
+    }
+
+    /// [`RgbUpsampler::upsample`], `watch` told after each call of the function.
+    fn upsample_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<Map>> {
         let t = self.tiles;
         if scale != t.scale {
             return Err(Error::Unsupported {
@@ -132,13 +143,18 @@ impl RgbUpsampler for FunctionUpsampler {
             let axes = [h, w].map(|len| TileAxis::even(len, t.tile, t.overlap));
             let tiling = Tiling::new([w, h], same.len(), axes, t.overlap, t.scale);
             let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
+            let mut count = PieceCount::new(watch, tiling.grid.len());
             upsample_tiled(
                 &same_images,
                 border,
                 tiling,
                 t.batch,
                 false,
-                &mut |tiles, [h, w]| self.call(tiles, h, w),
+                &mut |tiles, [h, w]| {
+                    let outputs = self.call(tiles, h, w)?;
+                    count.add(tiles.len())?;
+                    Ok(outputs)
+                },
             )
         })
     }
@@ -207,6 +223,15 @@ impl RgbUpsampler for Shared {
     }
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
         self.0.upsample(images, scale, border)
+    }
+    fn upsample_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<Map>> {
+        self.0.upsample_watched(images, scale, border, watch)
     }
 }
 

@@ -8,6 +8,7 @@
 
 use matup_core::candle_core::{self, Tensor};
 use matup_core::resample::Border;
+use matup_core::upsample::Watch;
 use matup_core::{Map, Result};
 use rayon::prelude::*;
 
@@ -170,6 +171,30 @@ impl Tiling {
                 .collect(),
             scale,
         }
+    }
+}
+
+/// A call's pieces counted for its [`Watch`], out of a `total` known before the first.
+pub struct PieceCount<'a> {
+    watch: &'a dyn Watch,
+    done: usize,
+    total: usize,
+}
+
+impl<'a> PieceCount<'a> {
+    pub fn new(watch: &'a dyn Watch, total: usize) -> PieceCount<'a> {
+        PieceCount {
+            watch,
+            done: 0,
+            total,
+        }
+    }
+
+    /// `pieces` more are finished (a fixed batch's copies past the last are not counted);
+    /// the watch's error stops the call.
+    pub fn add(&mut self, pieces: usize) -> Result<()> {
+        self.done = (self.done + pieces).min(self.total);
+        self.watch.pieces_done(self.done, self.total)
     }
 }
 

@@ -56,8 +56,10 @@ __version__ = _matup.__version__
 log = logging.getLogger("matup")
 
 PathLike = Union[str, "os.PathLike[str]"]
-#: ``progress(kind, text, count, loss)``: ``("stage", name, total, None)``,
-#: ``("advance", "", done, loss)`` or ``("note", message, 0, None)``.
+#: ``progress(kind, text, count, number)``: ``("stage", name, total, None)``,
+#: ``("advance", "", done, loss)``, ``("tiles", "", done, total)`` (the tiles of the network's
+#: call in progress, after each batch of them) or ``("note", message, 0, None)``. An exception
+#: it raises stops the run at the next tile and reaches the caller.
 ProgressCallback = Callable[[str, str, int, Optional[float]], Any]
 
 _list = list  # `list` is also one of this module's functions

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use matup_core::resample::Border;
-use matup_core::upsample::RgbUpsampler;
+use matup_core::upsample::{RgbUpsampler, Unwatched, Watch};
 use matup_core::{Error, Map, Result};
 use tract_linalg::multithread::{multithread_tract_scope, Executor};
 use tract_onnx::pb::ModelProto;
@@ -16,7 +16,9 @@ use super::candle_graph::{unit_rgb, Precision, TensorNet};
 use super::convnet::{self, ConvNet, Graph};
 use super::nhwc::{Features, Padding};
 use super::source::{ModelInfo, ModelSource};
-use crate::tiled::{by_size, upsample_tiled, upsample_tiled_on_device, TileAxis, Tiling};
+use crate::tiled::{
+    by_size, upsample_tiled, upsample_tiled_on_device, PieceCount, TileAxis, Tiling,
+};
 
 type Plan = Arc<TypedRunnableModel>;
 
@@ -526,8 +528,19 @@ impl RgbUpsampler for OnnxUpsampler {
     /// together and run as many a call as the engine takes, so the self-ensemble's passes and
     /// a material's renders fill a GPU's batch.
     fn upsample(&self, images: &[Map], scale: usize, border: Border) -> Result<Vec<Map>> {
+        self.upsample_watched(images, scale, border, &Unwatched)
+    }
+
+    /// [`RgbUpsampler::upsample`], `watch` told after each call of the network.
+    fn upsample_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<Map>> {
         if let Engine::Candle { .. } = &self.engine {
-            let outputs = self.upsample_on_device(images, scale, border)?;
+            let outputs = self.upsample_on_device_watched(images, scale, border, watch)?;
             return (outputs.iter())
                 .map(|t| {
                     matup_core::device_maps::download(t)
@@ -539,22 +552,29 @@ impl RgbUpsampler for OnnxUpsampler {
         by_size(images, |same| {
             let (w, h) = (images[same[0]].width(), images[same[0]].height());
             if self.runs_whole_wrapping(w, h, border) {
+                let mut count = PieceCount::new(watch, same.len());
                 let mut outputs = Vec::with_capacity(same.len());
                 for planes in self.whole_calls(images, same) {
                     outputs.extend(self.run_batch(&planes, h, w, Padding::Wrap)?);
+                    count.add(planes.len())?;
                 }
                 Ok(outputs)
             } else {
                 let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
                 let tiling = self.tiling(w, h, same.len())?;
                 let batch = self.tiles_per_call(tiling.rows.window, tiling.columns.window);
+                let mut count = PieceCount::new(watch, tiling.grid.len());
                 upsample_tiled(
                     &same_images,
                     border,
                     tiling,
                     batch,
                     self.fixed[0].is_some(),
-                    &mut |tiles, [h, w]| self.run_batch(tiles, h, w, Padding::Zero),
+                    &mut |tiles, [h, w]| {
+                        let outputs = self.run_batch(tiles, h, w, Padding::Zero)?;
+                        count.add(tiles.len())?;
+                        Ok(outputs)
+                    },
                 )
             }
         })
@@ -576,6 +596,17 @@ impl RgbUpsampler for OnnxUpsampler {
         scale: usize,
         border: Border,
     ) -> Result<Vec<candle_core::Tensor>> {
+        self.upsample_on_device_watched(images, scale, border, &Unwatched)
+    }
+
+    /// [`RgbUpsampler::upsample_on_device`], `watch` told after each call of the network.
+    fn upsample_on_device_watched(
+        &self,
+        images: &[Map],
+        scale: usize,
+        border: Border,
+        watch: &dyn Watch,
+    ) -> Result<Vec<candle_core::Tensor>> {
         let Engine::Candle { net, .. } = &self.engine else {
             return Err(self.source.error(
                 "keeps no outputs on a device",
@@ -587,18 +618,19 @@ impl RgbUpsampler for OnnxUpsampler {
         by_size(images, |same| {
             let (w, h) = (images[same[0]].width(), images[same[0]].height());
             if self.runs_whole_wrapping(w, h, border) {
+                let mut count = PieceCount::new(watch, same.len());
                 let mut outputs = Vec::with_capacity(same.len());
                 for planes in self.whole_calls(images, same) {
                     let out = self.run_on_device(net, &planes, h, w, Padding::Wrap)?;
                     for b in 0..planes.len() {
                         outputs.push(out.get(b).map_err(failed)?);
                     }
+                    count.add(planes.len())?;
                 }
                 Ok(outputs)
             } else {
                 let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
-                self.upsample_tiled_on_device(net, &same_images, border)
-                    .map_err(failed)
+                self.upsample_tiled_on_device(net, &same_images, border, watch)
             }
         })
     }
@@ -620,25 +652,39 @@ impl OnnxUpsampler {
         net: &TensorNet,
         images: &[&Map],
         border: Border,
-    ) -> candle_core::Result<Vec<candle_core::Tensor>> {
+        watch: &dyn Watch,
+    ) -> Result<Vec<candle_core::Tensor>> {
+        let failed = |e: candle_core::Error| self.source.error("inference failed", e);
         let (w, h) = (images[0].width(), images[0].height());
-        let tiling = (self.tiling(w, h, images.len()))
-            .map_err(|e| candle_core::Error::Msg(e.to_string()))?;
+        let tiling = self.tiling(w, h, images.len())?;
         let planes: Vec<&[f32]> = images.iter().map(|m| &m.data()[..3 * w * h]).collect();
         let uploaded = candle_core::Tensor::from_vec(
             self.network_input(&planes),
             (images.len(), 3, h, w),
             net.device(),
-        )?;
+        )
+        .map_err(failed)?;
         let batch = self.tiles_per_call(tiling.rows.window, tiling.columns.window);
-        upsample_tiled_on_device(
+        let mut count = PieceCount::new(watch, tiling.grid.len());
+        // Where the watch stops the call: its error, carried past candle's.
+        let mut stopped = None;
+        let outputs = upsample_tiled_on_device(
             &uploaded,
             border,
             tiling,
             batch,
             self.fixed[0],
-            &mut |windows| unit_rgb(&net.run(windows, Padding::Zero)?, &self.info),
-        )
+            &mut |windows| {
+                let tiles = windows.dim(0)?;
+                let outputs = unit_rgb(&net.run(windows, Padding::Zero)?, &self.info)?;
+                if let Err(e) = count.add(tiles) {
+                    stopped = Some(e);
+                    return Err(candle_core::Error::Msg("stopped".into()));
+                }
+                Ok(outputs)
+            },
+        );
+        outputs.map_err(|e| stopped.unwrap_or_else(|| failed(e)))
     }
 }
 
