@@ -5,12 +5,20 @@ sRGB base colour, normals as colours) and alpha as a MASK ([B, H, W]) in ComfyUI
 1 − alpha (masks.py). A folder travels as a MATUP_MATERIAL, which keeps its files' names,
 packing and formats for "matup: Save material"; folders are read within ComfyUI's input
 folder and written within its output folder (folders.py).
+
+The network: an UPSCALE_MODEL where one is given; else, where ComfyUI's device is a GPU, matup's
+own networks (models/*.safetensors through spandrel) on it, each where matup would run it;
+else matup's own engine on the CPU. Models go through ComfyUI's model management, tiles shrink
+on out-of-memory, and progress and cancel are per tile.
 """
 
 from __future__ import annotations
 
+import functools
 import os
-from typing import Any, Dict, Optional, Tuple
+import re
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -34,6 +42,18 @@ STAND_INS = {
 SCALES = ["4", "2", "3", "8", "16"]
 
 
+# matup's own networks as files spandrel opens (models/README.md), which the default node runs
+# through torch where ComfyUI's device is a GPU; matup chooses between them per material.
+MODELS = Path(__file__).resolve().parents[1] / "models"
+OWN_NETWORKS = ("span_x4_materials", "span_x4_degraded")
+# The tile matup's networks run in (their sidecars' `tile`), halved on out-of-memory down to
+# the smallest.
+TILE, SMALLEST_TILE = 256, 32
+# Bytes a tile's activations take beside the weights, per input texel: SPAN ×4 at 48 channels
+# keeps a few dozen float32 feature maps at the input's size and its ×4 output.
+TILE_BYTES_PER_TEXEL = 48 * 4 * 8 + 3 * 4 * 16 * 4
+
+
 def comfy_device() -> torch.device:
     """ComfyUI's torch device where it runs inside ComfyUI, else the CPU."""
     try:
@@ -43,10 +63,26 @@ def comfy_device() -> torch.device:
     return model_management.get_torch_device()
 
 
-def network_of(upscale_model: Any, device: Optional[torch.device] = None) -> matup.Network:
-    """A spandrel model (ComfyUI's UPSCALE_MODEL) as matup's network, run on `device`."""
-    device = device or comfy_device()
-    upscale_model.to(device)
+def sidecar_overlap(name: str) -> int:
+    """The context matup's network `name` runs its tiles with: its sidecar's `overlap`."""
+    text = (MODELS / f"{name}.toml").read_text(encoding="utf-8")
+    found = re.search(r"^overlap\s*=\s*(\d+)", text, re.MULTILINE)
+    if found is None:
+        raise ValueError(f"matup: {name}.toml states no overlap")
+    return int(found.group(1))
+
+
+@functools.lru_cache(maxsize=None)
+def own_model(name: str) -> Any:
+    """matup's network `name` as spandrel loads it (as "Load Upscale Model" would), on the CPU."""
+    import spandrel
+
+    return spandrel.ModelLoader().load_from_file(MODELS / f"{name}.safetensors").eval()
+
+
+def network_of(upscale_model: Any, device: torch.device, tile: int = TILE, overlap: int = 16) -> matup.Network:
+    """A spandrel model (ComfyUI's UPSCALE_MODEL) as matup's network, run on `device` (where
+    the caller has put it) in `tile`-texel tiles."""
     dtype = next(upscale_model.model.parameters()).dtype
 
     def run(batch: np.ndarray) -> np.ndarray:
@@ -56,7 +92,82 @@ def network_of(upscale_model: Any, device: Optional[torch.device] = None) -> mat
             return y.permute(0, 2, 3, 1).cpu().numpy()
 
     name = type(upscale_model.model).__name__
-    return matup.Network(run, scale=int(upscale_model.scale), name=name)
+    return matup.Network(run, scale=int(upscale_model.scale), name=name, tile=tile, overlap=overlap)
+
+
+def on_device(models: List[Any], device: torch.device, run: Callable[[], Any]) -> Any:
+    """`run()` with `models` on `device`, as ComfyUI's upscale node runs its model: ComfyUI's
+    model management first frees what they and a tile need there, and they go back to the CPU
+    afterwards, so other models get the memory."""
+    if not models:
+        return run()
+    try:
+        from comfy import model_management
+    except ImportError:
+        model_management = None
+    if model_management is not None:
+        required = sum(model_management.module_size(m.model) for m in models)
+        required += TILE * TILE * TILE_BYTES_PER_TEXEL
+        model_management.free_memory(required, device)
+    try:
+        for model in models:
+            model.to(device)
+        return run()
+    finally:
+        for model in models:
+            model.to("cpu")
+
+
+def out_of_memory(e: BaseException) -> bool:
+    """Whether `e` is the GPU running out of memory (ComfyUI's own test where it runs)."""
+    try:
+        from comfy import model_management
+    except ImportError:
+        return isinstance(e, torch.cuda.OutOfMemoryError)
+    return isinstance(e, model_management.OOM_EXCEPTION)
+
+
+def with_smaller_tiles(run: Callable[[int], Any], tile: int = TILE) -> Any:
+    """`run(tile)`, run again with half the tile while the GPU runs out of memory, as ComfyUI's
+    upscale node retries, down to SMALLEST_TILE."""
+    while True:
+        try:
+            return run(tile)
+        except Exception as e:
+            if tile <= SMALLEST_TILE or not out_of_memory(e):
+                raise
+            tile //= 2
+            if torch.cuda.is_available():
+                torch.cuda.empty_cache()
+
+
+class Networks:
+    """What runs a node's network: the UPSCALE_MODEL given, else matup's own networks through
+    torch where ComfyUI's device is a GPU, else matup's own engine (on the CPU, the CLI's maps
+    exactly)."""
+
+    def __init__(self, upscale_model: Any = None, through_torch: Optional[bool] = None):
+        self.device = comfy_device()
+        self.given = upscale_model
+        if through_torch is None:
+            through_torch = self.device.type != "cpu"
+        own = upscale_model is None and through_torch
+        self.own = {name: own_model(name) for name in OWN_NETWORKS} if own else {}
+
+    def run(self, upscale: Callable[..., Any]) -> Any:
+        """`upscale(upsampler=..., networks=...)` with the models on the device, in smaller
+        tiles on out-of-memory."""
+        models = [self.given] if self.given is not None else list(self.own.values())
+
+        def attempt(tile: int) -> Any:
+            given = None if self.given is None else network_of(self.given, self.device, tile)
+            own = {
+                name: network_of(model, self.device, tile, sidecar_overlap(name))
+                for name, model in self.own.items()
+            }
+            return upscale(upsampler=given or "auto", networks=own or None)
+
+        return on_device(models, self.device, lambda: with_smaller_tiles(attempt, TILE))
 
 
 def to_codes(image: torch.Tensor, grey: bool) -> np.ndarray:
@@ -125,7 +236,7 @@ class UpscaleMaterial:
         unknown = set(given) - {"base_color", *MAP_INPUTS}
         if unknown:
             raise ValueError(f"matup: no such map input: {sorted(unknown)}")
-        network = network_of(upscale_model) if upscale_model is not None else None
+        networks = Networks(upscale_model)
         settings = settings_of(tileable, normal_convention)
         outputs: Dict[str, list] = {name: [] for name in self.RETURN_NAMES}
         progress = comfy_progress()
@@ -139,13 +250,15 @@ class UpscaleMaterial:
                 codes = alpha_codes(mask, arrays["base_color"].shape[:2])
                 if codes is not None:
                     arrays["alpha"] = codes
-            big = matup.upscale(
-                arrays,
-                scale=None if size else int(scale),
-                size=size or None,
-                upsampler=network if network is not None else "auto",
-                progress=progress,
-                **settings,
+            big = networks.run(
+                functools.partial(
+                    matup.upscale,
+                    arrays,
+                    scale=None if size else int(scale),
+                    size=size or None,
+                    progress=progress,
+                    **settings,
+                )
             )
             side = big["base_color"].shape[:2]
             for name in self.RETURN_NAMES:
@@ -237,13 +350,14 @@ class UpscaleMaterialFolder:
         }
 
     def upscale(self, material, scale="4", tileable="auto", normal_convention="auto", upscale_model=None):
-        network = network_of(upscale_model) if upscale_model is not None else None
-        big = matup.upscale(
-            material,
-            scale=int(scale),
-            upsampler=network if network is not None else "auto",
-            progress=comfy_progress(),
-            **settings_of(tileable, normal_convention),
+        big = Networks(upscale_model).run(
+            functools.partial(
+                matup.upscale,
+                material,
+                scale=int(scale),
+                progress=comfy_progress(),
+                **settings_of(tileable, normal_convention),
+            )
         )
         return (big,)
 

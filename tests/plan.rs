@@ -72,6 +72,32 @@ fn a_plan_resolves_the_size_and_chooses_for_every_candidate_once() {
 }
 
 #[test]
+fn matups_networks_run_as_the_upsamplers_given_for_them_where_the_route_chooses_them() {
+    let clean = Material::uniform(16, [0.5, 0.4, 0.3], 0.6, 0.0);
+    let mut jpeg = clean.clone();
+    (jpeg.lossy).insert(MapKind::BaseColor, "JPEG (albedo.jpg)".into());
+    let settings: Config = Config::from_toml(
+        "[networks]\nspan_x4_materials = \"lanczos3\"\nspan_x4_degraded = \"bicubic\"\n",
+        "settings",
+    )
+    .unwrap();
+    let used = |m: &Material| Plan::new(m, &settings).unwrap().setup.upsampler_name;
+    assert_eq!(used(&clean), format!("{MATERIAL_NETWORK} as lanczos3"));
+    assert_eq!(used(&jpeg), format!("{DEGRADED_NETWORK} as bicubic"));
+    // Named by hand, too; and what runs must exist.
+    let named = Config {
+        upsampler: MATERIAL_NETWORK.into(),
+        ..settings.clone()
+    };
+    let p = Plan::new(&clean, &named).unwrap();
+    assert_eq!(p.setup.upsampler_name, "onnx:span_x4_materials as lanczos3");
+    let mut missing = settings.clone();
+    (missing.networks).insert("span_x4_materials".into(), "no_such_upsampler".into());
+    let e = Plan::new(&clean, &missing).err().map(|e| e.to_string());
+    assert!(e.is_some_and(|e| e.contains("no_such_upsampler")));
+}
+
+#[test]
 fn a_lossily_stored_input_runs_the_network_for_degraded_maps_unprojected() {
     let clean = Material::uniform(16, [0.5, 0.4, 0.3], 0.6, 0.0);
     let mut jpeg = clean.clone();

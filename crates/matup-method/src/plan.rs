@@ -392,16 +392,22 @@ pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
 /// [`AUTO_UPSAMPLERS`].
 pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
     let levels = levels_of(config.scale);
-    let fits = |spec: &str| -> Result<Box<dyn RgbUpsampler>> {
+    // The upsampler `spec` names, or the one `config.networks` runs in its place, with the
+    // name the run reports.
+    let fits = |spec: &str| -> Result<(String, Box<dyn RgbUpsampler>)> {
+        let (name, spec) = match run_instead(config, spec) {
+            Some(instead) => (format!("{spec} as {instead}"), instead.as_str()),
+            None => (spec.to_string(), spec),
+        };
         let spec = on_device(spec.parse()?, &config.device);
         let up = upsampler(&spec)?;
         for &s in &levels {
             check_scale(&spec.name, up.as_ref(), s)?;
         }
-        Ok(up)
+        Ok((name, up))
     };
     if config.upsampler != "auto" {
-        return Ok((config.upsampler.clone(), fits(&config.upsampler)?));
+        return fits(&config.upsampler);
     }
     // Each material network where it was trained for: the clean one back-projected, the
     // degraded one as its route runs it (unprojected).
@@ -413,11 +419,18 @@ pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler
     let mut last = None;
     for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
         match fits(spec) {
-            Ok(up) => return Ok((spec.to_string(), up)),
+            Ok(chosen) => return Ok(chosen),
+            // What the caller gave must run: no other upsampler in its place.
+            Err(e) if run_instead(config, spec).is_some() => return Err(e),
             Err(e) => last = Some(e),
         }
     }
     Err(last.expect("AUTO_UPSAMPLERS is not empty"))
+}
+
+/// The upsampler `config.networks` runs where `spec` names one of matup's networks.
+fn run_instead<'a>(config: &'a Config, spec: &str) -> Option<&'a String> {
+    (spec.strip_prefix("onnx:")).and_then(|name| config.networks.get(name))
 }
 
 #[cfg(test)]

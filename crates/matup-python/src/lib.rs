@@ -29,7 +29,7 @@ use matup::core::{
 use matup::eval::metrics::evaluate as evaluate_materials;
 use matup::method::bands::default_memory_limit;
 
-use network::Network;
+use network::{Network, RunNetworks};
 use progress::{PyProgress, Raised};
 
 // matup's own allocations through mimalloc, as in the CLI (matup-cli/src/lib.rs says why:
@@ -159,7 +159,7 @@ fn load_options(py: Python<'_>, normal_convention: Option<&str>) -> PyResult<Loa
 /// Upscales the material in `src` into `out`, as `matup upscale SRC -o OUT` does; returns
 /// run.json's text.
 #[pyfunction]
-#[pyo3(signature = (src, out, settings, network=None, format=None, names=None, block_quality=None,
+#[pyo3(signature = (src, out, settings, network=None, networks=Vec::new(), format=None, names=None, block_quality=None,
                     normal_convention=None, memory_limit=None, resume=false, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn upscale_folder(
@@ -168,6 +168,7 @@ fn upscale_folder(
     out: PathBuf,
     settings: &str,
     network: Option<&Network>,
+    networks: Vec<(String, PyRef<'_, Network>)>,
     format: Option<&str>,
     names: Option<&str>,
     block_quality: Option<&str>,
@@ -180,8 +181,8 @@ fn upscale_folder(
     let load = load_options(py, normal_convention)?;
     let progress = PyProgress::new(progress);
     let raised = progress.raised();
-    let registered = network.map(|n| n.register(py, &raised)).transpose()?;
-    let config = settings::config(py, settings, registered.as_ref())?;
+    let registered = RunNetworks::register(py, network, networks, &raised)?;
+    let config = settings::config(py, settings, &registered)?;
     let limit = memory_limit.unwrap_or_else(default_memory_limit);
     let report = detached(py, &raised, || {
         let material = load_material(Some(&src), &load)?;
@@ -238,7 +239,7 @@ fn stored_array<'py>(py: Python<'py>, image: StoredImage) -> PyResult<StoredArra
 /// text (without a preview or files) and each output file as `(name, array, format)`, its
 /// samples as the file stores them.
 #[pyfunction]
-#[pyo3(signature = (images, settings, network=None, format=None, names=None,
+#[pyo3(signature = (images, settings, network=None, networks=Vec::new(), format=None, names=None,
                     normal_convention=None, memory_limit=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn upscale_images<'py>(
@@ -246,6 +247,7 @@ fn upscale_images<'py>(
     images: Vec<StoredArray<'py>>,
     settings: &str,
     network: Option<&Network>,
+    networks: Vec<(String, PyRef<'_, Network>)>,
     format: Option<&str>,
     names: Option<&str>,
     normal_convention: Option<&str>,
@@ -257,8 +259,8 @@ fn upscale_images<'py>(
     let images = images_of(py, images)?;
     let progress = PyProgress::new(progress);
     let raised = progress.raised();
-    let registered = network.map(|n| n.register(py, &raised)).transpose()?;
-    let config = settings::config(py, settings, registered.as_ref())?;
+    let registered = RunNetworks::register(py, network, networks, &raised)?;
+    let config = settings::config(py, settings, &registered)?;
     let limit = memory_limit.unwrap_or_else(default_memory_limit);
     let run = detached(py, &raised, || {
         let material = load_material_from_images(Path::new(ARRAYS), images, &load)?;
@@ -276,7 +278,7 @@ const ARRAYS: &str = "arrays";
 /// Upscales every texture of the glTF model `path` into `out`, as `matup upscale MODEL -o OUT`
 /// does; returns each material's report by label, and the notes, as JSON.
 #[pyfunction]
-#[pyo3(signature = (path, out, settings, network=None, format=None, names=None, block_quality=None,
+#[pyo3(signature = (path, out, settings, network=None, networks=Vec::new(), format=None, names=None, block_quality=None,
                     memory_limit=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn upscale_model(
@@ -285,6 +287,7 @@ fn upscale_model(
     out: PathBuf,
     settings: &str,
     network: Option<&Network>,
+    networks: Vec<(String, PyRef<'_, Network>)>,
     format: Option<&str>,
     names: Option<&str>,
     block_quality: Option<&str>,
@@ -294,8 +297,8 @@ fn upscale_model(
     let save = save_options(py, format, names, block_quality)?;
     let progress = PyProgress::new(progress);
     let raised = progress.raised();
-    let registered = network.map(|n| n.register(py, &raised)).transpose()?;
-    let config = settings::config(py, settings, registered.as_ref())?;
+    let registered = RunNetworks::register(py, network, networks, &raised)?;
+    let config = settings::config(py, settings, &registered)?;
     let limit = memory_limit.unwrap_or_else(default_memory_limit);
     let run = detached(py, &raised, || {
         run_model(
@@ -329,7 +332,7 @@ fn upscale_model(
 /// The settings' TOML: matup's defaults, `settings` (JSON) over them; what a run would use.
 #[pyfunction]
 fn settings_toml(py: Python<'_>, settings: &str) -> PyResult<String> {
-    Ok(settings::config(py, settings, None)?.to_toml())
+    Ok(settings::config(py, settings, &RunNetworks::default())?.to_toml())
 }
 
 /// An image file's samples as stored: an H×W×C array of uint8, uint16 or float32, and the

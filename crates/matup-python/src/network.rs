@@ -140,3 +140,26 @@ fn call(
         .map(|image| Map::from_planar(ow, oh, 3, planar(image, 3)))
         .collect()))
 }
+
+/// A run's Python networks, registered for its length: its upsampler, and matup's own networks
+/// run through others (`networks`: by model name, as `Config::networks` takes them).
+#[derive(Default)]
+pub struct RunNetworks {
+    pub upsampler: Option<Registered>,
+    pub instead: Vec<(String, Registered)>,
+}
+
+impl RunNetworks {
+    pub fn register(
+        py: Python<'_>,
+        upsampler: Option<&Network>,
+        networks: Vec<(String, PyRef<'_, Network>)>,
+        raised: &Raised,
+    ) -> PyResult<RunNetworks> {
+        let upsampler = upsampler.map(|n| n.register(py, raised)).transpose()?;
+        let instead = (networks.into_iter())
+            .map(|(name, n)| Ok((name, n.register(py, raised)?)))
+            .collect::<PyResult<_>>()?;
+        Ok(RunNetworks { upsampler, instead })
+    }
+}

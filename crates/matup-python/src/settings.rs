@@ -7,13 +7,14 @@ use pyo3::prelude::*;
 use toml::{Table, Value};
 
 use matup::method::Config;
-use matup::upsamplers::function::Registered;
+
+use crate::network::RunNetworks;
 
 use crate::exception;
 
-/// `settings` (a JSON object) over the defaults; the network's spec as the upsampler where one
-/// is registered.
-pub fn config(py: Python<'_>, settings: &str, network: Option<&Registered>) -> PyResult<Config> {
+/// `settings` (a JSON object) over the defaults; the registered networks' specs as the
+/// upsampler and in place of matup's networks.
+pub fn config(py: Python<'_>, settings: &str, networks: &RunNetworks) -> PyResult<Config> {
     let bad = |m: String| exception(py, "InvalidInput", m);
     let given: serde_json::Map<String, serde_json::Value> =
         serde_json::from_str(settings).map_err(|e| bad(format!("settings: {e}")))?;
@@ -21,8 +22,14 @@ pub fn config(py: Python<'_>, settings: &str, network: Option<&Registered>) -> P
     for (key, value) in given {
         set(&mut table, &key, value).map_err(bad)?;
     }
-    if let Some(registered) = network {
+    if let Some(registered) = &networks.upsampler {
         table.insert("upsampler".into(), Value::String(registered.spec()));
+    }
+    if !networks.instead.is_empty() {
+        let instead: Table = (networks.instead.iter())
+            .map(|(name, registered)| (name.clone(), Value::String(registered.spec())))
+            .collect();
+        table.insert("networks".into(), Value::Table(instead));
     }
     let text = toml::to_string(&table).map_err(|e| bad(e.to_string()))?;
     Config::from_toml(&text, "settings").map_err(|e| crate::to_python(py, &e))

@@ -128,3 +128,137 @@ def test_the_shipped_network_for_spandrel_is_matups_own():
     for role in maps:
         diff = np.abs(own[role].astype(int) - called[role].astype(int))
         assert diff.max() <= 1, (role, diff.max())
+
+
+class Counted:
+    """A spandrel model that counts its calls."""
+
+    def __init__(self, model):
+        self.inner, self.model, self.scale, self.calls = model, model.model, model.scale, 0
+
+    def __call__(self, x):
+        self.calls += 1
+        return self.inner(x)
+
+    def to(self, device):
+        self.inner.to(device)
+        return self
+
+
+def test_the_default_node_through_torch_runs_matups_own_networks_where_matup_chooses_them(
+    tmp_path, monkeypatch
+):
+    """The node's GPU path, forced here on the CPU: matup's two networks through spandrel give
+    the maps matup's own engine gives, within a level, each where the route chooses it (a JPEG
+    base colour takes the degraded network)."""
+    counted = {name: Counted(nodes.own_model(name)) for name in nodes.OWN_NETWORKS}
+    monkeypatch.setattr(nodes, "own_model", lambda name: counted[name])
+    base = as_comfy(sample("baseColor.png"))
+    rough = as_comfy(sample("roughness.png", grey=True))
+    # A web texture's JPEG colour, which takes the degraded network.
+    folder = tmp_path / "web"
+    folder.mkdir()
+    for name in ("normal.png", "roughness.png"):
+        (folder / name).write_bytes((SAMPLE / name).read_bytes())
+    matup.write_image(folder / "baseColor.jpg", sample("baseColor.png"), "jpg")
+    material = matup.read_material(folder)
+
+    def both_nodes():
+        maps = nodes.UpscaleMaterial().upscale(base, "4", "auto", "auto", roughness=rough)
+        after_maps = {name: model.calls for name, model in counted.items()}
+        (folder_out,) = nodes.UpscaleMaterialFolder().upscale(material, "4")
+        return maps, folder_out, after_maps
+
+    own_maps, own_folder, _ = both_nodes()
+    assert all(model.calls == 0 for model in counted.values())
+    networks = nodes.Networks
+    monkeypatch.setattr(nodes, "Networks", lambda model=None: networks(model, through_torch=True))
+    torch_maps, torch_folder, after_maps = both_nodes()
+    # The clean maps ran the material network; the JPEG folder, the degraded one.
+    assert after_maps["span_x4_materials"] > 0 and after_maps["span_x4_degraded"] == 0
+    assert counted["span_x4_degraded"].calls > 0
+    for name, a, b in zip(nodes.UpscaleMaterial.RETURN_NAMES, own_maps, torch_maps):
+        assert a.shape == b.shape, name
+        assert (a - b).abs().max().item() <= 1.01 / 255, name
+    for name, array in own_folder.files.items():
+        diff = np.abs(array.astype(int) - torch_folder.files[name].astype(int))
+        assert diff.max() <= 1, (name, diff.max())
+
+
+def test_out_of_memory_runs_again_in_smaller_tiles():
+    tried = []
+
+    def run(tile):
+        tried.append(tile)
+        if tile > 64:
+            raise torch.cuda.OutOfMemoryError("CUDA out of memory")
+        return tile
+
+    assert nodes.with_smaller_tiles(run, 256) == 64 and tried == [256, 128, 64]
+    # Other errors, and memory still short at the smallest tile, are raised as they are.
+    def bad(tile):
+        tried.append(tile)
+        raise ValueError("bad")
+
+    def always_short(tile):
+        tried.append(tile)
+        raise torch.cuda.OutOfMemoryError("still")
+
+    tried.clear()
+    with pytest.raises(ValueError):
+        nodes.with_smaller_tiles(bad, 256)
+    assert tried == [256]
+    tried.clear()
+    with pytest.raises(torch.cuda.OutOfMemoryError):
+        nodes.with_smaller_tiles(always_short, 128)
+    assert tried == [128, 64, 32]
+
+
+class Interrupted(Exception):
+    """comfy.model_management.InterruptProcessingException's stand-in."""
+
+
+def fake_comfy(monkeypatch, interrupt_at):
+    """ComfyUI's modules as the nodes use them: a progress bar that records, and a cancel
+    posted once `interrupt_at` tiles have been reported. Returns the bar's updates."""
+    import types
+
+    updates = []
+    comfy = types.ModuleType("comfy")
+    utils = types.ModuleType("comfy.utils")
+    management = types.ModuleType("comfy.model_management")
+
+    class ProgressBar:
+        def __init__(self, total):
+            self.total = total
+
+        def update_absolute(self, value, total=None):
+            updates.append((value, total))
+
+    def throw_exception_if_processing_interrupted():
+        if len(updates) >= interrupt_at:
+            raise Interrupted("Processing interrupted")
+
+    utils.ProgressBar = ProgressBar
+    management.get_torch_device = lambda: torch.device("cpu")
+    management.throw_exception_if_processing_interrupted = throw_exception_if_processing_interrupted
+    management.module_size = lambda module: sum(p.numel() * p.element_size() for p in module.parameters())
+    management.free_memory = lambda required, device: None
+    management.OOM_EXCEPTION = torch.cuda.OutOfMemoryError
+    comfy.utils, comfy.model_management = utils, management
+    for name, module in (("comfy", comfy), ("comfy.utils", utils), ("comfy.model_management", management)):
+        monkeypatch.setitem(sys.modules, name, module)
+    return updates
+
+
+def test_a_cancel_stops_the_node_at_the_next_tile_and_progress_is_per_tile(monkeypatch):
+    updates = fake_comfy(monkeypatch, interrupt_at=3)
+    monkeypatch.setattr(nodes, "TILE", 32)
+    model = Counted(span_model())
+    base = as_comfy(sample("baseColor.png"))
+    with pytest.raises(Interrupted):
+        nodes.UpscaleMaterial().upscale(base, "4", "auto", "auto", upscale_model=model)
+    # 128² in 32² tiles, the self-ensemble's two passes in one call of 4 tiles a batch: the
+    # bar moved per batch of tiles, and no batch ran after the cancel.
+    assert updates == [(4, 32), (8, 32), (12, 32)]
+    assert model.calls == 3

@@ -9,6 +9,8 @@ mod lights;
 mod train;
 mod values;
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Deserializer, Serialize};
 
 pub use crate::per_map::{EnsembleMaps, MapPasses, SelfEnsemble, UpsampledMaps};
@@ -82,6 +84,10 @@ pub struct Config {
     /// say): a degraded material runs the network trained on degraded inputs, unprojected
     /// (`crate::plan::InputRoute`).
     pub input_quality: InputQuality,
+    /// matup's networks run by other upsamplers: where the run would use `onnx:NAME`, the
+    /// spec given for NAME runs instead (the Python package's callables running the same
+    /// network through PyTorch on ComfyUI's GPU). The run reports both.
+    pub networks: BTreeMap<String, String>,
 }
 
 impl Default for Config {
@@ -102,6 +108,7 @@ impl Default for Config {
             train: TrainConfig::default(),
             device: "cpu".into(),
             input_quality: InputQuality::Auto,
+            networks: BTreeMap::new(),
         }
     }
 }

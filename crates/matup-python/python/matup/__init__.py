@@ -226,6 +226,16 @@ def _run_settings(
     return (network._native if network else None), text
 
 
+def _instead(networks: Optional[Mapping[str, Any]]) -> List[tuple]:
+    """``networks`` (matup's network names → callables or :class:`Network` s) as the native
+    side registers them."""
+    if not networks:
+        return []
+    if not isinstance(networks, Mapping):
+        raise InvalidInput("networks must be a dict of matup's network names to callables")
+    return [(str(name), _as_network(fn)._native) for name, fn in networks.items()]
+
+
 def settings(**settings: Any) -> str:
     """The configuration a run would use, as TOML: matup's defaults with ``settings`` over
     them (the keywords :func:`upscale` takes)."""
@@ -242,6 +252,7 @@ def upscale_folder(
     normal_convention: Optional[str] = None,
     device: Optional[str] = None,
     upsampler: Union[str, Callable[[np.ndarray], Any], Network] = "auto",
+    networks: Optional[Mapping[str, Any]] = None,
     format: Optional[str] = None,
     names: Optional[str] = None,
     block_quality: Optional[str] = None,
@@ -258,8 +269,10 @@ def upscale_folder(
     ``scale`` is 2, 3, 4, 8 or 16 (default 4); ``size`` an output side instead (4096, "4K",
     "4096x2048"). ``tileable`` True or False decides wrapping (None: decided from the maps).
     ``normal_convention`` is "opengl" or "directx" where the files do not say. ``upsampler``
-    is a registered name (``matup.list()``), a callable or a :class:`Network`.
-    ``memory_limit`` is in bytes. ``progress``: a callback, ``False`` for none, or by default
+    is a registered name (``matup.list()``), a callable or a :class:`Network`. ``networks``
+    runs matup's own networks through callables, by name (``{"span_x4_materials": fn}``):
+    where the run chooses that network, ``fn`` runs in its place (the same network on a GPU
+    through PyTorch), the run's choices unchanged. ``memory_limit`` is in bytes. ``progress``: a callback, ``False`` for none, or by default
     tqdm's bars when tqdm is installed.
     """
     network, text = _run_settings(settings, scale, size, tileable, device, upsampler)
@@ -269,6 +282,7 @@ def upscale_folder(
             os.fspath(out),
             text,
             network=network,
+            networks=_instead(networks),
             format=format,
             names=names,
             block_quality=block_quality,
@@ -289,6 +303,7 @@ def upscale_model(
     tileable: Optional[bool] = None,
     device: Optional[str] = None,
     upsampler: Union[str, Callable[[np.ndarray], Any], Network] = "auto",
+    networks: Optional[Mapping[str, Any]] = None,
     format: Optional[str] = None,
     names: Optional[str] = None,
     block_quality: Optional[str] = None,
@@ -306,6 +321,7 @@ def upscale_model(
             os.fspath(out),
             text,
             network=network,
+            networks=_instead(networks),
             format=format,
             names=names,
             block_quality=block_quality,
@@ -389,6 +405,7 @@ def upscale(
     normal_convention: Optional[str] = None,
     device: str = "cpu",
     upsampler: Union[str, Callable[[np.ndarray], Any], Network] = "auto",
+    networks: Optional[Mapping[str, Any]] = None,
     progress: Union[None, bool, ProgressCallback] = None,
     **settings: Any,
 ) -> Union[Dict[str, np.ndarray], "Material"]:
@@ -426,6 +443,7 @@ def upscale(
             images,
             text,
             network=network,
+            networks=_instead(networks),
             names="keep",
             normal_convention=normal_convention,
             progress=callback,
