@@ -94,6 +94,17 @@ def test_the_built_in_network_runs_without_a_model_and_matches_the_package():
     base = as_comfy(sample("baseColor.png"))
     out = node.upscale(base, "2", "yes", "auto")
     assert out[0].shape == (1, 256, 256, 3)
+    # On the CPU the node gives the maps of the package (the CLI's files), within a level.
+    maps = {"base_color": sample("baseColor.png"), "normal": sample("normal.png"),
+            "roughness": sample("roughness.png", grey=True)}
+    out = node.upscale(*[as_comfy(maps["base_color"]), "4", "auto", "auto"],
+                       normal=as_comfy(maps["normal"]), roughness=as_comfy(maps["roughness"]))
+    want = matup.upscale(maps, progress=False)
+    for name, image in zip(node.RETURN_NAMES, out):
+        if name in want:
+            got = image[0].numpy() * 255.0
+            got = got[:, :, 0] if want[name].ndim == 2 else got
+            assert np.abs(got - want[name]).max() <= 1.0, name
 
 
 def test_load_upscale_save_keeps_the_folders_names(tmp_path, monkeypatch):
