@@ -185,6 +185,7 @@ def train(args):
     samples = pairs(args.data)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(vars(args)))
     model = JointRefinement(args.width, args.depth)
     optimiser = torch.optim.Adam(model.parameters(), lr=args.lr)
     start = 0
@@ -212,7 +213,6 @@ def train(args):
                      "torch_rng": torch.get_rng_state(), "random": random.getstate(), "step": step + 1}
             torch.save(state, out / "last.tmp")
             os.replace(out / "last.tmp", checkpoint)
-    (out / "config.json").write_text(json.dumps(vars(args)))
 
 
 def apply(args):
