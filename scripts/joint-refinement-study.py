@@ -79,9 +79,9 @@ def pairs(roots):
 class JointRefinement(torch.nn.Module):
     """Every map at once, at the input's resolution (space-to-depth by `scale`)."""
 
-    def __init__(self, width: int, depth: int, scale: int = 4):
+    def __init__(self, width: int, depth: int, scale: int = 4, projected: bool = True):
         super().__init__()
-        self.scale = scale
+        self.scale, self.projected = scale, projected
         inputs = sum(CHANNELS.values()) * scale * scale
         layers = [torch.nn.Conv2d(inputs, width, 3, padding=1), torch.nn.ReLU()]
         for _ in range(depth - 2):
@@ -95,9 +95,10 @@ class JointRefinement(torch.nn.Module):
         """`maps` N×9×H×W codes in [0, 1] → the corrected first 8 channels."""
         x = F.pixel_unshuffle(maps * 2 - 1, self.scale)
         correction = F.pixel_shuffle(self.last(self.body(x)), self.scale)
-        # Each block's mean out: the output box-filters back to the defaults' output.
-        block_mean = F.avg_pool2d(correction, self.scale)
-        correction = correction - F.interpolate(block_mean, scale_factor=self.scale, mode="nearest")
+        if self.projected:
+            # Each block's mean out: the output box-filters back to the defaults' output.
+            block_mean = F.avg_pool2d(correction, self.scale)
+            correction = correction - F.interpolate(block_mean, scale_factor=self.scale, mode="nearest")
         return (maps[:, :CORRECTED] + correction).clamp(0, 1)
 
 
@@ -186,7 +187,7 @@ def train(args):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(vars(args)))
-    model = JointRefinement(args.width, args.depth)
+    model = JointRefinement(args.width, args.depth, projected=not args.unprojected)
     optimiser = torch.optim.Adam(model.parameters(), lr=args.lr)
     start = 0
     checkpoint = out / "last.pt"
@@ -219,7 +220,7 @@ def apply(args):
     """Each material of `--data` refined: its defaults' folder copied with the four maps
     corrected, in OUT/MATERIAL/; the seconds each took."""
     config = json.loads(Path(args.run, "config.json").read_text())
-    model = JointRefinement(config["width"], config["depth"])
+    model = JointRefinement(config["width"], config["depth"], projected=not config.get("unprojected"))
     model.load_state_dict(torch.load(Path(args.run, f"step{args.step}.pt")))
     model.eval()
     torch.set_num_threads(args.threads)
@@ -245,8 +246,8 @@ def apply(args):
                 c = CHANNELS[name]
                 plane = codes[offset : offset + c].transpose(1, 2, 0)
                 offset += c
-                if name == "metallic" and not (source / "metallic.png").exists() and not plane.any():
-                    continue  # still the stand-in, as matup leaves it unwritten
+                if not (source / f"{name}.png").exists():
+                    continue  # a map the material lacks keeps its stand-in
                 Image.fromarray(plane[:, :, 0] if c == 1 else plane).save(target / f"{name}.png")
     Path(args.out, "seconds.json").write_text(json.dumps(times))
 
@@ -267,6 +268,7 @@ def main():
     parser.add_argument("--lights", type=int, default=8)
     parser.add_argument("--lr", type=float, default=2e-4)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--unprojected", action="store_true", help="keep the blocks' means")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     train(args) if args.command == "train" else apply(args)
