@@ -49,8 +49,9 @@ OWN_NETWORKS = ("span_x4_materials", "span_x4_degraded")
 # The tile matup's networks run in (their sidecars' `tile`), halved on out-of-memory down to
 # the smallest.
 TILE, SMALLEST_TILE = 256, 32
-# Bytes a tile's activations take beside the weights, per input texel: SPAN ×4 at 48 channels
-# keeps a few dozen float32 feature maps at the input's size and its ×4 output.
+# Bytes a tile's activations take beside the weights, per input texel, as ComfyUI budgets its
+# upscale node's: about eight 48-channel float32 feature maps of SPAN ×4 at the input's size,
+# and four copies of the ×4 RGB output.
 TILE_BYTES_PER_TEXEL = 48 * 4 * 8 + 3 * 4 * 16 * 4
 
 

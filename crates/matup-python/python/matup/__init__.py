@@ -272,8 +272,9 @@ def upscale_folder(
     is a registered name (``matup.list()``), a callable or a :class:`Network`. ``networks``
     runs matup's own networks through callables, by name (``{"span_x4_materials": fn}``):
     where the run chooses that network, ``fn`` runs in its place (the same network on a GPU
-    through PyTorch), the run's choices unchanged. ``memory_limit`` is in bytes. ``progress``: a callback, ``False`` for none, or by default
-    tqdm's bars when tqdm is installed.
+    through PyTorch), the run's choices unchanged. ``memory_limit`` is in bytes.
+    ``progress``: a callback, ``False`` for none, or by default tqdm's bars when tqdm is
+    installed.
     """
     network, text = _run_settings(settings, scale, size, tileable, device, upsampler)
     with _Progress(progress) as callback:
