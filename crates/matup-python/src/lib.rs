@@ -28,6 +28,7 @@ use matup::core::{
 };
 use matup::eval::metrics::evaluate as evaluate_materials;
 use matup::method::bands::default_memory_limit;
+use matup::method::Config;
 
 use network::{Network, RunNetworks};
 use progress::{PyProgress, Raised};
@@ -156,6 +157,41 @@ fn load_options(py: Python<'_>, normal_convention: Option<&str>) -> PyResult<Loa
     })
 }
 
+/// What each upscale call sets up before it runs: its progress (and what Python raises
+/// meanwhile), its settings with the Python networks registered for its length, and its
+/// memory limit.
+struct Setup {
+    progress: PyProgress,
+    raised: Raised,
+    config: Config,
+    limit: u64,
+    /// Registered while the run lives.
+    _networks: RunNetworks,
+}
+
+impl Setup {
+    fn new(
+        py: Python<'_>,
+        settings: &str,
+        network: Option<&Network>,
+        networks: Vec<(String, PyRef<'_, Network>)>,
+        progress: Option<Py<PyAny>>,
+        memory_limit: Option<u64>,
+    ) -> PyResult<Setup> {
+        let progress = PyProgress::new(progress);
+        let raised = progress.raised();
+        let networks = RunNetworks::register(py, network, networks, &raised)?;
+        let config = settings::config(py, settings, &networks)?;
+        Ok(Setup {
+            progress,
+            raised,
+            config,
+            limit: memory_limit.unwrap_or_else(default_memory_limit),
+            _networks: networks,
+        })
+    }
+}
+
 /// Upscales the material in `src` into `out`, as `matup upscale SRC -o OUT` does; returns
 /// run.json's text.
 #[pyfunction]
@@ -179,22 +215,18 @@ fn upscale_folder(
 ) -> PyResult<String> {
     let save = save_options(py, format, names, block_quality)?;
     let load = load_options(py, normal_convention)?;
-    let progress = PyProgress::new(progress);
-    let raised = progress.raised();
-    let registered = RunNetworks::register(py, network, networks, &raised)?;
-    let config = settings::config(py, settings, &registered)?;
-    let limit = memory_limit.unwrap_or_else(default_memory_limit);
-    let report = detached(py, &raised, || {
+    let run = Setup::new(py, settings, network, networks, progress, memory_limit)?;
+    let report = detached(py, &run.raised, || {
         let material = load_material(Some(&src), &load)?;
         let FolderRun { report, .. } = upscale_to_folder(
             &material,
-            &config,
+            &run.config,
             &out,
             &save,
             resume,
-            Some(limit),
+            Some(run.limit),
             None,
-            &progress,
+            &run.progress,
         )?;
         Ok(report)
     })?;
@@ -257,19 +289,21 @@ fn upscale_images<'py>(
     let save = save_options(py, format, names, None)?;
     let load = load_options(py, normal_convention)?;
     let images = images_of(py, images)?;
-    let progress = PyProgress::new(progress);
-    let raised = progress.raised();
-    let registered = RunNetworks::register(py, network, networks, &raised)?;
-    let config = settings::config(py, settings, &registered)?;
-    let limit = memory_limit.unwrap_or_else(default_memory_limit);
-    let run = detached(py, &raised, || {
+    let run = Setup::new(py, settings, network, networks, progress, memory_limit)?;
+    let made = detached(py, &run.raised, || {
         let material = load_material_from_images(Path::new(ARRAYS), images, &load)?;
-        upscale_in_memory(&material, &config, &save, Some(limit), &progress)
+        upscale_in_memory(
+            &material,
+            &run.config,
+            &save,
+            Some(run.limit),
+            &run.progress,
+        )
     })?;
-    let images = (run.images.into_iter())
+    let images = (made.images.into_iter())
         .map(|image| stored_array(py, image))
         .collect::<PyResult<_>>()?;
-    Ok((json_text(py, &run.report)?, images))
+    Ok((json_text(py, &made.report)?, images))
 }
 
 /// What names the material of arrays in messages: the folder their files would be in.
@@ -295,23 +329,19 @@ fn upscale_model(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<String> {
     let save = save_options(py, format, names, block_quality)?;
-    let progress = PyProgress::new(progress);
-    let raised = progress.raised();
-    let registered = RunNetworks::register(py, network, networks, &raised)?;
-    let config = settings::config(py, settings, &registered)?;
-    let limit = memory_limit.unwrap_or_else(default_memory_limit);
-    let run = detached(py, &raised, || {
+    let run = Setup::new(py, settings, network, networks, progress, memory_limit)?;
+    let made = detached(py, &run.raised, || {
         run_model(
             &path,
-            &config,
+            &run.config,
             &out,
             &save,
             &LoadOptions::default(),
-            Some(limit),
-            &progress,
+            Some(run.limit),
+            &run.progress,
         )
     })?;
-    let reports: serde_json::Map<String, serde_json::Value> = (run.runs.iter())
+    let reports: serde_json::Map<String, serde_json::Value> = (made.runs.iter())
         .map(|(label, report)| {
             (
                 label.clone(),
@@ -323,8 +353,8 @@ fn upscale_model(
         py,
         &serde_json::json!({
             "materials": reports,
-            "notes": run.notes,
-            "written": run.written,
+            "notes": made.notes,
+            "written": made.written,
         }),
     )
 }

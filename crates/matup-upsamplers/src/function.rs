@@ -14,7 +14,7 @@ use matup_core::resample::Border;
 use matup_core::upsample::{RgbUpsampler, Unwatched, UpsamplerRegistration, Watch};
 use matup_core::{Error, Map, Result};
 
-use crate::tiled::{by_size, upsample_tiled, PieceCount, TileAxis, Tiling};
+use crate::tiled::{by_size, upsample_tiled, TileAxis, Tiling};
 
 /// Runs the network on a batch of tiles: each tile three planes (R, G, B) of `h × w` texels in
 /// [0, 1], row by row; returns each tile upsampled, as a 3-channel [`Map`].
@@ -143,18 +143,14 @@ impl RgbUpsampler for FunctionUpsampler {
             let axes = [h, w].map(|len| TileAxis::even(len, t.tile, t.overlap));
             let tiling = Tiling::new([w, h], same.len(), axes, t.overlap, t.scale);
             let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
-            let mut count = PieceCount::new(watch, tiling.grid.len());
             upsample_tiled(
                 &same_images,
                 border,
                 tiling,
                 t.batch,
                 false,
-                &mut |tiles, [h, w]| {
-                    let outputs = self.call(tiles, h, w)?;
-                    count.add(tiles.len())?;
-                    Ok(outputs)
-                },
+                &mut |tiles, [h, w]| self.call(tiles, h, w),
+                watch,
             )
         })
     }

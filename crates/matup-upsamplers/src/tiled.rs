@@ -223,7 +223,7 @@ pub fn by_size<T>(
 }
 
 /// `images`, all of one size, in tiles read with context as `border` says, several tiles a
-/// call across all the images, blended with feathered weights.
+/// call across all the images, blended with feathered weights; `watch` told after each call.
 pub fn upsample_tiled(
     images: &[&Map],
     border: Border,
@@ -231,6 +231,7 @@ pub fn upsample_tiled(
     batch: usize,
     fixed_batch: bool,
     run: &mut RunTiles,
+    watch: &dyn Watch,
 ) -> Result<Vec<Map>> {
     let s = tiling.scale;
     let (w, h) = (images[0].width(), images[0].height());
@@ -246,6 +247,7 @@ pub fn upsample_tiled(
     } = tiling;
     let (out_w, out_h) = (w * s, h * s);
     let mut accs = vec![vec![0f32; 3 * out_w * out_h]; images.len()];
+    let mut count = PieceCount::new(watch, grid.len());
     for group in grid.chunks(batch) {
         let mut tiles: Vec<Vec<f32>> = group
             .iter()
@@ -271,6 +273,7 @@ pub fn upsample_tiled(
             tiles.resize(batch, last);
         }
         let outputs = run(&tiles, [rows.window, columns.window])?;
+        count.add(group.len())?;
         let mut in_group: Vec<usize> = group.iter().map(|t| t.0).collect();
         in_group.dedup();
         for k in in_group {

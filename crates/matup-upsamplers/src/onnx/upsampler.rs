@@ -563,18 +563,14 @@ impl RgbUpsampler for OnnxUpsampler {
                 let same_images: Vec<&Map> = same.iter().map(|&k| &images[k]).collect();
                 let tiling = self.tiling(w, h, same.len())?;
                 let batch = self.tiles_per_call(tiling.rows.window, tiling.columns.window);
-                let mut count = PieceCount::new(watch, tiling.grid.len());
                 upsample_tiled(
                     &same_images,
                     border,
                     tiling,
                     batch,
                     self.fixed[0].is_some(),
-                    &mut |tiles, [h, w]| {
-                        let outputs = self.run_batch(tiles, h, w, Padding::Zero)?;
-                        count.add(tiles.len())?;
-                        Ok(outputs)
-                    },
+                    &mut |tiles, [h, w]| self.run_batch(tiles, h, w, Padding::Zero),
+                    watch,
                 )
             }
         })
