@@ -139,6 +139,22 @@ impl Default for HaloChance {
 }
 
 impl Degradations {
+    /// The degradations a crop may be drawn, in words, in the order of the TOML's keys.
+    pub fn drawn(&self) -> Vec<&'static str> {
+        [
+            ("block compression", self.block.probability),
+            ("JPEG", self.jpeg.probability),
+            ("dithering", self.dither.probability),
+            ("noise", self.noise.probability),
+            ("blur", self.blur.probability),
+            ("halos", self.halo.probability),
+        ]
+        .into_iter()
+        .filter(|&(_, p)| p > 0.0)
+        .map(|(name, _)| name)
+        .collect()
+    }
+
     /// Checks the probabilities, shares and ranges.
     pub fn validate(&self) -> std::result::Result<(), String> {
         let shares = [
@@ -366,6 +382,24 @@ mod tests {
         assert!(unchanged >= clean);
         // Clean: the share kept (100 of 400), and the few crops where no map drew anything.
         assert!((75..=130).contains(&clean), "{clean} of 400 clean");
+    }
+
+    #[test]
+    fn the_drawn_degradations_are_named_and_no_others() {
+        assert_eq!(
+            mix().drawn(),
+            [
+                "block compression",
+                "JPEG",
+                "dithering",
+                "noise",
+                "blur",
+                "halos"
+            ]
+        );
+        let jpeg_alone: Degradations =
+            toml::from_str("clean_share = 0.1\njpeg = { probability = 1.0 }").unwrap();
+        assert_eq!(jpeg_alone.drawn(), ["JPEG"]);
     }
 
     #[test]

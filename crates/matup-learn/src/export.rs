@@ -36,8 +36,8 @@ pub fn export(
     // Inputs degraded as stored maps are (`[degradations]`), and how their outputs were scored.
     let degraded = match &config.degradations {
         Some(d) => format!(
-            ", then degraded (block compression, JPEG, dithering, noise, blur, halos) in {:.0}% \
-             of the crops{}",
+            ", then degraded ({}) in {:.0}% of the crops{}",
+            d.drawn().join(", "),
             100.0 * (1.0 - d.clean_share),
             if d.project_degraded {
                 ""
