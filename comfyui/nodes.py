@@ -45,7 +45,7 @@ SCALES = ["4", "2", "3", "8", "16"]
 # matup's own networks as files spandrel opens (models/README.md), which the default node runs
 # through torch where ComfyUI's device is a GPU; matup chooses between them per material.
 MODELS = Path(__file__).resolve().parents[1] / "models"
-OWN_NETWORKS = ("span_x4_materials", "span_x4_degraded")
+OWN_NETWORKS = ("span_x4_materials", "span_x4_degraded", "span_x4_jpeg")
 # The tile matup's networks run in (their sidecars' `tile`), halved on out-of-memory down to
 # the smallest.
 TILE, SMALLEST_TILE = 256, 32

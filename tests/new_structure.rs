@@ -116,12 +116,13 @@ fn run_and_bicubic(folder: &Path, quality: InputQuality) -> (Structures, Structu
 type Structures = BTreeMap<String, NewStructure>;
 
 #[test]
-fn a_speckled_jpeg_game_texture_takes_the_degraded_route_which_invents_less() {
+fn a_speckled_jpeg_game_texture_takes_the_jpeg_route_which_invents_less() {
     let dir = tempfile::tempdir().unwrap();
     write_game_texture(dir.path());
     let (defaults, bicubic, report) = defaults_and_bicubic(dir.path());
-    // Its colour is a JPEG: the network for degraded maps runs, unprojected.
-    assert_eq!(report.upsampler_used, "onnx:span_x4_degraded");
+    // Its colour is a JPEG: the network for JPEG maps runs, projected onto the input's low
+    // frequencies alone.
+    assert_eq!(report.upsampler_used, "onnx:span_x4_jpeg");
     assert!(report
         .input_route
         .contains("base colour from JPEG (basecolor.jpg)"));

@@ -8,7 +8,10 @@ use std::sync::Arc;
 use matup::config::{Config, InputQuality, Selection};
 use matup::degrade::{Degradation, Subsampling};
 use matup::material::MapKind;
-use matup::plan::{Plan, Reach, TilingGrounds, DEGRADED_NETWORK, MATERIAL_NETWORK};
+use matup::plan::{
+    Plan, Reach, TilingGrounds, DEGRADED_NETWORK, JPEG_NETWORK, JPEG_PROJECTION_BLUR,
+    MATERIAL_NETWORK,
+};
 use matup::{load_material, LoadOptions, Material};
 use rand::SeedableRng;
 
@@ -76,14 +79,18 @@ fn matups_networks_run_as_the_upsamplers_given_for_them_where_the_route_chooses_
     let clean = Material::uniform(16, [0.5, 0.4, 0.3], 0.6, 0.0);
     let mut jpeg = clean.clone();
     (jpeg.lossy).insert(MapKind::BaseColor, "JPEG (albedo.jpg)".into());
+    let mut blocks = clean.clone();
+    (blocks.lossy).insert(MapKind::BaseColor, "BC1 blocks (albedo.dds)".into());
     let settings: Config = Config::from_toml(
-        "[networks]\nspan_x4_materials = \"lanczos3\"\nspan_x4_degraded = \"bicubic\"\n",
+        "[networks]\nspan_x4_materials = \"lanczos3\"\nspan_x4_degraded = \"bicubic\"\n\
+         span_x4_jpeg = \"bilinear\"\n",
         "settings",
     )
     .unwrap();
     let used = |m: &Material| Plan::new(m, &settings).unwrap().setup.upsampler_name;
     assert_eq!(used(&clean), format!("{MATERIAL_NETWORK} as lanczos3"));
-    assert_eq!(used(&jpeg), format!("{DEGRADED_NETWORK} as bicubic"));
+    assert_eq!(used(&blocks), format!("{DEGRADED_NETWORK} as bicubic"));
+    assert_eq!(used(&jpeg), format!("{JPEG_NETWORK} as bilinear"));
     // Named by hand, too; and what runs must exist.
     let named = Config {
         upsampler: MATERIAL_NETWORK.into(),
@@ -98,10 +105,14 @@ fn matups_networks_run_as_the_upsamplers_given_for_them_where_the_route_chooses_
 }
 
 #[test]
-fn a_lossily_stored_input_runs_the_network_for_degraded_maps_unprojected() {
+fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     let clean = Material::uniform(16, [0.5, 0.4, 0.3], 0.6, 0.0);
     let mut jpeg = clean.clone();
     (jpeg.lossy).insert(MapKind::BaseColor, "JPEG (albedo.jpg)".into());
+    let mut blocks = clean.clone();
+    (blocks.lossy).insert(MapKind::Normal, "BC1 blocks (normal.dds)".into());
+    let mut both = jpeg.clone();
+    (both.lossy).insert(MapKind::Normal, "BC1 blocks (normal.dds)".into());
     let plan = |m: &Material, quality| {
         let settings = Config {
             input_quality: quality,
@@ -109,31 +120,56 @@ fn a_lossily_stored_input_runs_the_network_for_degraded_maps_unprojected() {
         };
         Plan::new(m, &settings).unwrap()
     };
-    // As the files say.
+    // As the files say: JPEG maps through the network for JPEG, projected onto the input's
+    // low frequencies alone.
     let auto = plan(&jpeg, InputQuality::Auto);
-    assert!(auto.input.degraded && !auto.input.given);
-    assert_eq!(auto.setup.upsampler_name, DEGRADED_NETWORK);
-    assert!(!auto.setup.settings.filter.back_project);
-    assert_eq!(auto.setup.settings.input_quality, InputQuality::Degraded);
+    assert_eq!(auto.input.quality, InputQuality::Jpeg);
+    assert!(auto.input.degraded() && !auto.input.given);
+    assert_eq!(auto.setup.upsampler_name, JPEG_NETWORK);
+    assert!(auto.setup.settings.filter.back_project);
+    assert_eq!(
+        auto.setup.settings.filter.projection_blur,
+        JPEG_PROJECTION_BLUR
+    );
+    assert_eq!(auto.setup.settings.input_quality, InputQuality::Jpeg);
     let why = auto.input.describe();
+    assert!(why.contains("input: JPEG"), "{why}");
     assert!(why.contains("base colour from JPEG (albedo.jpg)"), "{why}");
     assert!(why.contains("--input-quality clean"), "{why}");
+    // Blocks, alone or beside a JPEG: the network for degraded maps, unprojected.
+    for lossy in [&blocks, &both] {
+        let p = plan(lossy, InputQuality::Auto);
+        assert_eq!(p.input.quality, InputQuality::Degraded);
+        assert_eq!(p.setup.upsampler_name, DEGRADED_NETWORK);
+        assert!(!p.setup.settings.filter.back_project);
+        assert!(p
+            .input
+            .describe()
+            .contains("normal from BC1 blocks (normal.dds)"));
+    }
     let plain = plan(&clean, InputQuality::Auto);
-    assert!(!plain.input.degraded);
+    assert!(!plain.input.degraded());
     assert_eq!(plain.setup.upsampler_name, MATERIAL_NETWORK);
     assert!(plain.setup.settings.filter.back_project);
+    assert_eq!(plain.setup.settings.filter.projection_blur, 0.0);
     assert!(plain.input.describe().contains("--input-quality degraded"));
     // As given, either way.
     let told_clean = plan(&jpeg, InputQuality::Clean);
-    assert!(!told_clean.input.degraded && told_clean.input.given);
+    assert!(!told_clean.input.degraded() && told_clean.input.given);
     assert_eq!(told_clean.setup.upsampler_name, MATERIAL_NETWORK);
-    let told_degraded = plan(&clean, InputQuality::Degraded);
-    assert!(told_degraded.input.degraded);
+    let told_degraded = plan(&jpeg, InputQuality::Degraded);
     assert_eq!(told_degraded.setup.upsampler_name, DEGRADED_NETWORK);
+    assert!(!told_degraded.setup.settings.filter.back_project);
+    let told_jpeg = plan(&clean, InputQuality::Jpeg);
+    assert_eq!(told_jpeg.setup.upsampler_name, JPEG_NETWORK);
+    assert!(told_jpeg
+        .input
+        .describe()
+        .starts_with("input: JPEG (as given)"));
     // A map once a JPEG, kept losslessly: its texels say so.
     let folder = common::test_material("ambientcg_Bricks059");
     let mut resaved = load_material(Some(&folder), &LoadOptions::default()).unwrap();
-    assert!(!plan(&resaved, InputQuality::Auto).input.degraded);
+    assert!(!plan(&resaved, InputQuality::Auto).input.degraded());
     let quality_85 = Degradation::Jpeg {
         quality: 85,
         subsampling: Subsampling::Half,
@@ -144,24 +180,30 @@ fn a_lossily_stored_input_runs_the_network_for_degraded_maps_unprojected() {
         .crop(2, 2, 240, 240);
     resaved = resaved.crop(0, 0, 240, 240);
     let by_texels = plan(&resaved, InputQuality::Auto).input;
-    assert!(by_texels.degraded, "{by_texels:?}");
+    assert_eq!(by_texels.quality, InputQuality::Jpeg, "{by_texels:?}");
     assert_eq!(
         by_texels.lossy,
         ["base colour from a JPEG, by its texels (its 8×8 grid at x 6, y 6)"]
     );
-    // A named upsampler stays; the route still leaves projection off.
+    // A named upsampler stays; the route still decides the projection.
     let named = Config {
         upsampler: "lanczos3".into(),
         ..Config::default()
     };
-    let p = Plan::new(&jpeg, &named).unwrap();
+    let p = Plan::new(&blocks, &named).unwrap();
     assert_eq!(p.setup.upsampler_name, "lanczos3");
     assert!(!p.setup.settings.filter.back_project);
     // The decided route is part of the settings reported, and reads back from TOML.
-    let reported = auto.reported_settings();
-    assert_eq!(
-        Config::from_toml(&reported.to_toml(), "run").unwrap(),
-        reported
-    );
-    assert!(reported.to_toml().contains("input_quality = \"degraded\""));
+    for (material, word) in [(&jpeg, "jpeg"), (&blocks, "degraded")] {
+        let reported = plan(material, InputQuality::Auto).reported_settings();
+        assert_eq!(
+            Config::from_toml(&reported.to_toml(), "run").unwrap(),
+            reported
+        );
+        let toml = reported.to_toml();
+        assert!(
+            toml.contains(&format!("input_quality = \"{word}\"")),
+            "{toml}"
+        );
+    }
 }

@@ -64,15 +64,18 @@ pub struct SettingsArgs {
     pub chain: Option<Chain>,
     /// RGB upsampler of the renders (see `matup list`); default `auto`: the shipped SR network,
     /// tuned for materials (onnx:span_x4_materials) where no filter is trained and the maps are
-    /// back-projected, and for degraded maps (onnx:span_x4_degraded) where the input is
-    /// degraded; else stock (onnx:span_x4_ch48), where it applies, else lanczos3.
+    /// back-projected, for JPEG maps (onnx:span_x4_jpeg) where the input is a JPEG, and for
+    /// degraded maps (onnx:span_x4_degraded) where it is otherwise degraded; else stock
+    /// (onnx:span_x4_ch48), where it applies, else lanczos3.
     #[arg(long)]
     pub upsampler: Option<String>,
-    /// Whether the input maps are clean or degraded: auto (degraded where a map's file is a
-    /// JPEG, a lossy WebP or BC1–BC5 blocks), clean, or degraded (noisy scans, maps once
-    /// compressed and saved again losslessly). Degraded maps run the network trained on
-    /// degraded inputs and are not back-projected.
-    #[arg(long, value_name = "auto|clean|degraded")]
+    /// Whether the input maps are clean or degraded: auto (JPEG where every lossily stored map
+    /// was a JPEG, by its file or its texels; degraded where one is a lossy WebP or BC1–BC5
+    /// blocks), clean, jpeg, or degraded (noisy scans, maps once compressed and saved again
+    /// losslessly). Degraded maps run the network trained on degraded inputs and are not
+    /// back-projected; JPEG maps run the one trained on JPEG inputs, projected onto the
+    /// input's low frequencies alone.
+    #[arg(long, value_name = "auto|clean|jpeg|degraded")]
     pub input_quality: Option<InputQuality>,
     /// Shading model (see `matup list`).
     #[arg(long)]

@@ -172,6 +172,13 @@ impl FileFormat {
         }
     }
 
+    /// Whether a lossy storage as [`FileFormat::lossy_storage`] words it ("JPEG
+    /// (albedo.jpg)", "JPEG (simulated: jpeg75)": a [`crate::Material::lossy`] entry) was a
+    /// JPEG.
+    pub fn is_jpeg_storage(storage: &str) -> bool {
+        storage.split(" (").next() == FileFormat::Jpeg.lossy_storage().as_deref()
+    }
+
     /// The type of the samples the file's encoder takes.
     pub fn sample_depth(self) -> SampleDepth {
         match self {

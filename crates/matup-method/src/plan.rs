@@ -17,6 +17,7 @@ use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::tileable::decide_tileable;
 use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
+use matup_core::FileFormat;
 use matup_core::{Error, PluginSpec, Result};
 
 /// What a run of one material carries out.
@@ -98,13 +99,16 @@ impl Tiling {
     }
 }
 
-/// Whether a run reads its input as clean or degraded by lossy storage, and on what grounds.
-/// A degraded input runs [`DEGRADED_NETWORK`] (where the upsampler is `auto`) and is not
-/// back-projected: projection makes the output box-filter back to the input, which puts its
-/// blocks and noise back (docs/experiments/2026-11-29-degraded-inputs.md).
+/// Whether a run reads its input as clean, as JPEG or as otherwise degraded by lossy storage,
+/// and on what grounds. A degraded input runs [`DEGRADED_NETWORK`] (where the upsampler is
+/// `auto`) and is not back-projected: projection makes the output box-filter back to the
+/// input, which puts its blocks and noise back. A JPEG one runs [`JPEG_NETWORK`], its base
+/// colour brought back to the input's low frequencies alone ([`JPEG_PROJECTION_BLUR`]), its
+/// other maps unprojected (docs/experiments/2026-11-29-degraded-inputs.md).
 #[derive(Clone, Debug, PartialEq)]
 pub struct InputRoute {
-    pub degraded: bool,
+    /// What the input is taken to be: clean, JPEG or degraded (never `auto`).
+    pub quality: InputQuality,
     /// Whether the settings said so (`input_quality`, `--input-quality`); else the files did.
     pub given: bool,
     /// The maps stored lossily, each with what its storage was: its file's format
@@ -112,47 +116,79 @@ pub struct InputRoute {
     pub lossy: Vec<String>,
 }
 
+/// How far, in LR texels, a JPEG input's mismatch is blurred (kept to its edges) before the
+/// projection brings the output back to it (`filter.projection_blur`): what the network sets
+/// right in a region is kept, a drift of the whole region is not (DamagedHelmet's white paint
+/// 13 levels brighter unprojected; docs/experiments/2026-11-29-degraded-inputs.md).
+pub const JPEG_PROJECTION_BLUR: f32 = 16.0;
+
 impl InputRoute {
     /// The settings' word, else the material's files', else its texels'.
     pub fn of(material: &Material, settings: &Config) -> InputRoute {
-        let lossy = match settings.input_quality {
-            InputQuality::Auto => lossy_maps(material),
-            _ => Vec::new(),
-        };
-        let (degraded, given) = match settings.input_quality {
-            InputQuality::Auto => (!lossy.is_empty(), false),
-            InputQuality::Clean => (false, true),
-            InputQuality::Degraded => (true, true),
+        let (quality, given, lossy) = match settings.input_quality {
+            InputQuality::Auto => {
+                let lossy = lossy_maps(material);
+                let quality = if lossy.is_empty() {
+                    InputQuality::Clean
+                } else if lossy.iter().all(|(_, jpeg)| *jpeg) {
+                    InputQuality::Jpeg
+                } else {
+                    InputQuality::Degraded
+                };
+                (
+                    quality,
+                    false,
+                    lossy.into_iter().map(|(what, _)| what).collect(),
+                )
+            }
+            quality => (quality, true, Vec::new()),
         };
         InputRoute {
-            degraded,
+            quality,
             given,
             lossy,
         }
     }
 
-    /// `settings` as this route runs them: `input_quality` decided, and a degraded input not
-    /// back-projected.
+    /// Whether the input is read as lossily stored, JPEG or otherwise.
+    pub fn degraded(&self) -> bool {
+        self.quality != InputQuality::Clean
+    }
+
+    /// `settings` as this route runs them: `input_quality` decided, a degraded input not
+    /// back-projected, a JPEG one's base colour projected onto its low frequencies.
     pub fn settings(&self, settings: &Config) -> Config {
         let mut config = settings.clone();
-        if self.degraded {
-            config.input_quality = InputQuality::Degraded;
-            config.filter.back_project = false;
-        } else {
-            config.input_quality = InputQuality::Clean;
+        config.input_quality = self.quality;
+        match self.quality {
+            InputQuality::Degraded => config.filter.back_project = false,
+            InputQuality::Jpeg => config.filter.projection_blur = JPEG_PROJECTION_BLUR,
+            _ => {}
         }
         config
     }
 
     /// The route taken, why, and how to decide otherwise, in words.
     pub fn describe(&self) -> String {
-        const DEGRADED: &str =
-            "not back-projected, run by the network for degraded maps where the upsampler is auto";
-        match (self.degraded, self.given) {
-            (true, true) => format!("input: degraded (as given): {DEGRADED}"),
+        let how = match self.quality {
+            InputQuality::Jpeg => format!(
+                "its base colour projected onto its low frequencies alone (σ \
+                 {JPEG_PROJECTION_BLUR} texels), the other maps not, run by the network for JPEG \
+                 maps where the upsampler is auto"
+            ),
+            _ => "not back-projected, run by the network for degraded maps where the upsampler \
+                  is auto"
+                .to_string(),
+        };
+        let name = match self.quality {
+            InputQuality::Jpeg => "JPEG",
+            _ => "degraded",
+        };
+        match (self.degraded(), self.given) {
+            (true, true) => format!("input: {name} (as given): {how}"),
             (false, true) => "input: clean (as given)".to_string(),
             (true, false) => format!(
-                "input: degraded, stored lossily: {}; {DEGRADED}; --input-quality clean decides \
+                "input: {name}, stored lossily: {}; {how}; --input-quality clean decides \
                  otherwise",
                 self.lossy.join("; ")
             ),
@@ -163,18 +199,21 @@ impl InputRoute {
     }
 }
 
-/// The maps of `material` stored lossily, in words: those its files' formats say
-/// (`Material::lossy`), and those of the features whose texels show a JPEG's grid.
-fn lossy_maps(material: &Material) -> Vec<String> {
-    let by_file = (material.lossy.iter()).map(|(kind, storage)| format!("{kind} from {storage}"));
+/// The maps of `material` stored lossily, in words, each with whether it was a JPEG: those its
+/// files' formats say (`Material::lossy`), and those of the features whose texels show a
+/// JPEG's grid.
+fn lossy_maps(material: &Material) -> Vec<(String, bool)> {
+    let by_file = (material.lossy.iter()).map(|(kind, storage)| {
+        let jpeg = FileFormat::is_jpeg_storage(storage);
+        (format!("{kind} from {storage}"), jpeg)
+    });
     let by_texels = (FEATURE_MAPS.into_iter())
         .filter(|kind| !material.lossy.contains_key(kind))
         .filter_map(|kind| {
             let trace = jpeg_trace(kind, material.map(kind)?)?;
             let [x, y] = trace.offset;
-            Some(format!(
-                "{kind} from a JPEG, by its texels (its 8×8 grid at x {x}, y {y})"
-            ))
+            let what = format!("{kind} from a JPEG, by its texels (its 8×8 grid at x {x}, y {y})");
+            Some((what, true))
         });
     by_file.chain(by_texels).collect()
 }
@@ -361,6 +400,11 @@ pub const MATERIAL_NETWORK: &str = "onnx:span_x4_materials";
 /// runs it first where the input is degraded ([`InputRoute`]) and the per-map base is the result.
 pub const DEGRADED_NETWORK: &str = "onnx:span_x4_degraded";
 
+/// SPAN tuned further on JPEG inputs alone, from [`DEGRADED_NETWORK`] (models/README.md has
+/// its card). `auto` runs it first where every lossy map is a JPEG ([`InputRoute`]), its base
+/// colour projected onto the input's low frequencies.
+pub const JPEG_NETWORK: &str = "onnx:span_x4_jpeg";
+
 /// What `upsampler = "auto"` tries otherwise (and after [`MATERIAL_NETWORK`], where a models
 /// folder lacks it), best first: stock SPAN, then Lanczos.
 pub const AUTO_UPSAMPLERS: [&str; 2] = ["onnx:span_x4_ch48", "lanczos3"];
@@ -387,9 +431,9 @@ pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
 }
 
 /// The configured upsampler, or for `auto` the first that loads and supports every level's
-/// scale: where the configuration only upsamples maps, [`DEGRADED_NETWORK`] for a degraded
-/// input, else [`MATERIAL_NETWORK`] where the maps are back-projected; then
-/// [`AUTO_UPSAMPLERS`].
+/// scale: where the configuration only upsamples maps, [`JPEG_NETWORK`] (then
+/// [`DEGRADED_NETWORK`]) for a JPEG input, [`DEGRADED_NETWORK`] for an otherwise degraded one,
+/// else [`MATERIAL_NETWORK`] where the maps are back-projected; then [`AUTO_UPSAMPLERS`].
 pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler>)> {
     let levels = levels_of(config.scale);
     // The upsampler `spec` names, or the one `config.networks` runs in its place, with the
@@ -410,14 +454,16 @@ pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler
         return fits(&config.upsampler);
     }
     // Each material network where it was trained for: the clean one back-projected, the
-    // degraded one as its route runs it (unprojected).
-    let material = match config.input_quality {
-        InputQuality::Degraded => Some(DEGRADED_NETWORK),
-        _ => config.filter.back_project.then_some(MATERIAL_NETWORK),
+    // JPEG and degraded ones as their routes run them.
+    let material: &[&str] = match config.input_quality {
+        InputQuality::Jpeg => &[JPEG_NETWORK, DEGRADED_NETWORK],
+        InputQuality::Degraded => &[DEGRADED_NETWORK],
+        _ if config.filter.back_project => &[MATERIAL_NETWORK],
+        _ => &[],
     };
-    let material = material.filter(|_| config.upsamples_maps_only());
+    let material = material.iter().filter(|_| config.upsamples_maps_only());
     let mut last = None;
-    for spec in material.into_iter().chain(AUTO_UPSAMPLERS) {
+    for &spec in material.chain(&AUTO_UPSAMPLERS) {
         match fits(spec) {
             Ok(chosen) => return Ok(chosen),
             // What the caller gave must run: no other upsampler in its place.

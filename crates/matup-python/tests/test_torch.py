@@ -185,9 +185,9 @@ def test_the_default_node_through_torch_runs_matups_own_networks_where_matup_cho
     networks = nodes.Networks
     monkeypatch.setattr(nodes, "Networks", lambda model=None: networks(model, through_torch=True))
     torch_maps, torch_folder, after_maps = both_nodes()
-    # The clean maps ran the material network; the JPEG folder, the degraded one.
-    assert after_maps["span_x4_materials"] > 0 and after_maps["span_x4_degraded"] == 0
-    assert counted["span_x4_degraded"].calls > 0
+    # The clean maps ran the material network; the JPEG folder, the one for JPEG maps.
+    assert after_maps["span_x4_materials"] > 0 and after_maps["span_x4_jpeg"] == 0
+    assert counted["span_x4_jpeg"].calls > 0 and counted["span_x4_degraded"].calls == 0
     for name, a, b in zip(nodes.UpscaleMaterial.RETURN_NAMES, own_maps, torch_maps):
         assert a.shape == b.shape, name
         assert (a - b).abs().max().item() <= 1.01 / 255, name

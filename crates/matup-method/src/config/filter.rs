@@ -53,6 +53,12 @@ pub struct FilterConfig {
     /// pays for a network's dark stroke with bright texels around it and pins texels at 0:
     /// structure the input has nowhere near (docs/experiments/2026-11-28-no-new-structure.md).
     pub neighbourhood_margin: f32,
+    /// With `back_project`, above 0: bring the base colour back to its input's low
+    /// frequencies alone (its mismatch blurred by a Gaussian of this many LR texels, kept to
+    /// the input's edges) and leave the other maps as the upsampler made them; 0 projects
+    /// every map exactly. A JPEG's noise and blocks are its input's high frequencies, while
+    /// its regions' colours hold.
+    pub projection_blur: f32,
 }
 
 impl FilterConfig {
@@ -124,6 +130,7 @@ impl Default for FilterConfig {
             // against come from degraded inputs, which now run the network trained on them; on
             // clean inputs it cost Tiles012 0.34 dB and a partly metallic facade 1.66 dB.
             neighbourhood_margin: NEIGHBOURHOOD_MARGIN,
+            projection_blur: 0.0,
         }
     }
 }

@@ -206,6 +206,12 @@ impl Config {
             return bad("filter.hidden_width must be positive".into());
         }
         f.self_ensemble().symmetries()?;
+        if !(f.projection_blur >= 0.0 && f.projection_blur.is_finite()) {
+            return bad(format!(
+                "filter.projection_blur must be ≥ 0 (LR texels), not {}",
+                f.projection_blur
+            ));
+        }
         if !self.select_upsamplers.is_empty() && self.select == Selection::Off {
             return bad(
                 "select_upsamplers are candidates for the selection: set select = \"upsampler\" (or \"auto\")".into(),

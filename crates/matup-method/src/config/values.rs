@@ -309,14 +309,18 @@ pub enum Selection {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum InputQuality {
-    /// Degraded where a map's file was stored lossily (JPEG, lossy WebP, BC1–BC5 blocks:
-    /// `Material::lossy`), clean otherwise.
+    /// JPEG where every map stored lossily was a JPEG (by its file or its texels), degraded
+    /// where another lossy format was (lossy WebP, BC1–BC5 blocks: `Material::lossy`), clean
+    /// otherwise.
     Auto,
     /// Clean maps: the material network, its output back-projected onto the input.
     Clean,
     /// Degraded maps: the network trained on degraded inputs, its output not back-projected
     /// (projection would put the input's blocks and noise back).
     Degraded,
+    /// JPEG maps: the network trained on JPEG inputs, its base colour projected onto the
+    /// input's low frequencies alone (a JPEG keeps its regions' colours), the other maps not.
+    Jpeg,
 }
 
 /// How training steps are computed.

@@ -18,8 +18,8 @@ use matup_core::device_maps::{self, Separable};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::{
-    box_downsample_channels, for_each_upsampled_row, lr_texel, neighbourhood_ranges, rows_per_task,
-    upsample, Border, Kernel,
+    box_downsample_channels, for_each_upsampled_row, guided_blur, lr_texel, neighbourhood_ranges,
+    rows_per_task, upsample, Border, Kernel,
 };
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
@@ -68,8 +68,16 @@ pub fn project_onto_input(
     }
     let lr_features = features(lr);
     let margin = config.neighbourhood_margin;
+    // What the projections bring the base back to: the input, or its low frequencies.
+    let target = match config.projection_blur {
+        sigma if sigma > 0.0 => {
+            let seen = box_downsample_channels(base, scale, 0..base.channels());
+            projection_target(&seen, &lr_features, border, sigma)
+        }
+        _ => lr_features.clone(),
+    };
     if config.back_project {
-        back_project(base, &lr_features, scale, border, margin);
+        back_project(base, &target, scale, border, margin);
     }
     if config.clamp_chroma {
         // The base colour is the features' first three channels, linear.
@@ -92,13 +100,13 @@ pub fn project_onto_input(
             // settles the blocks either way, within the range kept near the input: both hold.
             for _ in 0..LATER_CLAMPS {
                 if config.clamp_back_project {
-                    back_project_channels(base, &lr_features, scale, border, 0..3, stored_range);
+                    back_project_channels(base, &target, scale, border, 0..3, stored_range);
                 } else {
-                    near.settle(base, &lr_features, scale);
+                    near.settle(base, &target, scale);
                 }
                 clamp(base);
             }
-            near.settle(base, &lr_features, scale);
+            near.settle(base, &target, scale);
         }
     }
 }
@@ -280,7 +288,16 @@ fn project_on_device(
     }
     let lr_features = features(lr);
     let device = base.device().clone();
-    let lr_on_device = device_maps::upload(&lr_features, &device)?;
+    // What the projections bring the base back to, as on the host (`project_onto_input`).
+    let target = match config.projection_blur {
+        sigma if sigma > 0.0 => {
+            let n = (scale * scale) as f64;
+            let seen = device_maps::download(&(device_maps::block_sums(&base, scale)? / n)?)?;
+            projection_target(&seen, &lr_features, border, sigma)
+        }
+        _ => lr_features.clone(),
+    };
+    let lr_on_device = device_maps::upload(&target, &device)?;
     let ranges = |channels: std::ops::Range<usize>| -> candle_core::Result<[Tensor; 2]> {
         let ends = |end: fn((f32, f32)) -> f32| {
             let values: Vec<f32> = channels.clone().map(|c| end(stored_range(c))).collect();
@@ -305,7 +322,7 @@ fn project_on_device(
         let margin = config.neighbourhood_margin;
         if margin < 1.0 {
             // As `back_project` keeps the grey features near their input.
-            let mut lr_stored = lr_features.clone();
+            let mut lr_stored = target.clone();
             alpha_as_stored(&mut lr_stored);
             for grey in GREY_FEATURES {
                 let near =
@@ -448,6 +465,35 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin
     // Alpha was made by squaring r (`pack_features`), and √(r²) rounds back to r exactly, so a
     // texel no correction moved gets its alpha back bit for bit.
     hr.plane_mut(ALPHA).iter_mut().for_each(|r| *r *= *r);
+}
+
+/// How different two input features may be (linear [0, 1] units) for the low-pass
+/// projection's blur to mix their mismatches: a JPEG's noise is a few levels, an edge far
+/// more. Without it, a correction on one side of a strong edge darkens or brightens the other
+/// (a rim on DamagedHelmet's white paint against black).
+const PROJECTION_EDGE: f32 = 0.1;
+
+/// The LR features a projection brings a base that box-filters to `seen` back to: for the
+/// base colour, `seen` plus the low frequencies (a Gaussian of `sigma` LR texels, kept to the
+/// input's edges) of its mismatch with `lr`, so that an input's high-frequency noise and
+/// blocks are not put back; the other features `seen` itself, left as the base has them
+/// (projecting them too lost 0.10 dB on JPEG 75 inputs:
+/// docs/experiments/2026-11-29-degraded-inputs.md).
+fn projection_target(seen: &Map, lr: &Map, border: Border, sigma: f32) -> Map {
+    let (w, h) = (lr.width(), lr.height());
+    let mut target = seen.clone();
+    // The base colour is the features' first three channels.
+    for c in 0..3 {
+        let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
+            .map(|(l, s)| l - s)
+            .collect();
+        let low = guided_blur(&mismatch, lr.plane(c), w, h, sigma, PROJECTION_EDGE, border);
+        let (lo, hi) = stored_range(c);
+        for (t, m) in target.plane_mut(c).iter_mut().zip(low) {
+            *t = (*t + m).clamp(lo, hi);
+        }
+    }
+    target
 }
 
 /// Features with alpha (r²) as its file stores it, the roughness r.

@@ -120,3 +120,33 @@ fn back_projection_brings_the_box_downsample_back_to_the_input() {
         }
     }
 }
+
+#[test]
+fn a_low_pass_projection_takes_back_a_colour_drift_and_leaves_fine_detail_and_other_maps() {
+    // A smooth input, and a base that box-filters to it plus a drift of the whole colour
+    // (+0.1) and a fine ±0.03 checker (detail the input's storage lost, set right).
+    let size = 32;
+    let lr = Map::from_fn(size, size, FEATURES, |c, y, x| match c {
+        4 | 5 => 0.1,
+        _ => 0.3 + 0.2 * (x + y) as f32 / (2 * size) as f32,
+    });
+    let checker = |y: usize, x: usize| if (x + y) % 2 == 0 { 0.03 } else { -0.03 };
+    let seen = Map::from_fn(size, size, FEATURES, |c, y, x| {
+        lr.get(c, y, x) + if c < 3 { 0.1 + checker(y, x) } else { 0.05 }
+    });
+    let target = projection_target(&seen, &lr, Border::Mirror, 16.0);
+    for c in 0..3 {
+        for (y, x) in [(3, 4), (16, 16), (28, 30)] {
+            // The drift is taken back, the checker kept (within the blur's leak of it).
+            let kept = target.get(c, y, x) - lr.get(c, y, x);
+            assert!(
+                (kept - checker(y, x)).abs() < 0.005,
+                "{c} ({y}, {x}): {kept}"
+            );
+        }
+    }
+    // The other maps are left as the base has them.
+    for c in 3..FEATURES {
+        assert_eq!(target.plane(c), seen.plane(c), "feature {c}");
+    }
+}

@@ -59,9 +59,10 @@ pub struct BuiltIn {
 
 /// The networks matup's defaults name: the SPAN ×4 tuned for material maps
 /// (`onnx:span_x4_materials`, the default at every scale), its tuning for maps from lossy files
-/// (`onnx:span_x4_degraded`, the default where the input is degraded) and stock SPAN ×4
+/// (`onnx:span_x4_degraded`, the default where the input is degraded), its tuning for JPEG
+/// maps (`onnx:span_x4_jpeg`, the default where every lossy map is a JPEG) and stock SPAN ×4
 /// (`onnx:span_x4_ch48`). `models/README.md` is their model card.
-pub const BUILT_IN: [BuiltIn; 3] = [
+pub const BUILT_IN: [BuiltIn; 4] = [
     BuiltIn {
         name: "span_x4_materials",
         onnx: include_bytes!("../../../../models/span_x4_materials.onnx"),
@@ -76,6 +77,11 @@ pub const BUILT_IN: [BuiltIn; 3] = [
         name: "span_x4_degraded",
         onnx: include_bytes!("../../../../models/span_x4_degraded.onnx"),
         sidecar: include_str!("../../../../models/span_x4_degraded.toml"),
+    },
+    BuiltIn {
+        name: "span_x4_jpeg",
+        onnx: include_bytes!("../../../../models/span_x4_jpeg.onnx"),
+        sidecar: include_str!("../../../../models/span_x4_jpeg.toml"),
     },
 ];
 
