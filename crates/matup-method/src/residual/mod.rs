@@ -68,16 +68,21 @@ pub fn project_onto_input(
     }
     let lr_features = features(lr);
     let margin = config.neighbourhood_margin;
-    // What the projections bring the base back to: the input, or its low frequencies.
-    let target = match config.projection_blur {
-        sigma if sigma > 0.0 => {
-            let seen = box_downsample_channels(base, scale, 0..base.channels());
-            projection_target(&seen, &lr_features, border, sigma)
+    // What the projections bring the base back to: the input, or (`projection_blur`) for the
+    // base colour its low frequencies, the other features left unprojected.
+    let low_pass = config.projection_blur > 0.0;
+    let target = match low_pass {
+        true => {
+            let seen = box_downsample_channels(base, scale, 0..3);
+            projection_target(&seen, &lr_features, border, config.projection_blur)
         }
-        _ => lr_features.clone(),
+        false => lr_features.clone(),
     };
     if config.back_project {
-        back_project(base, &target, scale, border, margin);
+        match low_pass {
+            true => back_project_channels(base, &target, scale, border, 0..3, stored_range),
+            false => back_project(base, &target, scale, border, margin),
+        }
     }
     if config.clamp_chroma {
         // The base colour is the features' first three channels, linear.
@@ -289,13 +294,15 @@ fn project_on_device(
     let lr_features = features(lr);
     let device = base.device().clone();
     // What the projections bring the base back to, as on the host (`project_onto_input`).
-    let target = match config.projection_blur {
-        sigma if sigma > 0.0 => {
+    let low_pass = config.projection_blur > 0.0;
+    let target = match low_pass {
+        true => {
             let n = (scale * scale) as f64;
-            let seen = device_maps::download(&(device_maps::block_sums(&base, scale)? / n)?)?;
-            projection_target(&seen, &lr_features, border, sigma)
+            let sums = device_maps::block_sums(&base.narrow(0, 0, 3)?, scale)?;
+            let seen = device_maps::download(&(sums / n)?)?;
+            projection_target(&seen, &lr_features, border, config.projection_blur)
         }
-        _ => lr_features.clone(),
+        false => lr_features.clone(),
     };
     let lr_on_device = device_maps::upload(&target, &device)?;
     let ranges = |channels: std::ops::Range<usize>| -> candle_core::Result<[Tensor; 2]> {
@@ -306,7 +313,17 @@ fn project_on_device(
         Ok([ends(|r| r.0)?, ends(|r| r.1)?])
     };
     let mut base = base;
-    if config.back_project {
+    if config.back_project && low_pass {
+        // The base colour alone, onto its low frequencies; the rest as the upsampler made it.
+        let colour = back_project_on_device(
+            &base.narrow(0, 0, 3)?,
+            &lr_on_device.narrow(0, 0, 3)?,
+            scale,
+            border,
+            &ranges(0..3)?,
+        )?;
+        base = Tensor::cat(&[&colour, &base.narrow(0, 3, FEATURES - 3)?], 0)?;
+    } else if config.back_project {
         // As stored: alpha as the roughness r (see `back_project`).
         let as_stored = |t: &Tensor| -> candle_core::Result<Tensor> {
             Tensor::cat(&[t.narrow(0, 0, ALPHA)?, t.narrow(0, ALPHA, 1)?.sqrt()?], 0)
@@ -473,15 +490,15 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin
 /// (a rim on DamagedHelmet's white paint against black).
 const PROJECTION_EDGE: f32 = 0.1;
 
-/// The LR features a projection brings a base that box-filters to `seen` back to: for the
-/// base colour, `seen` plus the low frequencies (a Gaussian of `sigma` LR texels, kept to the
-/// input's edges) of its mismatch with `lr`, so that an input's high-frequency noise and
-/// blocks are not put back; the other features `seen` itself, left as the base has them
-/// (projecting them too lost 0.10 dB on JPEG 75 inputs:
+/// The LR features a low-pass projection brings the base colour back to, where the base's
+/// colour box-filters to `seen` (its first three channels): `seen` plus the low frequencies (a
+/// Gaussian of `sigma` LR texels, kept to the input's edges) of its mismatch with `lr`, so
+/// that an input's high-frequency noise and blocks are not put back. The other features are
+/// `lr`'s, and not projected (projecting them too lost 0.10 dB on JPEG 75 inputs:
 /// docs/experiments/2026-11-29-degraded-inputs.md).
 fn projection_target(seen: &Map, lr: &Map, border: Border, sigma: f32) -> Map {
     let (w, h) = (lr.width(), lr.height());
-    let mut target = seen.clone();
+    let mut target = lr.clone();
     // The base colour is the features' first three channels.
     for c in 0..3 {
         let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
@@ -489,8 +506,8 @@ fn projection_target(seen: &Map, lr: &Map, border: Border, sigma: f32) -> Map {
             .collect();
         let low = guided_blur(&mismatch, lr.plane(c), w, h, sigma, PROJECTION_EDGE, border);
         let (lo, hi) = stored_range(c);
-        for (t, m) in target.plane_mut(c).iter_mut().zip(low) {
-            *t = (*t + m).clamp(lo, hi);
+        for ((t, s), m) in target.plane_mut(c).iter_mut().zip(seen.plane(c)).zip(low) {
+            *t = (s + m).clamp(lo, hi);
         }
     }
     target

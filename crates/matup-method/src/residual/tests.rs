@@ -134,7 +134,7 @@ fn a_low_pass_projection_takes_back_a_colour_drift_and_leaves_fine_detail_and_ot
     let seen = Map::from_fn(size, size, FEATURES, |c, y, x| {
         lr.get(c, y, x) + if c < 3 { 0.1 + checker(y, x) } else { 0.05 }
     });
-    let target = projection_target(&seen, &lr, Border::Mirror, 16.0);
+    let target = projection_target(&box_colour(&seen), &lr, Border::Mirror, 16.0);
     for c in 0..3 {
         for (y, x) in [(3, 4), (16, 16), (28, 30)] {
             // The drift is taken back, the checker kept (within the blur's leak of it).
@@ -145,8 +145,31 @@ fn a_low_pass_projection_takes_back_a_colour_drift_and_leaves_fine_detail_and_ot
             );
         }
     }
-    // The other maps are left as the base has them.
+    // A base whose colour drifted is brought back to the target in its colour alone: the
+    // other maps are left as the base has them.
+    let base = upsample(&seen, 4, Kernel::Bilinear, Border::Mirror);
+    let mut projected = base.clone();
+    back_project_channels(
+        &mut projected,
+        &target,
+        4,
+        Border::Mirror,
+        0..3,
+        stored_range,
+    );
     for c in 3..FEATURES {
-        assert_eq!(target.plane(c), seen.plane(c), "feature {c}");
+        assert_eq!(projected.plane(c), base.plane(c), "feature {c}");
     }
+    let colour = box_downsample(&projected, 4);
+    let (y, x) = (16, 16);
+    assert!((colour.get(0, y, x) - target.get(0, y, x)).abs() < 0.01);
+}
+
+/// The colour channels of `features` (the rest left zero), as `projection_target` reads them.
+fn box_colour(features: &Map) -> Map {
+    let mut colour = features.clone();
+    for c in 3..FEATURES {
+        colour.plane_mut(c).fill(0.0);
+    }
+    colour
 }
