@@ -15,7 +15,7 @@ use matup_core::resample::{lr_texel, neighbourhood_ranges, Border};
 
 const WEIGHTS: [f32; 3] = [0.2126, 0.7152, 0.0722];
 
-fn luma(rgb: [f32; 3]) -> f32 {
+pub(crate) fn luma(rgb: [f32; 3]) -> f32 {
     (0..3).map(|c| WEIGHTS[c] * rgb[c]).sum()
 }
 

@@ -6,7 +6,7 @@
 use rayon::prelude::*;
 
 use crate::chroma::{
-    chroma_bounds_on_device, clamp_chroma_on_device, clamp_chroma_to_input, with_chroma_of,
+    chroma_bounds_on_device, clamp_chroma_on_device, clamp_chroma_to_input, luma, with_chroma_of,
 };
 use crate::config::{Chroma, FilterConfig, ResidualBase};
 use crate::features::{features, pack_features};
@@ -491,23 +491,39 @@ pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin
 const PROJECTION_EDGE: f32 = 0.1;
 
 /// The LR features a low-pass projection brings the base colour back to, where the base's
-/// colour box-filters to `seen` (its first three channels): `seen` plus the low frequencies (a
-/// Gaussian of `sigma` LR texels, kept to the input's edges) of its mismatch with `lr`, so
-/// that an input's high-frequency noise and blocks are not put back. The other features are
-/// `lr`'s, and not projected (projecting them too lost 0.10 dB on JPEG 75 inputs:
-/// docs/experiments/2026-11-29-degraded-inputs.md).
+/// colour box-filters to `seen` (its first three channels): the input's colour plus the
+/// base's detail past it, the high frequencies of their mismatch (what a Gaussian of `sigma`
+/// LR texels, kept to the input's edges, leaves), in luma alone. So an input's noise and
+/// blocks, high frequencies, are not put back, its regions' colours are, and its chroma is
+/// kept whole: detail taken per channel drew colour into grey materials (a grey JPEG of
+/// Tiles036, ×4: G′ − R′ up to 55 levels). Mismatch and luma are sRGB-encoded, as the chroma clamp (`crate::chroma`)
+/// reads them, so that adding the detail leaves the input's chroma as it is. The other
+/// features are `lr`'s, and not projected (projecting them too lost 0.10 dB on JPEG 75
+/// inputs: docs/experiments/2026-11-29-degraded-inputs.md).
 fn projection_target(seen: &Map, lr: &Map, border: Border, sigma: f32) -> Map {
     let (w, h) = (lr.width(), lr.height());
-    let mut target = lr.clone();
-    // The base colour is the features' first three channels.
-    for c in 0..3 {
-        let mismatch: Vec<f32> = (lr.plane(c).iter().zip(seen.plane(c)))
-            .map(|(l, s)| l - s)
+    let encoded =
+        |m: &Map, c: usize| -> Vec<f32> { m.plane(c).iter().map(|&v| linear_to_srgb(v)).collect() };
+    let input = [0, 1, 2].map(|c| encoded(lr, c));
+    let detail = [0, 1, 2].map(|c| {
+        let mismatch: Vec<f32> = (encoded(seen, c).iter().zip(&input[c]))
+            .map(|(s, l)| s - l)
             .collect();
         let low = guided_blur(&mismatch, lr.plane(c), w, h, sigma, PROJECTION_EDGE, border);
+        (mismatch.iter().zip(low))
+            .map(|(m, l)| m - l)
+            .collect::<Vec<f32>>()
+    });
+    let luma_detail: Vec<f32> = (0..w * h)
+        .map(|i| luma(detail.each_ref().map(|d| d[i])))
+        .collect();
+    let mut target = lr.clone();
+    // The base colour is the features' first three channels.
+    for (c, input) in input.iter().enumerate() {
         let (lo, hi) = stored_range(c);
-        for ((t, s), m) in target.plane_mut(c).iter_mut().zip(seen.plane(c)).zip(low) {
-            *t = (s + m).clamp(lo, hi);
+        let planes = target.plane_mut(c).iter_mut().zip(input).zip(&luma_detail);
+        for ((t, v), d) in planes {
+            *t = srgb_to_linear((v + d).clamp(0.0, 1.0)).clamp(lo, hi);
         }
     }
     target

@@ -124,21 +124,23 @@ fn back_projection_brings_the_box_downsample_back_to_the_input() {
 #[test]
 fn a_low_pass_projection_takes_back_a_colour_drift_and_leaves_fine_detail_and_other_maps() {
     // A smooth input, and a base that box-filters to it plus a drift of the whole colour
-    // (+0.1) and a fine ±0.03 checker (detail the input's storage lost, set right).
+    // (+0.1) and a fine ±0.03 checker (detail the input's storage lost, set right), both
+    // sRGB-encoded, as the projection compares colours.
     let size = 32;
     let lr = Map::from_fn(size, size, FEATURES, |c, y, x| match c {
         4 | 5 => 0.1,
         _ => 0.3 + 0.2 * (x + y) as f32 / (2 * size) as f32,
     });
     let checker = |y: usize, x: usize| if (x + y) % 2 == 0 { 0.03 } else { -0.03 };
-    let seen = Map::from_fn(size, size, FEATURES, |c, y, x| {
-        lr.get(c, y, x) + if c < 3 { 0.1 + checker(y, x) } else { 0.05 }
+    let seen = Map::from_fn(size, size, FEATURES, |c, y, x| match c {
+        0..=2 => srgb_to_linear(linear_to_srgb(lr.get(c, y, x)) + 0.1 + checker(y, x)),
+        _ => lr.get(c, y, x) + 0.05,
     });
     let target = projection_target(&box_colour(&seen), &lr, Border::Mirror, 16.0);
     for c in 0..3 {
         for (y, x) in [(3, 4), (16, 16), (28, 30)] {
             // The drift is taken back, the checker kept (within the blur's leak of it).
-            let kept = target.get(c, y, x) - lr.get(c, y, x);
+            let kept = linear_to_srgb(target.get(c, y, x)) - linear_to_srgb(lr.get(c, y, x));
             assert!(
                 (kept - checker(y, x)).abs() < 0.005,
                 "{c} ({y}, {x}): {kept}"
@@ -172,4 +174,35 @@ fn box_colour(features: &Map) -> Map {
         colour.plane_mut(c).fill(0.0);
     }
     colour
+}
+
+#[test]
+fn a_low_pass_projection_keeps_the_input_chroma_and_the_base_detail_in_luma_alone() {
+    // A grey input, and a base with a fine checker in red alone: colour the input never had.
+    let size = 32;
+    let lr = Map::from_fn(size, size, FEATURES, |c, y, x| match c {
+        0..=2 => 0.2 + 0.3 * x as f32 / size as f32 + 0.1 * y as f32 / size as f32,
+        _ => 0.1,
+    });
+    let seen = Map::from_fn(size, size, FEATURES, |c, y, x| {
+        let checker = if (x + y) % 2 == 0 { 0.05 } else { -0.05 };
+        lr.get(c, y, x) + if c == 0 { checker } else { 0.0 }
+    });
+    let target = projection_target(&box_colour(&seen), &lr, Border::Mirror, 16.0);
+    let mut moved = 0.0f32;
+    for i in 0..size * size {
+        let [r, g, b] = [0, 1, 2].map(|c| target.plane(c)[i]);
+        // Grey stays grey: the detail is added to every channel alike.
+        assert!(
+            (r - g).abs() < 1e-6 && (b - g).abs() < 1e-6,
+            "texel {i}: {r} {g} {b}"
+        );
+        moved += (g - lr.plane(1)[i]).abs();
+    }
+    // The red checker's luma (0.2126 of it, sRGB-encoded) is kept as detail, not taken back.
+    let mean_moved = moved / (size * size) as f32;
+    assert!(
+        (0.005..0.02).contains(&mean_moved),
+        "mean detail kept {mean_moved}"
+    );
 }
