@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Each matup variant of one or more `matup sweep` results against the sweep's per-map
-baselines, as the issues' bars read them: its mean render PSNR and FLIP, its lead in PSNR
-over the better of the baselines (material by material, then averaged), on how many
-materials it beats every baseline in PSNR and in FLIP, and its worst material.
+baselines, as the issues' bars read them, per degradation of the inputs (a sweep's `degrade`):
+its mean render PSNR and FLIP, its lead in PSNR over the better of the baselines (material by
+material, then averaged), on how many materials it beats every baseline in PSNR and in FLIP,
+and its worst material.
 
     python scripts/sweep-lead.py OUT/results.csv [MORE/results.csv ...]
 
@@ -27,19 +28,20 @@ def read_rows(paths):
 
 def main(paths):
     baselines = defaultdict(dict)  # input -> baseline -> (psnr, flip)
-    variants = defaultdict(dict)  # variant -> input -> (psnr, flip)
+    variants = defaultdict(dict)  # (degradation, variant) -> input -> (psnr, flip)
     for row in read_rows(paths):
         material, method = row["id"].split("/", 1)
+        degradation = material.split("+", 1)[1] if "+" in material else "clean"
         scores = (float(row["render_psnr"]), float(row["render_flip"]))
         if row["kind"] == "per-map":
             baselines[material][method] = scores
         else:
-            variants[method][material] = scores
+            variants[(degradation, method)][material] = scores
     if not baselines:
         sys.exit("no per-map baselines in " + ", ".join(paths))
-    print("| variant | mean PSNR / FLIP | lead dB | ahead PSNR / FLIP | worst |")
-    print("|---|---|---|---|---|")
-    for variant, by_material in sorted(variants.items()):
+    print("| input | variant | mean PSNR / FLIP | lead dB | ahead PSNR / FLIP | worst |")
+    print("|---|---|---|---|---|---|")
+    for (degradation, variant), by_material in sorted(variants.items()):
         measured = [m for m in by_material if m in baselines]
         leads, ahead_psnr, ahead_flip = [], 0, 0
         for m in measured:
@@ -55,7 +57,7 @@ def main(paths):
         lead = sum(d for d, _ in leads) / n
         worst, worst_material = min(leads)
         print(
-            f"| {variant} | {mean_psnr:.3f} / {mean_flip:.4f} | {lead:+.3f} | "
+            f"| {degradation} | {variant} | {mean_psnr:.3f} / {mean_flip:.4f} | {lead:+.3f} | "
             f"{ahead_psnr} / {ahead_flip} of {n} | {worst_material} {worst:+.2f} |"
         )
 
