@@ -439,18 +439,23 @@ pub fn shrink_matrix(from: usize, to: usize, how: Shrink, border: Border) -> Vec
     matrix
 }
 
+/// A Gaussian of `sigma` truncated at 3σ each side: its radius and its taps from −radius to
+/// radius, not normalised.
+fn gaussian_taps(sigma: f32) -> (isize, Vec<f32>) {
+    let radius = (3.0 * sigma).ceil() as isize;
+    let taps = (-radius..=radius)
+        .map(|k| (-(k * k) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    (radius, taps)
+}
+
 /// Separable Gaussian blur of a `w × h` plane, truncated at 3σ each side, normalised, with
 /// `border` beyond the edges. Both passes run as whole-row multiply-adds, which the compiler
 /// vectorises.
 pub fn gaussian_blur(plane: &[f32], w: usize, h: usize, sigma: f32, border: Border) -> Vec<f32> {
-    let radius = (3.0 * sigma).ceil() as isize;
-    let weights: Vec<f32> = {
-        let raw: Vec<f32> = (-radius..=radius)
-            .map(|k| (-(k * k) as f32 / (2.0 * sigma * sigma)).exp())
-            .collect();
-        let sum: f32 = raw.iter().sum();
-        raw.iter().map(|v| v / sum).collect()
-    };
+    let (radius, raw) = gaussian_taps(sigma);
+    let sum: f32 = raw.iter().sum();
+    let weights: Vec<f32> = raw.iter().map(|v| v / sum).collect();
     let r = radius as usize;
     // Along rows: each row padded by the border, then one shifted axpy per tap.
     let mut across = vec![0.0f32; w * h];
@@ -494,10 +499,7 @@ pub fn guided_blur(
     range: f32,
     border: Border,
 ) -> Vec<f32> {
-    let radius = (3.0 * sigma).ceil() as isize;
-    let spatial: Vec<f32> = (-radius..=radius)
-        .map(|k| (-(k * k) as f32 / (2.0 * sigma * sigma)).exp())
-        .collect();
+    let (radius, spatial) = gaussian_taps(sigma);
     let pass = |values: &[f32], along_rows: bool| -> Vec<f32> {
         let mut out = vec![0.0f32; w * h];
         out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {

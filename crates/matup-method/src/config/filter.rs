@@ -55,8 +55,9 @@ pub struct FilterConfig {
     pub neighbourhood_margin: f32,
     /// With `back_project`, above 0: bring the base colour back to its input's low
     /// frequencies alone (its mismatch blurred by a Gaussian of this many LR texels, kept to
-    /// the input's edges) and leave the other maps as the upsampler made them; 0 projects
-    /// every map exactly. A JPEG's noise and blocks are its input's high frequencies, while
+    /// the input's edges), with the input's chroma and the upsampler's detail past the blur in
+    /// luma alone, and leave the other maps as the upsampler made them; 0 projects every map
+    /// exactly. A JPEG's noise and blocks are its input's high frequencies, while
     /// its regions' colours hold.
     pub projection_blur: f32,
 }

@@ -3,6 +3,8 @@
 //! bilinear), or each LR map upsampled on its own by the run's RGB upsampler, the way an
 //! artist would run each file through it (per-map super-resolution as a starting point).
 
+use std::borrow::Cow;
+
 use rayon::prelude::*;
 
 use crate::chroma::{
@@ -71,17 +73,22 @@ pub fn project_onto_input(
     // What the projections bring the base back to: the input, or (`projection_blur`) for the
     // base colour its low frequencies, the other features left unprojected.
     let low_pass = config.projection_blur > 0.0;
-    let target = match low_pass {
-        true => {
-            let seen = box_downsample_channels(base, scale, 0..3);
-            projection_target(&seen, &lr_features, border, config.projection_blur)
-        }
-        false => lr_features.clone(),
+    let target = if low_pass {
+        let seen = box_downsample_channels(base, scale, 0..3);
+        Cow::Owned(projection_target(
+            &seen,
+            &lr_features,
+            border,
+            config.projection_blur,
+        ))
+    } else {
+        Cow::Borrowed(&lr_features)
     };
     if config.back_project {
-        match low_pass {
-            true => back_project_channels(base, &target, scale, border, 0..3, stored_range),
-            false => back_project(base, &target, scale, border, margin),
+        if low_pass {
+            back_project_channels(base, &target, scale, border, 0..3, stored_range);
+        } else {
+            back_project(base, &target, scale, border, margin);
         }
     }
     if config.clamp_chroma {
@@ -295,14 +302,18 @@ fn project_on_device(
     let device = base.device().clone();
     // What the projections bring the base back to, as on the host (`project_onto_input`).
     let low_pass = config.projection_blur > 0.0;
-    let target = match low_pass {
-        true => {
-            let n = (scale * scale) as f64;
-            let sums = device_maps::block_sums(&base.narrow(0, 0, 3)?, scale)?;
-            let seen = device_maps::download(&(sums / n)?)?;
-            projection_target(&seen, &lr_features, border, config.projection_blur)
-        }
-        false => lr_features.clone(),
+    let target = if low_pass {
+        let n = (scale * scale) as f64;
+        let sums = device_maps::block_sums(&base.narrow(0, 0, 3)?, scale)?;
+        let seen = device_maps::download(&(sums / n)?)?;
+        Cow::Owned(projection_target(
+            &seen,
+            &lr_features,
+            border,
+            config.projection_blur,
+        ))
+    } else {
+        Cow::Borrowed(&lr_features)
     };
     let lr_on_device = device_maps::upload(&target, &device)?;
     let ranges = |channels: std::ops::Range<usize>| -> candle_core::Result<[Tensor; 2]> {
@@ -339,7 +350,7 @@ fn project_on_device(
         let margin = config.neighbourhood_margin;
         if margin < 1.0 {
             // As `back_project` keeps the grey features near their input.
-            let mut lr_stored = target.clone();
+            let mut lr_stored = target.clone().into_owned();
             alpha_as_stored(&mut lr_stored);
             for grey in GREY_FEATURES {
                 let near =
