@@ -194,11 +194,14 @@ pub const STORED_KINDS: [MapKind; 5] = [
 /// - `noiseS`: Gaussian noise of S levels; `poissonP`: shot noise of peak P;
 /// - `blurS`: a Gaussian blur of S texels; `haloA`: an unsharp mask of amount A (σ 1.5);
 /// - `ditherN`, `ditherN-fs`: N levels, ordered or Floyd–Steinberg;
-/// - several joined by `+` (`blur0.7+jpeg60`), applied in that order.
+/// - several joined by `+` (`blur0.7+jpeg60`), applied in that order;
+/// - any of them on one map alone, named by its file stem after `@` (`jpeg75@baseColor`: a
+///   glTF model's JPEG colour beside its PNG maps).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MaterialDegradation {
     name: String,
-    steps: Vec<Step>,
+    /// Each step, with the maps it reaches (`None`: every stored map).
+    steps: Vec<(Step, Option<Vec<MapKind>>)>,
 }
 
 /// One step of a named degradation: the same for every map, or as games store each kind.
@@ -212,7 +215,8 @@ impl MaterialDegradation {
     /// The degradations each map of `kind` goes through, in order.
     pub fn for_kind(&self, kind: MapKind) -> Vec<Degradation> {
         (self.steps.iter())
-            .map(|step| match *step {
+            .filter(|(_, maps)| maps.as_ref().is_none_or(|maps| maps.contains(&kind)))
+            .map(|(step, _)| match *step {
                 Step::Every(d) => d,
                 Step::AsGamesShip => Degradation::Block(shipped_block_format(kind)),
             })
@@ -242,7 +246,7 @@ impl FromStr for MaterialDegradation {
     fn from_str(text: &str) -> Result<Self> {
         let steps = text
             .split('+')
-            .map(|part| parse_step(part.trim()))
+            .map(|part| parse_step_on_maps(part.trim()))
             .collect::<Result<Vec<_>>>()?;
         Ok(MaterialDegradation {
             name: text.to_string(),
@@ -251,11 +255,29 @@ impl FromStr for MaterialDegradation {
     }
 }
 
+/// A step, and after `@` the one map it reaches (`jpeg75@baseColor`; another map takes the
+/// step again, `+jpeg75@roughness`: a comma separates the runs of `--degrade`).
+fn parse_step_on_maps(text: &str) -> Result<(Step, Option<Vec<MapKind>>)> {
+    let Some((step, map)) = text.split_once('@') else {
+        return Ok((parse_step(text)?, None));
+    };
+    let kind = (MapKind::from_file_stem(map.trim()))
+        .filter(|kind| STORED_KINDS.contains(kind))
+        .ok_or_else(|| {
+            Error::Invalid(format!(
+                "degradation '{text}': no map '{map}'; maps: baseColor, normal, roughness, \
+                 metallic, height"
+            ))
+        })?;
+    Ok((parse_step(step.trim())?, Some(vec![kind])))
+}
+
 fn parse_step(text: &str) -> Result<Step> {
     let bad = |why: &str| {
         Error::Invalid(format!(
             "degradation '{text}': {why}; known: bc1, bc3, bc4, bc5, dds, jpegQ, jpegQ-444, \
-             noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs (joined by '+')"
+             noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs (joined by '+', each on one \
+             map alone after '@')"
         ))
     };
     let integer = |digits: &str, range: std::ops::RangeInclusive<u16>, why: &str| {

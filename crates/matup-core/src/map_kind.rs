@@ -116,6 +116,30 @@ impl MapKind {
             MapKind::AnisotropyAngle => "anisotropyAngle",
         }
     }
+
+    /// The kind whose [`MapKind::file_stem`] is `stem`.
+    pub fn from_file_stem(stem: &str) -> Option<MapKind> {
+        MapKind::ALL
+            .into_iter()
+            .find(|kind| kind.file_stem() == stem)
+    }
+}
+
+/// Settings name a map by its file stem (`baseColor`, `normal`, …).
+impl serde::Serialize for MapKind {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.file_stem())
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for MapKind {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let stem = String::deserialize(d)?;
+        MapKind::from_file_stem(&stem).ok_or_else(|| {
+            let stems: Vec<&str> = MapKind::ALL.iter().map(|k| k.file_stem()).collect();
+            serde::de::Error::custom(format!("no map '{stem}'; maps: {}", stems.join(", ")))
+        })
+    }
 }
 
 impl fmt::Display for MapKind {

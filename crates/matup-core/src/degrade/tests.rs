@@ -262,6 +262,18 @@ fn named_degradations_parse_and_reach_every_stored_map() {
             }
         ]
     );
+    // A step on some maps alone: the others skip it.
+    let d: MaterialDegradation = "noise2+jpeg75@baseColor+jpeg75@roughness".parse().unwrap();
+    let noise = Degradation::GaussianNoise { sigma: 2.0 };
+    let jpeg = Degradation::Jpeg {
+        quality: 75,
+        subsampling: Subsampling::Half,
+    };
+    assert_eq!(d.for_kind(MapKind::BaseColor), vec![noise, jpeg]);
+    assert_eq!(d.for_kind(MapKind::Roughness), vec![noise, jpeg]);
+    assert_eq!(d.for_kind(MapKind::Normal), vec![noise]);
+    let bad_map = "jpeg75@albedo".parse::<MaterialDegradation>().unwrap_err();
+    assert!(bad_map.to_string().contains("no map 'albedo'"), "{bad_map}");
     for bad in ["jpeg0", "jpeg101", "noise-1", "dither1", "bc7", ""] {
         let message = bad.parse::<MaterialDegradation>().unwrap_err().to_string();
         assert!(message.contains(&format!("'{bad}'")), "{message}");
@@ -292,6 +304,12 @@ fn lossy_storage_is_marked_as_a_lossy_file_would_be() {
         "no height map: {jpeg:?}"
     );
     assert_eq!(jpeg[&MapKind::BaseColor], "JPEG (simulated: noise2+jpeg75)");
+    let colour_alone = marked("jpeg75@baseColor");
+    assert_eq!(
+        colour_alone.keys().collect::<Vec<_>>(),
+        [&MapKind::BaseColor],
+        "{colour_alone:?}"
+    );
     let dds = marked("dds");
     assert_eq!(dds[&MapKind::Normal], "BC5 blocks (simulated: dds)");
     assert_eq!(dds[&MapKind::Roughness], "BC4 blocks (simulated: dds)");
