@@ -8,7 +8,7 @@
 //! (e.g. `256 onnx:span_x4_ch48 tests/data/materials/ambientcg_Metal053C`).
 
 use matup::config::{FilterConfig, ResidualBase};
-use matup::per_map::upscale_per_map;
+use matup::per_map::{upscale_per_map, MapUpsamplers};
 use matup::pipeline::{detect_tileable, features};
 use matup::residual::residual_base;
 use matup::targets::{base_renders, DetailBase};
@@ -106,7 +106,7 @@ fn main() -> matup::Result<()> {
                 back_project: true,
                 ..Default::default()
             },
-            s.as_ref(),
+            &MapUpsamplers::one(s.as_ref()),
             SCALE,
             border,
         )?;

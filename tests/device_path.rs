@@ -202,6 +202,60 @@ fn the_clamp_brought_back_smoothly_is_the_same_on_the_device_and_in_bands() {
     assert!(device <= 1e-6, "{device}");
 }
 
+/// Maps routed apart, as a model's JPEG colour beside a block-compressed normal map and
+/// lossless grey maps runs them: the colour projected onto its low frequencies, the normal map
+/// left as the upsampler made it, roughness and metallic projected exactly. Each map comes out
+/// as the run that treats every map its way makes it, and the device and bands (their context
+/// covering the low-pass blur's reach) give the host's whole maps.
+#[test]
+fn maps_routed_apart_are_each_projected_as_their_route_says_on_the_device_and_in_bands() {
+    let lr = material(128);
+    // A JPEG colour's blur is σ 16; σ 4 keeps bands of a small material within its reach.
+    let mut apart = Config::default();
+    apart.filter.projection_blur = 4.0;
+    apart.filter.unprojected_maps = vec![MapKind::Normal];
+    let mut low_pass = Config::default();
+    low_pass.filter.projection_blur = 4.0;
+    let mut unprojected = Config::default();
+    unprojected.filter.back_project = false;
+    let host = |config: &Config, limit| run_with(&lr, false, 4, true, limit, config.clone());
+    let whole = host(&apart, None);
+    let close = |a: &Map, b: &Map, what: &str, within: f32| {
+        let worst = common::max_abs_diff(a, b);
+        println!("{what}: {worst:.1e}");
+        assert!(worst <= within, "{what}: {worst}");
+    };
+    let (colour, exact) = (host(&low_pass, None), host(&Config::default(), None));
+    close(
+        &whole.base_color,
+        &colour.base_color,
+        "colour, as a low-pass run's",
+        0.0,
+    );
+    close(
+        &whole.normal,
+        &host(&unprojected, None).normal,
+        "normal, unprojected",
+        0.0,
+    );
+    for (kind, a, b) in [
+        ("roughness", &whole.roughness, &exact.roughness),
+        ("metallic", &whole.metallic, &exact.metallic),
+    ] {
+        close(a, b, &format!("{kind}, projected exactly"), 0.0);
+    }
+    // The normal map was moved by projection where it is projected.
+    assert!(common::max_abs_diff(&whole.normal, &exact.normal) > 1e-3);
+    let limit = Some(24 << 20);
+    let banded = host(&apart, limit);
+    let on_device = run_with(&lr, true, 4, true, limit, apart.clone());
+    assert_eq!(HOST_CALLS_ON_DEVICE.load(Ordering::SeqCst), 0);
+    for ((a, b), c) in whole.maps().zip(banded.maps()).zip(on_device.maps()) {
+        close(a, b, "bands", 1e-5);
+        close(b, c, "device", 1e-6);
+    }
+}
+
 /// `m` (no height) as a Unity HDRP folder in `dir`: an RGBA base map whose alpha varies, an
 /// OpenGL normal map, and a 16-bit mask map (metallic, occlusion, detail mask, smoothness =
 /// 1 − roughness). So one file holds maps made on the device beside ones carried on the host,

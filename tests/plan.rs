@@ -120,33 +120,125 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
         };
         Plan::new(m, &settings).unwrap()
     };
-    // As the files say: JPEG maps through the network for JPEG, projected onto the input's
-    // low frequencies alone.
+    use InputQuality::{Clean, Degraded, Jpeg};
+    let apart = |p: &Plan| -> Vec<(MapKind, String)> {
+        (p.setup.apart.iter())
+            .map(|apart| (apart.kind, apart.name.clone()))
+            .collect()
+    };
+    let each = |names: &[(MapKind, &str)]| -> Vec<(MapKind, String)> {
+        names.iter().map(|&(k, n)| (k, n.to_string())).collect()
+    };
+    // As the files say, map by map: a JPEG base colour through the network for JPEG, projected
+    // onto the input's low frequencies alone; the lossless maps beside it as in a clean
+    // material, through the material network, projected exactly.
     let auto = plan(&jpeg, InputQuality::Auto);
-    assert_eq!(auto.input.quality, InputQuality::Jpeg);
+    assert_eq!(auto.input.quality, Jpeg);
+    assert_eq!(
+        auto.input.maps,
+        [
+            (MapKind::BaseColor, Jpeg),
+            (MapKind::Metallic, Clean),
+            (MapKind::Normal, Clean),
+            (MapKind::Roughness, Clean)
+        ]
+    );
     assert!(auto.input.degraded() && !auto.input.given);
     assert_eq!(auto.setup.upsampler_name, JPEG_NETWORK);
-    assert!(auto.setup.settings.filter.back_project);
     assert_eq!(
-        auto.setup.settings.filter.projection_blur,
-        JPEG_PROJECTION_BLUR
+        apart(&auto),
+        each(&[
+            (MapKind::Normal, MATERIAL_NETWORK),
+            (MapKind::Roughness, MATERIAL_NETWORK),
+            (MapKind::Metallic, MATERIAL_NETWORK)
+        ])
     );
-    assert_eq!(auto.setup.settings.input_quality, InputQuality::Jpeg);
+    let filter = &auto.setup.settings.filter;
+    assert!(filter.back_project && filter.unprojected_maps.is_empty());
+    assert_eq!(filter.projection_blur, JPEG_PROJECTION_BLUR);
+    assert_eq!(auto.setup.settings.input_quality, Jpeg);
+    assert_eq!(
+        auto.setup.upsamplers_used(),
+        format!("{JPEG_NETWORK}; normal, roughness, metallic: {MATERIAL_NETWORK}")
+    );
     let why = auto.input.describe();
-    assert!(why.contains("input: JPEG"), "{why}");
+    assert!(
+        why.contains("input: JPEG base colour: the base colour projected"),
+        "{why}"
+    );
+    assert!(
+        why.contains("; clean metallic, normal, roughness: projected exactly"),
+        "{why}"
+    );
     assert!(why.contains("base colour from JPEG (albedo.jpg)"), "{why}");
     assert!(why.contains("--input-quality clean"), "{why}");
-    // Blocks, alone or beside a JPEG: the network for degraded maps, unprojected.
-    for lossy in [&blocks, &both] {
-        let p = plan(lossy, InputQuality::Auto);
-        assert_eq!(p.input.quality, InputQuality::Degraded);
-        assert_eq!(p.setup.upsampler_name, DEGRADED_NETWORK);
-        assert!(!p.setup.settings.filter.back_project);
-        assert!(p
-            .input
-            .describe()
-            .contains("normal from BC1 blocks (normal.dds)"));
+    // Every map a JPEG (DamagedHelmet): one network; the maps but the colour unprojected.
+    let mut all_jpeg = clean.clone();
+    for kind in [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+    ] {
+        (all_jpeg.lossy).insert(kind, "JPEG (model.glb)".into());
     }
+    let p = plan(&all_jpeg, InputQuality::Auto);
+    assert!(apart(&p).is_empty());
+    assert_eq!(
+        p.setup.settings.filter.unprojected_maps,
+        [MapKind::Metallic, MapKind::Normal, MapKind::Roughness]
+    );
+    assert!(p
+        .input
+        .describe()
+        .starts_with("input: JPEG: the base colour projected"));
+    // Blocks: the network for degraded maps, unprojected, the others as clean maps; beside a
+    // JPEG colour, that colour as a JPEG.
+    let p = plan(&blocks, InputQuality::Auto);
+    assert_eq!(p.input.quality, Degraded);
+    assert_eq!(p.setup.upsampler_name, DEGRADED_NETWORK);
+    assert_eq!(p.setup.settings.filter.unprojected_maps, [MapKind::Normal]);
+    assert_eq!(apart(&p).len(), 3);
+    assert!(p
+        .input
+        .describe()
+        .contains("normal from BC1 blocks (normal.dds)"));
+    let p = plan(&both, InputQuality::Auto);
+    assert_eq!(p.input.quality, Degraded);
+    assert_eq!(
+        apart(&p),
+        each(&[
+            (MapKind::BaseColor, JPEG_NETWORK),
+            (MapKind::Roughness, MATERIAL_NETWORK),
+            (MapKind::Metallic, MATERIAL_NETWORK)
+        ])
+    );
+    let filter = &p.setup.settings.filter;
+    assert_eq!(filter.unprojected_maps, [MapKind::Normal]);
+    assert_eq!(filter.projection_blur, JPEG_PROJECTION_BLUR);
+    // Every map in blocks: nothing projected at all.
+    let mut game = clean.clone();
+    for kind in [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+    ] {
+        (game.lossy).insert(kind, "BC1 blocks (game.dds)".into());
+    }
+    let p = plan(&game, InputQuality::Auto);
+    assert!(apart(&p).is_empty());
+    assert!(!p.setup.settings.filter.back_project);
+    // A map's word by hand, the others as their files say.
+    let normal_degraded = Config {
+        map_input_quality: [(MapKind::Normal, Degraded)].into(),
+        ..Config::default()
+    };
+    let p = Plan::new(&jpeg, &normal_degraded).unwrap();
+    assert_eq!(p.input.quality, Degraded);
+    assert_eq!(p.setup.upsampler_name, DEGRADED_NETWORK);
+    assert!(!p.input.given);
+    assert_eq!(p.input.lossy, ["base colour from JPEG (albedo.jpg)"]);
     let plain = plan(&clean, InputQuality::Auto);
     assert!(!plain.input.degraded());
     assert_eq!(plain.setup.upsampler_name, MATERIAL_NETWORK);
@@ -192,7 +284,8 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     };
     let p = Plan::new(&blocks, &named).unwrap();
     assert_eq!(p.setup.upsampler_name, "lanczos3");
-    assert!(!p.setup.settings.filter.back_project);
+    assert!(apart(&p).is_empty());
+    assert_eq!(p.setup.settings.filter.unprojected_maps, [MapKind::Normal]);
     // The decided route is part of the settings reported, and reads back from TOML.
     for (material, word) in [(&jpeg, "jpeg"), (&blocks, "degraded")] {
         let reported = plan(material, InputQuality::Auto).reported_settings();
@@ -205,5 +298,7 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
             toml.contains(&format!("input_quality = \"{word}\"")),
             "{toml}"
         );
+        assert!(toml.contains("[map_input_quality]"), "{toml}");
+        assert!(toml.contains("metallic = \"clean\""), "{toml}");
     }
 }

@@ -69,12 +69,13 @@ pub struct SettingsArgs {
     /// (onnx:span_x4_ch48), where it applies, else lanczos3.
     #[arg(long)]
     pub upsampler: Option<String>,
-    /// Whether the input maps are clean or degraded: auto (JPEG where every lossily stored map
-    /// was a JPEG, by its file or its texels; degraded where one is a lossy WebP or BC1–BC5
-    /// blocks), clean, jpeg, or degraded (noisy scans, maps once compressed and saved again
-    /// losslessly). Degraded maps run the network trained on degraded inputs and are not
-    /// back-projected; JPEG maps run the one trained on JPEG inputs, projected onto the
-    /// input's low frequencies alone.
+    /// Whether the input maps are clean or degraded: auto (each map by its storage: JPEG by
+    /// its file or its texels, degraded where a lossy WebP or BC1–BC5 blocks, clean
+    /// otherwise), or every map clean, jpeg, or degraded (noisy scans, maps once compressed
+    /// and saved again losslessly). Degraded maps run the network trained on degraded inputs
+    /// and are not back-projected; JPEG maps run the one trained on JPEG inputs, a JPEG base
+    /// colour projected onto the input's low frequencies alone; clean maps beside them run as
+    /// in a clean material. A settings file's [map_input_quality] decides map by map.
     #[arg(long, value_name = "auto|clean|jpeg|degraded")]
     pub input_quality: Option<InputQuality>,
     /// Shading model (see `matup list`).

@@ -439,10 +439,15 @@ pub fn shrink_matrix(from: usize, to: usize, how: Shrink, border: Border) -> Vec
     matrix
 }
 
+/// How far [`gaussian_blur`] and [`guided_blur`] of `sigma` reach each side: 3σ, in texels.
+pub fn gaussian_radius(sigma: f32) -> usize {
+    (3.0 * sigma).ceil() as usize
+}
+
 /// A Gaussian of `sigma` truncated at 3σ each side: its radius and its taps from −radius to
 /// radius, not normalised.
 fn gaussian_taps(sigma: f32) -> (isize, Vec<f32>) {
-    let radius = (3.0 * sigma).ceil() as isize;
+    let radius = gaussian_radius(sigma) as isize;
     let taps = (-radius..=radius)
         .map(|k| (-(k * k) as f32 / (2.0 * sigma * sigma)).exp())
         .collect();

@@ -22,6 +22,7 @@ use matup_learn::train::{centre, one_pass_defaults, shipped_maps};
 use matup_learn::{train, LearnConfig};
 use matup_method::config::{FilterConfig, ResidualBase};
 use matup_method::filter::decode::shading_params;
+use matup_method::per_map::MapUpsamplers;
 use matup_method::residual::residual_base;
 use matup_shading as _;
 use matup_upsamplers::onnx::{EngineChoice, OnnxUpsampler};
@@ -112,7 +113,14 @@ fn shipped_against_matup(scale: usize) -> (f32, f32) {
     let executor = serving_smaller_scales(Box::new(
         OnnxUpsampler::load(&model, EngineChoice::Matup).unwrap(),
     ));
-    let shipped = residual_base(&lr, &config, executor.as_ref(), scale, Border::Mirror).unwrap();
+    let shipped = residual_base(
+        &lr,
+        &config,
+        &MapUpsamplers::one(executor.as_ref()),
+        scale,
+        Border::Mirror,
+    )
+    .unwrap();
     let shipped = Tensor::from_vec(shipped.into_data(), ours.dims(), &device).unwrap();
     let difference = |margin: usize| -> f32 {
         let d = (centre(&ours.unsqueeze(0).unwrap(), margin).unwrap()
@@ -186,7 +194,14 @@ fn the_training_pipeline_computes_what_matup_upscale_ships() {
         clamp_chroma: false,
         ..FilterConfig::default()
     };
-    let shipped = residual_base(&lr, &config, &Lanczos, 4, Border::Mirror).unwrap();
+    let shipped = residual_base(
+        &lr,
+        &config,
+        &MapUpsamplers::one(&Lanczos),
+        4,
+        Border::Mirror,
+    )
+    .unwrap();
 
     // The same in candle, from the same upsampled images.
     let inputs = network_inputs(&[&lr], &device).unwrap();

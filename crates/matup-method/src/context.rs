@@ -5,10 +5,11 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use crate::config::Config;
+use crate::per_map::MapUpsamplers;
 use matup_core::candle_core::{Device, Tensor};
 use matup_core::lights::Light;
 use matup_core::map::Map;
-use matup_core::material::Material;
+use matup_core::material::{MapKind, Material};
 use matup_core::progress::Progress;
 use matup_core::resample::Border;
 use matup_core::shading::ShadingModel;
@@ -36,12 +37,24 @@ pub(crate) struct Context<'a> {
     pub(crate) config: &'a Config,
     pub(crate) model: Arc<dyn ShadingModel>,
     pub(crate) upsampler: &'a (dyn RgbUpsampler + 'a),
-    /// The upsampler's name, as the run reports it.
+    /// The maps routed apart whose upsampler is another (`crate::plan::Setup::apart`).
+    pub(crate) apart: Vec<(MapKind, &'a (dyn RgbUpsampler + 'a))>,
+    /// The upsamplers' names, as the run reports them.
     pub(crate) upsampler_name: &'a str,
     pub(crate) lights: Vec<Light>,
     pub(crate) border: Border,
     pub(crate) options: &'a RunOptions,
     pub(crate) progress: &'a dyn Progress,
+}
+
+impl<'a> Context<'a> {
+    /// The upsampler of each map.
+    pub(crate) fn map_upsamplers(&self) -> MapUpsamplers<'a> {
+        MapUpsamplers {
+            run: self.upsampler,
+            apart: self.apart.clone(),
+        }
+    }
 }
 
 /// The run's upsampler, stopping the run where the caller asks ([`Progress::cancelled`]):

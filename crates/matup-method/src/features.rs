@@ -36,24 +36,33 @@ pub const FEATURE_MAPS: [MapKind; 4] = [
     MapKind::Roughness,
 ];
 
-/// Writes the features that come from `map`, a map of `kind`, into `features`: base colour
-/// into 0–2, metallic into 3, normal x and y into 4 and 5, roughness as alpha (r², down to 0:
-/// the shading models clamp it where they render) into 6; maps of other kinds hold no feature.
+/// The features that come from a map of `kind`: base colour 0–2, metallic 3, normal x and y
+/// 4 and 5, roughness as alpha 6; none for maps of other kinds.
+pub fn feature_range(kind: MapKind) -> Option<std::ops::Range<usize>> {
+    match kind {
+        MapKind::BaseColor => Some(0..3),
+        MapKind::Metallic => Some(3..4),
+        MapKind::Normal => Some(4..6),
+        MapKind::Roughness => Some(ALPHA..ALPHA + 1),
+        _ => None,
+    }
+}
+
+/// Writes the features that come from `map`, a map of `kind`, into `features`
+/// ([`feature_range`]): roughness as alpha (r², down to 0: the shading models clamp it where
+/// they render), the others channel by channel; maps of other kinds hold no feature.
 pub fn pack_features(features: &mut Map, kind: MapKind, map: &Map) {
-    let planes: &[(usize, usize)] = match kind {
-        MapKind::BaseColor => &[(0, 0), (1, 1), (2, 2)],
-        MapKind::Metallic => &[(0, 3)],
-        MapKind::Normal => &[(0, 4), (1, 5)],
-        MapKind::Roughness => {
-            let alpha = features.plane_mut(ALPHA);
-            for (a, &r) in alpha.iter_mut().zip(map.data()) {
-                *a = r * r;
-            }
-            return;
-        }
-        _ => &[],
+    let Some(range) = feature_range(kind) else {
+        return;
     };
-    for &(from, to) in planes {
+    if kind == MapKind::Roughness {
+        let alpha = features.plane_mut(ALPHA);
+        for (a, &r) in alpha.iter_mut().zip(map.data()) {
+            *a = r * r;
+        }
+        return;
+    }
+    for (from, to) in range.enumerate() {
         features.plane_mut(to).copy_from_slice(map.plane(from));
     }
 }

@@ -84,7 +84,7 @@ pub(crate) fn learn_level(
     // holds it whole, whatever the memory limit).
     ctx.progress.stage(&tag("residual base"), 1);
     let base = Arc::new(timed(timings, tag("residual base"), || {
-        residual_base(lr, &config.filter, ctx.upsampler, scale, ctx.border)
+        residual_base(lr, &config.filter, &ctx.map_upsamplers(), scale, ctx.border)
     })?);
     ctx.progress.advance(1, None);
     let (filter, lights, stats) = fit_filter(
@@ -198,8 +198,13 @@ fn fit_filter(
     let cross = if config.train.cross_scale > 0.0 {
         if lr.width() % scale == 0 && lr.height_px() % scale == 0 {
             let lower = lr.box_downsample(scale);
-            let lower_base =
-                residual_base(&lower, &config.filter, ctx.upsampler, scale, ctx.border)?;
+            let lower_base = residual_base(
+                &lower,
+                &config.filter,
+                &ctx.map_upsamplers(),
+                scale,
+                ctx.border,
+            )?;
             Some(Arc::new(Examples::new(
                 &features(&lower),
                 Arc::new(lower_base),

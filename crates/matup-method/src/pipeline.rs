@@ -12,7 +12,7 @@ use crate::bands::{
     ENSEMBLE_BYTES_PER_BAND_TEXEL, ROUTE_BYTES_PER_NATIVE_TEXEL,
 };
 use crate::carried::{describe_carried, upscale_carried, CarriedPlan, CarriedUpsampling};
-use crate::config::{Chain, Config, ResidualBase, Selection};
+use crate::config::{Chain, Config, FilterConfig, ResidualBase, Selection};
 use crate::context::{Context, RunOptions, StopsOnRequest};
 use crate::fit::{
     decoded_maps_on_device, infer_material, learn_level, upsample_anisotropy, TrainedFilter,
@@ -134,7 +134,7 @@ fn run_levels(
     let (setup, selection) = select_candidate(material, plan, options, progress)?;
     let upsampler_used = match options.oracle {
         Some(_) => "oracle (exact renders of the true material)".to_string(),
-        None => setup.upsampler_name.clone(),
+        None => setup.upsamplers_used(),
     };
     if let Some(s) = &selection {
         timings.push(("select".to_string(), s.seconds));
@@ -150,10 +150,19 @@ fn run_levels(
         inner: setup.upsampler.as_ref(),
         progress,
     };
+    let stopping_apart: Vec<(MapKind, StopsOnRequest)> = (setup.apart.iter())
+        .map(|apart| {
+            let inner = apart.upsampler.as_ref();
+            (apart.kind, StopsOnRequest { inner, progress })
+        })
+        .collect();
     let ctx = Context {
         config: &setup.settings,
         model: plan.shading.clone(),
         upsampler: &stopping,
+        apart: (stopping_apart.iter())
+            .map(|(kind, u)| (*kind, u as &dyn RgbUpsampler))
+            .collect(),
         upsampler_name: &upsampler_used,
         lights: plan.lights.clone(),
         border: plan.tiling.border(),
@@ -376,7 +385,7 @@ fn run_level(
         None => single_filter.as_ref().expect("level 1 trained a filter"),
     };
 
-    let context = residual::context(&config.filter, ctx.upsampler)
+    let context = residual::context(&config.filter, &ctx.map_upsamplers())
         + band_margin(scale).div_ceil(scale)
         + if filter.filter.is_some() {
             config.filter.window.div_ceil(2 * scale) + 2
@@ -423,7 +432,7 @@ fn run_level(
     )?;
     // Where the residual base is made on a GPU, a band must also fit a quarter of its free
     // memory: the network's batches take up to half (`onnx`'s `tiles_per_call`).
-    let on_device = residual::device_for(&config.filter, ctx.upsampler);
+    let on_device = residual::device_for(&config.filter, &ctx.map_upsamplers());
     let free = match &on_device {
         Some(device) => matup_core::device_maps::free_memory(device)?,
         None => None,
@@ -484,7 +493,7 @@ fn run_level(
                         residual::residual_base_on_device(
                             lr_band,
                             &config.filter,
-                            ctx.upsampler,
+                            &ctx.map_upsamplers(),
                             device,
                             scale,
                             ctx.border,
@@ -587,7 +596,13 @@ fn host_residual_base(
 ) -> Result<Map> {
     let config = ctx.config;
     let mut base = timed(timings, tag("residual base"), || {
-        upsampled_base(lr_band, &config.filter, ctx.upsampler, scale, ctx.border)
+        upsampled_base(
+            lr_band,
+            &config.filter,
+            &ctx.map_upsamplers(),
+            scale,
+            ctx.border,
+        )
     })?;
     timed(timings, tag("back-projection"), || {
         project_onto_input(&mut base, lr_band, &config.filter, scale, ctx.border);
@@ -630,11 +645,7 @@ fn level_route(ctx: &Context, scale: usize) -> String {
             } else {
                 format!(" on the normal map, {LEFT_OUT} on the others")
             },
-            if filter.back_project {
-                ", back-projected"
-            } else {
-                ""
-            },
+            projection_words(filter),
             if trains { ", then the filter" } else { "" }
         ),
         ResidualBase::Kernel(kernel) => format!(
@@ -646,6 +657,19 @@ fn level_route(ctx: &Context, scale: usize) -> String {
                 String::new()
             }
         ),
+    }
+}
+
+/// Whether the per-map base is back-projected, in words: all of it, all but some maps (those
+/// routed as lossy), or none.
+fn projection_words(filter: &FilterConfig) -> String {
+    let unprojected: Vec<String> = (filter.unprojected_maps.iter())
+        .map(|kind| kind.to_string())
+        .collect();
+    match (filter.back_project, unprojected.is_empty()) {
+        (false, _) => String::new(),
+        (true, true) => ", back-projected".into(),
+        (true, false) => format!(", back-projected but the {}", unprojected.join(", ")),
     }
 }
 

@@ -12,7 +12,7 @@ use crate::features::FEATURE_MAPS;
 use crate::select::candidates;
 use matup_core::jpeg_trace::jpeg_trace;
 use matup_core::lights::Light;
-use matup_core::material::Material;
+use matup_core::material::{MapKind, Material};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
 use matup_core::tileable::decide_tileable;
@@ -50,6 +50,18 @@ pub struct Setup {
     /// The upsampler `settings.upsampler` names, or for `auto` the one chosen.
     pub upsampler: Arc<dyn RgbUpsampler>,
     pub upsampler_name: String,
+    /// With `auto`, the maps routed apart (`settings.map_input_quality`) whose upsampler is
+    /// another.
+    pub apart: Vec<MapUpsampler>,
+}
+
+/// A map routed apart and the upsampler that makes it.
+#[derive(Clone)]
+pub struct MapUpsampler {
+    pub kind: MapKind,
+    /// The upsampler's name, as the run reports it.
+    pub name: String,
+    pub upsampler: Arc<dyn RgbUpsampler>,
 }
 
 /// One ×`scale` level of a run, with the settings as it runs them ([`Config::at_level`]).
@@ -100,16 +112,22 @@ impl Tiling {
 }
 
 /// Whether a run reads its input as clean, as JPEG or as otherwise degraded by lossy storage,
-/// and on what grounds. A degraded input runs [`DEGRADED_NETWORK`] (where the upsampler is
-/// `auto`) and is not back-projected: projection makes the output box-filter back to the
-/// input, which puts its blocks and noise back. A JPEG one runs [`JPEG_NETWORK`], its base
-/// colour brought back to the input's low frequencies alone ([`JPEG_PROJECTION_BLUR`]), its
-/// other maps unprojected (docs/experiments/2026-11-29-degraded-inputs.md).
+/// map by map, and on what grounds. A degraded map runs [`DEGRADED_NETWORK`] (where the
+/// upsampler is `auto`) and is not back-projected: projection makes the output box-filter back
+/// to the input, which puts its blocks and noise back. A JPEG one runs [`JPEG_NETWORK`], a
+/// JPEG base colour brought back to the input's low frequencies alone
+/// ([`JPEG_PROJECTION_BLUR`]), the other JPEG maps unprojected
+/// (docs/experiments/2026-11-29-degraded-inputs.md). A clean map beside them runs as in a
+/// clean material: the material network, projected exactly.
 #[derive(Clone, Debug, PartialEq)]
 pub struct InputRoute {
-    /// What the input is taken to be: clean, JPEG or degraded (never `auto`).
+    /// What the material is taken to be, from its filter's maps: clean where all are, JPEG
+    /// where every lossy one is a JPEG, degraded otherwise (never `auto`).
     pub quality: InputQuality,
-    /// Whether the settings said so (`input_quality`, `--input-quality`); else the files did.
+    /// What each of the filter's maps is taken to be, in feature order (never `auto`).
+    pub maps: Vec<(MapKind, InputQuality)>,
+    /// Whether the settings said so for every map (`input_quality`, `--input-quality`,
+    /// `map_input_quality`); else the files did for some.
     pub given: bool,
     /// The maps stored lossily, each with what its storage was: its file's format
     /// (`Material::lossy`), or a JPEG's grid in its texels (`matup_core::jpeg_trace`).
@@ -123,73 +141,122 @@ pub struct InputRoute {
 pub const JPEG_PROJECTION_BLUR: f32 = 16.0;
 
 impl InputRoute {
-    /// The settings' word, else the material's files', else its texels'.
+    /// Each map by the settings' word for it (`map_input_quality`, else `input_quality`), else
+    /// by its file's, else by its texels'.
     pub fn of(material: &Material, settings: &Config) -> InputRoute {
-        let (quality, given, lossy) = match settings.input_quality {
-            InputQuality::Auto => {
-                let lossy = lossy_maps(material);
-                let quality = if lossy.is_empty() {
-                    InputQuality::Clean
-                } else if lossy.iter().all(|(_, jpeg)| *jpeg) {
-                    InputQuality::Jpeg
-                } else {
-                    InputQuality::Degraded
-                };
-                (
-                    quality,
-                    false,
-                    lossy.into_iter().map(|(what, _)| what).collect(),
-                )
-            }
-            quality => (quality, true, Vec::new()),
+        let stored = lossy_maps(material);
+        let word =
+            |kind| (settings.map_input_quality.get(&kind)).unwrap_or(&settings.input_quality);
+        // A map the material lacks (its stand-in, flat) is none of them: it goes with the
+        // material, not apart.
+        let stand_ins = material.stand_ins();
+        let quality_of = |kind| match *word(kind) {
+            _ if stand_ins.contains(&kind) => None,
+            InputQuality::Auto => Some(match stored.iter().find(|m| m.kind == kind) {
+                None => InputQuality::Clean,
+                Some(m) if m.jpeg => InputQuality::Jpeg,
+                Some(_) => InputQuality::Degraded,
+            }),
+            given => Some(given),
         };
+        let quality = material_quality(FEATURE_MAPS.into_iter().filter_map(quality_of));
+        let maps = (FEATURE_MAPS.into_iter())
+            .map(|kind| (kind, quality_of(kind).unwrap_or(quality)))
+            .collect();
+        let given = FEATURE_MAPS.iter().all(|&k| *word(k) != InputQuality::Auto);
+        let lossy = (stored.into_iter())
+            .filter(|m| word(m.kind) == &InputQuality::Auto)
+            .map(|m| m.what)
+            .collect();
         InputRoute {
             quality,
+            maps,
             given,
             lossy,
         }
     }
 
-    /// Whether the input is read as lossily stored, JPEG or otherwise.
+    /// Whether any map is read as lossily stored, JPEG or otherwise.
     pub fn degraded(&self) -> bool {
         self.quality != InputQuality::Clean
     }
 
-    /// `settings` as this route runs them: `input_quality` decided, a degraded input not
-    /// back-projected, a JPEG one's base colour projected onto its low frequencies.
+    /// `settings` as this route runs them: `input_quality` decided, each map apart from the
+    /// material's in `map_input_quality`, degraded maps and JPEG maps other than the base
+    /// colour not back-projected (none at all where no map is), a JPEG base colour projected
+    /// onto its low frequencies.
     pub fn settings(&self, settings: &Config) -> Config {
         let mut config = settings.clone();
         config.input_quality = self.quality;
-        match self.quality {
-            InputQuality::Degraded => config.filter.back_project = false,
-            InputQuality::Jpeg => config.filter.projection_blur = JPEG_PROJECTION_BLUR,
-            _ => {}
+        config.map_input_quality = (self.maps.iter())
+            .filter(|&&(_, q)| q != self.quality)
+            .copied()
+            .collect();
+        let filter = &mut config.filter;
+        for &(kind, quality) in &self.maps {
+            match (quality, kind) {
+                (InputQuality::Clean, _) => {}
+                (InputQuality::Jpeg, MapKind::BaseColor) => {
+                    filter.projection_blur = JPEG_PROJECTION_BLUR
+                }
+                _ if filter.unprojected_maps.contains(&kind) => {}
+                _ => filter.unprojected_maps.push(kind),
+            }
+        }
+        if FEATURE_MAPS
+            .iter()
+            .all(|k| filter.unprojected_maps.contains(k))
+        {
+            // Nothing projected: the height and the carried maps neither, as before maps
+            // were routed apart.
+            filter.back_project = false;
+            filter.unprojected_maps.clear();
         }
         config
     }
 
     /// The route taken, why, and how to decide otherwise, in words.
     pub fn describe(&self) -> String {
-        let how = match self.quality {
+        let how = |quality| match quality {
             InputQuality::Jpeg => format!(
-                "its base colour projected onto its low frequencies alone (σ \
-                 {JPEG_PROJECTION_BLUR} texels), the other maps not, run by the network for JPEG \
-                 maps where the upsampler is auto"
+                "the base colour projected onto its low frequencies alone (σ \
+                 {JPEG_PROJECTION_BLUR} texels), other JPEG maps not projected, run by the \
+                 network for JPEG maps where the upsampler is auto"
             ),
-            _ => "not back-projected, run by the network for degraded maps where the upsampler \
-                  is auto"
+            InputQuality::Degraded => "not back-projected, run by the network for degraded maps \
+                                       where the upsampler is auto"
+                .to_string(),
+            _ => "projected exactly, run by the material network where the upsampler is auto"
                 .to_string(),
         };
-        let name = match self.quality {
+        let name = |quality| match quality {
             InputQuality::Jpeg => "JPEG",
-            _ => "degraded",
+            InputQuality::Degraded => "degraded",
+            _ => "clean",
+        };
+        // Each quality with its maps, where the maps differ.
+        let mut by_quality: Vec<(InputQuality, Vec<String>)> = Vec::new();
+        for &(kind, quality) in &self.maps {
+            match by_quality.iter_mut().find(|(q, _)| *q == quality) {
+                Some((_, kinds)) => kinds.push(kind.to_string()),
+                None => by_quality.push((quality, vec![kind.to_string()])),
+            }
+        }
+        let given = if self.given { " (as given)" } else { "" };
+        let route = match by_quality.as_slice() {
+            [(InputQuality::Clean, _)] => format!("clean{given}"),
+            [(quality, _)] => format!("{}{given}: {}", name(*quality), how(*quality)),
+            _ => {
+                let each = (by_quality.iter()).map(|(quality, kinds)| {
+                    format!("{} {}: {}", name(*quality), kinds.join(", "), how(*quality))
+                });
+                format!("{}{given}", each.collect::<Vec<_>>().join("; "))
+            }
         };
         match (self.degraded(), self.given) {
-            (true, true) => format!("input: {name} (as given): {how}"),
-            (false, true) => "input: clean (as given)".to_string(),
+            (_, true) => format!("input: {route}"),
             (true, false) => format!(
-                "input: {name}, stored lossily: {}; {how}; --input-quality clean decides \
-                 otherwise",
+                "input: {route}; stored lossily: {}; --input-quality clean decides otherwise",
                 self.lossy.join("; ")
             ),
             (false, false) => "input: clean (no map was stored lossily; --input-quality degraded \
@@ -199,21 +266,47 @@ impl InputRoute {
     }
 }
 
-/// The maps of `material` stored lossily, in words, each with whether it was a JPEG: those its
-/// files' formats say (`Material::lossy`), and those of the features whose texels show a
-/// JPEG's grid.
-fn lossy_maps(material: &Material) -> Vec<(String, bool)> {
-    let by_file = (material.lossy.iter()).map(|(kind, storage)| {
-        let jpeg = FileFormat::is_jpeg_storage(storage);
-        (format!("{kind} from {storage}"), jpeg)
-    });
+/// What a material is taken to be, from its maps' `qualities`: clean where all are, JPEG where
+/// every lossy one is, degraded otherwise.
+fn material_quality(qualities: impl Iterator<Item = InputQuality>) -> InputQuality {
+    let lossy: Vec<InputQuality> = qualities.filter(|&q| q != InputQuality::Clean).collect();
+    if lossy.is_empty() {
+        InputQuality::Clean
+    } else if lossy.iter().all(|&q| q == InputQuality::Jpeg) {
+        InputQuality::Jpeg
+    } else {
+        InputQuality::Degraded
+    }
+}
+
+/// A map of a material stored lossily.
+struct LossyMap {
+    kind: MapKind,
+    /// Its storage, in words.
+    what: String,
+    jpeg: bool,
+}
+
+/// The filter's maps of `material` stored lossily: those its files' formats say
+/// (`Material::lossy`), and those whose texels show a JPEG's grid.
+fn lossy_maps(material: &Material) -> Vec<LossyMap> {
+    let by_file = (material.lossy.iter())
+        .filter(|(kind, _)| FEATURE_MAPS.contains(kind))
+        .map(|(&kind, storage)| LossyMap {
+            kind,
+            what: format!("{kind} from {storage}"),
+            jpeg: FileFormat::is_jpeg_storage(storage),
+        });
     let by_texels = (FEATURE_MAPS.into_iter())
         .filter(|kind| !material.lossy.contains_key(kind))
         .filter_map(|kind| {
             let trace = jpeg_trace(kind, material.map(kind)?)?;
             let [x, y] = trace.offset;
-            let what = format!("{kind} from a JPEG, by its texels (its 8×8 grid at x {x}, y {y})");
-            Some((what, true))
+            Some(LossyMap {
+                kind,
+                what: format!("{kind} from a JPEG, by its texels (its 8×8 grid at x {x}, y {y})"),
+                jpeg: true,
+            })
         });
     by_file.chain(by_texels).collect()
 }
@@ -291,6 +384,7 @@ impl Setup {
     /// The setup of `settings`, already validated and resolved to a scale.
     fn new(settings: Config) -> Result<Setup> {
         let (upsampler_name, upsampler) = choose_upsampler(&settings)?;
+        let apart = upsamplers_apart(&settings, &upsampler_name)?;
         let levels = (levels_of(settings.scale).into_iter().enumerate())
             .map(|(level, scale)| Level {
                 scale,
@@ -302,8 +396,67 @@ impl Setup {
             levels,
             upsampler: Arc::from(upsampler),
             upsampler_name,
+            apart,
         })
     }
+
+    /// The upsamplers that make the maps, in words: the run's, then each other one with the
+    /// maps it makes (`onnx:span_x4_jpeg; normal, metallic: onnx:span_x4_materials`).
+    pub fn upsamplers_used(&self) -> String {
+        let mut words = self.upsampler_name.clone();
+        let mut others: Vec<(&str, Vec<String>)> = Vec::new();
+        for MapUpsampler { kind, name, .. } in &self.apart {
+            match others.iter_mut().find(|(n, _)| n == name) {
+                Some((_, kinds)) => kinds.push(kind.to_string()),
+                None => others.push((name, vec![kind.to_string()])),
+            }
+        }
+        for (name, kinds) in others {
+            words += &format!("; {}: {name}", kinds.join(", "));
+        }
+        words
+    }
+}
+
+/// Where `upsampler` is `auto`, the maps `map_input_quality` routes apart whose choice
+/// ([`choose_upsampler`] for their quality) is not `run_name`'s, each with it, loaded once for
+/// each quality.
+fn upsamplers_apart(settings: &Config, run_name: &str) -> Result<Vec<MapUpsampler>> {
+    let mut apart = Vec::new();
+    if settings.upsampler != "auto" {
+        return Ok(apart);
+    }
+    // Each quality's choice, loaded once.
+    let mut chosen: Vec<(InputQuality, MapUpsampler)> = Vec::new();
+    for (&kind, &quality) in &settings.map_input_quality {
+        if quality == settings.input_quality {
+            continue;
+        }
+        let made = match chosen.iter().find(|(q, _)| *q == quality) {
+            Some((_, made)) => made.clone(),
+            None => {
+                let for_quality = Config {
+                    input_quality: quality,
+                    ..settings.clone()
+                };
+                let (name, upsampler) = choose_upsampler(&for_quality)?;
+                let upsampler = Arc::from(upsampler);
+                chosen.push((
+                    quality,
+                    MapUpsampler {
+                        kind,
+                        name,
+                        upsampler,
+                    },
+                ));
+                chosen.last().expect("just pushed").1.clone()
+            }
+        };
+        if made.name != run_name {
+            apart.push(MapUpsampler { kind, ..made });
+        }
+    }
+    Ok(apart)
 }
 
 /// Refuses settings that cannot run on any material (a bad value, an unknown upsampler or

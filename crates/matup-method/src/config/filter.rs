@@ -5,6 +5,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 use super::values::{Activation, Chroma, Interpolation, ResidualBase};
 use crate::per_map::{EnsembleMaps, MapPasses, SelfEnsemble, UpsampledMaps};
+use matup_core::material::MapKind;
 use matup_core::resample::Kernel;
 
 /// The per-material filter.
@@ -56,13 +57,22 @@ pub struct FilterConfig {
     /// With `back_project`, above 0: bring the base colour back to its input's low
     /// frequencies alone (its mismatch blurred by a Gaussian of this many LR texels, kept to
     /// the input's edges), with the input's chroma and the upsampler's detail past the blur in
-    /// luma alone, and leave the other maps as the upsampler made them; 0 projects every map
-    /// exactly. A JPEG's noise and blocks are its input's high frequencies, while
-    /// its regions' colours hold.
+    /// luma alone; 0 projects it exactly. A JPEG's noise and blocks are its input's high
+    /// frequencies, while its regions' colours hold.
     pub projection_blur: f32,
+    /// With `back_project`: the maps left as the upsampler made them, by file stem
+    /// (`baseColor`, `normal`, `roughness`, `metallic`). The route of lossy maps adds them
+    /// (`crate::plan::InputRoute`): projecting a JPEG's normals or a BC block's colour would
+    /// put its blocks and noise back.
+    pub unprojected_maps: Vec<MapKind>,
 }
 
 impl FilterConfig {
+    /// Whether the residual base's map of `kind` is projected onto its input.
+    pub fn projects(&self, kind: MapKind) -> bool {
+        self.back_project && !self.unprojected_maps.contains(&kind)
+    }
+
     /// How the per-map path runs the upsampler, as these settings ask.
     pub fn map_passes(&self) -> MapPasses {
         MapPasses {
@@ -132,6 +142,7 @@ impl Default for FilterConfig {
             // clean inputs it cost Tiles012 0.34 dB and a partly metallic facade 1.66 dB.
             neighbourhood_margin: NEIGHBOURHOOD_MARGIN,
             projection_blur: 0.0,
+            unprojected_maps: Vec::new(),
         }
     }
 }

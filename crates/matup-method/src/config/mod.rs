@@ -13,9 +13,11 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Deserializer, Serialize};
 
+use crate::features::FEATURE_MAPS;
 pub use crate::per_map::{EnsembleMaps, MapPasses, SelfEnsemble, UpsampledMaps};
 pub use filter::{FilterConfig, NEIGHBOURHOOD_MARGIN};
 pub use lights::LightsConfig;
+use matup_core::material::MapKind;
 use matup_core::resample::Kernel;
 use matup_core::{Error, Result};
 pub(crate) use train::FUSED_ONLY_TERMS;
@@ -80,10 +82,14 @@ pub struct Config {
     /// feature). On a GPU the SR networks run there (the `onnx` upsampler's `device`), and the
     /// filter trains there.
     pub device: String,
-    /// Whether the input maps are clean or degraded by lossy storage (`auto`: as their files
-    /// say): a degraded material runs the network trained on degraded inputs, unprojected
+    /// Whether the input maps are clean or degraded by lossy storage (`auto`: each as its file
+    /// says): a degraded map runs the network trained on degraded inputs, unprojected
     /// (`crate::plan::InputRoute`).
     pub input_quality: InputQuality,
+    /// Per map, in place of `input_quality` (`[map_input_quality]`, maps by file stem:
+    /// `normal = "clean"`): a glTF model's JPEG colour beside its PNG maps routes each apart.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub map_input_quality: BTreeMap<MapKind, InputQuality>,
     /// matup's networks run by other upsamplers: where the run would use `onnx:NAME`, the
     /// spec given for NAME runs instead (the Python package's callables running the same
     /// network through PyTorch on ComfyUI's GPU). The run reports both.
@@ -108,6 +114,7 @@ impl Default for Config {
             train: TrainConfig::default(),
             device: "cpu".into(),
             input_quality: InputQuality::Auto,
+            map_input_quality: BTreeMap::new(),
             networks: BTreeMap::new(),
         }
     }
@@ -210,6 +217,14 @@ impl Config {
             return bad(format!(
                 "filter.projection_blur must be ≥ 0 (LR texels), not {}",
                 f.projection_blur
+            ));
+        }
+        let routed = (self.map_input_quality.keys()).chain(&f.unprojected_maps);
+        if let Some(kind) = routed.into_iter().find(|k| !FEATURE_MAPS.contains(k)) {
+            return bad(format!(
+                "map_input_quality and filter.unprojected_maps name the maps the filter \
+                 reads (baseColor, normal, roughness, metallic), not {}",
+                kind.file_stem()
             ));
         }
         if !self.select_upsamplers.is_empty() && self.select == Selection::Off {

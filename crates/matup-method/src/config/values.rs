@@ -309,9 +309,9 @@ pub enum Selection {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum InputQuality {
-    /// JPEG where every map stored lossily was a JPEG (by its file or its texels), degraded
-    /// where another lossy format was (lossy WebP, BC1–BC5 blocks: `Material::lossy`), clean
-    /// otherwise.
+    /// Map by map: JPEG where the map was stored as a JPEG (by its file or its texels),
+    /// degraded where in another lossy format (lossy WebP, BC1–BC5 blocks: `Material::lossy`),
+    /// clean otherwise.
     Auto,
     /// Clean maps: the material network, its output back-projected onto the input.
     Clean,

@@ -33,7 +33,7 @@ pub fn upscale_per_map(
     out.carried = Default::default();
     upscale_each_map(
         material,
-        upsampler,
+        &MapUpsamplers::one(upsampler),
         scale,
         border,
         MapPasses::ONE,
@@ -45,12 +45,13 @@ pub fn upscale_per_map(
     Ok(out)
 }
 
-/// [`upscale_per_map`] a map at a time, as `passes` says: each map of `material` is upsampled,
-/// decoded and handed to `each` before the next is upsampled, so a caller that packs them
-/// elsewhere never holds all of them at the output size (at 8K² each map is 0.25–0.75 GB).
+/// [`upscale_per_map`] a map at a time, each map by its upsampler, as `passes` says: each map
+/// of `material` is upsampled, decoded and handed to `each` before the next is upsampled, so a
+/// caller that packs them elsewhere never holds all of them at the output size (at 8K² each
+/// map is 0.25–0.75 GB).
 pub fn upscale_each_map(
     material: &Material,
-    upsampler: &dyn RgbUpsampler,
+    upsamplers: &MapUpsamplers,
     scale: usize,
     border: Border,
     passes: MapPasses,
@@ -60,12 +61,46 @@ pub fn upscale_each_map(
         let Some(map) = material.map(kind) else {
             continue;
         };
+        let upsampler = upsamplers.of(kind);
         each(
             kind,
             upscale_one_map(kind, map, upsampler, scale, border, passes)?,
         )?;
     }
     Ok(())
+}
+
+/// The upsampler of each map of a material: the run's, but for the maps routed apart, their
+/// own (`crate::plan::InputRoute`: a model's JPEG colour runs the network for JPEG maps, its
+/// PNG normal map the material network).
+#[derive(Clone)]
+pub struct MapUpsamplers<'a> {
+    /// Every map's but those routed apart.
+    pub run: &'a dyn RgbUpsampler,
+    /// The maps routed apart, each with its upsampler.
+    pub apart: Vec<(MapKind, &'a dyn RgbUpsampler)>,
+}
+
+impl<'a> MapUpsamplers<'a> {
+    /// `upsampler` for every map.
+    pub fn one(upsampler: &'a dyn RgbUpsampler) -> Self {
+        MapUpsamplers {
+            run: upsampler,
+            apart: Vec::new(),
+        }
+    }
+
+    /// The upsampler of a map of `kind`.
+    pub fn of(&self, kind: MapKind) -> &'a dyn RgbUpsampler {
+        (self.apart.iter())
+            .find(|(k, _)| *k == kind)
+            .map_or(self.run, |(_, u)| *u)
+    }
+
+    /// Every upsampler, the run's first.
+    pub fn all(&self) -> impl Iterator<Item = &'a dyn RgbUpsampler> + '_ {
+        std::iter::once(self.run).chain(self.apart.iter().map(|(_, u)| *u))
+    }
 }
 
 /// One map of `kind` upsampled as [`upscale_each_map`] upsamples it.

@@ -70,7 +70,7 @@ fn a_self_ensemble_turns_the_maps_back_so_a_symmetric_upsampler_gives_its_one_pa
         };
         upscale_each_map(
             &m,
-            &Bilinear,
+            &MapUpsamplers::one(&Bilinear),
             4,
             Border::Wrap,
             MapPasses {
@@ -107,7 +107,7 @@ fn a_self_ensemble_of_two_is_the_half_turn_and_cancels_a_shift() {
         };
         upscale_each_map(
             &m,
-            &Shifted,
+            &MapUpsamplers::one(&Shifted),
             4,
             Border::Wrap,
             MapPasses {
@@ -167,7 +167,8 @@ fn the_network_upsamples_every_map_by_default_or_the_normals_alone() {
             ensemble: SelfEnsemble::NONE,
             upsampled,
         };
-        upscale_each_map(&m, &network, scale, Border::Wrap, passes, |k, map| {
+        let upsamplers = MapUpsamplers::one(&network);
+        upscale_each_map(&m, &upsamplers, scale, Border::Wrap, passes, |k, map| {
             maps.push((k, map));
             Ok(())
         })

@@ -11,17 +11,17 @@ use crate::chroma::{
     chroma_bounds_on_device, clamp_chroma_on_device, clamp_chroma_to_input, luma, with_chroma_of,
 };
 use crate::config::{Chroma, FilterConfig, ResidualBase};
-use crate::features::{features, pack_features};
+use crate::features::{feature_range, features, pack_features, FEATURE_MAPS};
 use crate::features::{ALPHA, FEATURES};
-use crate::per_map::{upscale_each_map, upscale_one_map_on_device};
+use crate::per_map::{upscale_each_map, upscale_one_map_on_device, MapUpsamplers};
 use matup_core::candle_core::{self, DType, Device, Tensor};
 use matup_core::color::{linear_to_srgb, srgb_to_linear};
 use matup_core::device_maps::{self, Separable};
 use matup_core::map::Map;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::{
-    box_downsample_channels, for_each_upsampled_row, guided_blur, lr_texel, neighbourhood_ranges,
-    rows_per_task, upsample, Border, Kernel,
+    box_downsample_channels, for_each_upsampled_row, gaussian_radius, guided_blur, lr_texel,
+    neighbourhood_ranges, rows_per_task, upsample, Border, Kernel,
 };
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
@@ -43,15 +43,15 @@ const LATER_CLAMPS: usize = 2;
 pub fn residual_base(
     lr: &Material,
     config: &FilterConfig,
-    upsampler: &dyn RgbUpsampler,
+    upsamplers: &MapUpsamplers,
     scale: usize,
     border: Border,
 ) -> Result<Map> {
-    if let Some(device) = device_for(config, upsampler) {
-        let base = residual_base_on_device(lr, config, upsampler, &device, scale, border)?;
+    if let Some(device) = device_for(config, upsamplers) {
+        let base = residual_base_on_device(lr, config, upsamplers, &device, scale, border)?;
         return Ok(device_maps::download(&base)?);
     }
-    let mut base = upsampled_base(lr, config, upsampler, scale, border)?;
+    let mut base = upsampled_base(lr, config, upsamplers, scale, border)?;
     project_onto_input(&mut base, lr, config, scale, border);
     Ok(base)
 }
@@ -70,9 +70,11 @@ pub fn project_onto_input(
     }
     let lr_features = features(lr);
     let margin = config.neighbourhood_margin;
+    let projected = projected_features(config);
+    let colour_projected = config.projects(MapKind::BaseColor);
     // What the projections bring the base back to: the input, or (`projection_blur`) for the
-    // base colour its low frequencies, the other features left unprojected.
-    let low_pass = config.projection_blur > 0.0;
+    // base colour its low frequencies.
+    let low_pass = colour_projected && config.projection_blur > 0.0;
     let target = if low_pass {
         let seen = box_downsample_channels(base, scale, 0..3);
         Cow::Owned(projection_target(
@@ -84,13 +86,7 @@ pub fn project_onto_input(
     } else {
         Cow::Borrowed(&lr_features)
     };
-    if config.back_project {
-        if low_pass {
-            back_project_channels(base, &target, scale, border, 0..3, stored_range);
-        } else {
-            back_project(base, &target, scale, border, margin);
-        }
-    }
+    back_project(base, &target, scale, border, margin, &projected);
     if config.clamp_chroma {
         // The base colour is the features' first three channels, linear.
         let near = NearInput::new(&lr_features, 0..3, border, margin, Encoding::Srgb);
@@ -99,7 +95,7 @@ pub fn project_onto_input(
             near.keep(base, scale, lr_features.width());
         };
         clamp(base);
-        if config.back_project {
+        if colour_projected {
             // The clamp moves colours off their input, and bringing them back moves a few hues
             // out of their range: each twice more, the later moves far smaller, ending settled.
             // So no hue and no mean is left off on the sample and the exporters' test
@@ -247,10 +243,13 @@ impl NearInput {
 /// The device to make the residual base on: the upsampler's, where it leaves its outputs on
 /// one (a GPU's network) and the base is the per-map one, its colour's chroma its own.
 /// `None`: the host's path.
-pub fn device_for(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> Option<Device> {
+pub fn device_for(config: &FilterConfig, upsamplers: &MapUpsamplers) -> Option<Device> {
     let per_map = config.residual_base == ResidualBase::Upsampler
         && config.base_color_chroma == Chroma::Upsampler;
-    per_map.then(|| upsampler.device()).flatten()
+    let device = per_map.then(|| upsamplers.run.device()).flatten()?;
+    // Every map's upsampler there, or the host's path for all.
+    let same = |u: &dyn RgbUpsampler| u.device().is_some_and(|d| d.same_device(&device));
+    upsamplers.all().all(same).then_some(device)
 }
 
 /// [`residual_base`] on `device`, where [`device_for`] names one: each map upsampled, decoded
@@ -259,7 +258,7 @@ pub fn device_for(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> Option
 pub fn residual_base_on_device(
     lr: &Material,
     config: &FilterConfig,
-    upsampler: &dyn RgbUpsampler,
+    upsamplers: &MapUpsamplers,
     device: &Device,
     scale: usize,
     border: Border,
@@ -269,7 +268,7 @@ pub fn residual_base_on_device(
         upscale_one_map_on_device(
             kind,
             map,
-            upsampler,
+            upsamplers.of(kind),
             device,
             scale,
             border,
@@ -300,8 +299,10 @@ fn project_on_device(
     }
     let lr_features = features(lr);
     let device = base.device().clone();
+    let projected = projected_features(config);
+    let colour_projected = config.projects(MapKind::BaseColor);
     // What the projections bring the base back to, as on the host (`project_onto_input`).
-    let low_pass = config.projection_blur > 0.0;
+    let low_pass = colour_projected && config.projection_blur > 0.0;
     let target = if low_pass {
         let n = (scale * scale) as f64;
         let sums = device_maps::block_sums(&base.narrow(0, 0, 3)?, scale)?;
@@ -324,47 +325,46 @@ fn project_on_device(
         Ok([ends(|r| r.0)?, ends(|r| r.1)?])
     };
     let mut base = base;
-    if config.back_project && low_pass {
-        // The base colour alone, onto its low frequencies; the rest as the upsampler made it.
-        let colour = back_project_on_device(
-            &base.narrow(0, 0, 3)?,
-            &lr_on_device.narrow(0, 0, 3)?,
-            scale,
-            border,
-            &ranges(0..3)?,
-        )?;
-        base = Tensor::cat(&[&colour, &base.narrow(0, 3, FEATURES - 3)?], 0)?;
-    } else if config.back_project {
-        // As stored: alpha as the roughness r (see `back_project`).
+    if !projected.is_empty() {
+        // As stored: alpha as the roughness r (see `back_project`); each map's features
+        // projected or left as they are.
         let as_stored = |t: &Tensor| -> candle_core::Result<Tensor> {
             Tensor::cat(&[t.narrow(0, 0, ALPHA)?, t.narrow(0, ALPHA, 1)?.sqrt()?], 0)
         };
         let lr = as_stored(&lr_on_device)?;
-        let mut hr = back_project_on_device(
-            &as_stored(&base)?,
-            &lr,
-            scale,
-            border,
-            &ranges(0..FEATURES)?,
-        )?;
+        let hr = as_stored(&base)?;
+        let mut lr_stored = target.clone().into_owned();
+        alpha_as_stored(&mut lr_stored);
         let margin = config.neighbourhood_margin;
-        if margin < 1.0 {
-            // As `back_project` keeps the grey features near their input.
-            let mut lr_stored = target.clone().into_owned();
-            alpha_as_stored(&mut lr_stored);
-            for grey in GREY_FEATURES {
-                let near =
-                    NearInput::new(&lr_stored, grey.clone(), border, margin, Encoding::Linear);
+        let mut parts = Vec::new();
+        for kind in FEATURE_MAPS {
+            let features = feature_range(kind).expect("a feature map");
+            let part = hr.narrow(0, features.start, features.len())?;
+            if !projected.contains(&features) {
+                parts.push(part);
+                continue;
+            }
+            let lr_part = lr.narrow(0, features.start, features.len())?;
+            let mut part =
+                back_project_on_device(&part, &lr_part, scale, border, &ranges(features.clone())?)?;
+            if GREY_FEATURES.contains(&features) && margin < 1.0 {
+                // As `back_project` keeps the grey features near their input.
+                let near = NearInput::new(
+                    &lr_stored,
+                    features.clone(),
+                    border,
+                    margin,
+                    Encoding::Linear,
+                );
                 if let Some(ends) = near.on_device(&lr_stored, scale, &device)? {
-                    let c = grey.start;
-                    let kept = (hr.narrow(0, c, 1)?).maximum(&ends[0])?.minimum(&ends[1])?;
-                    let settled =
-                        settle_blocks_on_device(&kept, &lr.narrow(0, c, 1)?, scale, &ends)?;
-                    let (_, h, w) = hr.dims3()?;
-                    hr = hr.slice_assign(&[c..c + 1, 0..h, 0..w], &settled)?;
+                    let kept = part.maximum(&ends[0])?.minimum(&ends[1])?;
+                    part = settle_blocks_on_device(&kept, &lr_part, scale, &ends)?;
                 }
             }
+            parts.push(part);
         }
+        // In feature order: colour, metallic, normal, alpha (`FEATURE_MAPS`).
+        let hr = Tensor::cat(&parts, 0)?;
         base = Tensor::cat(
             &[hr.narrow(0, 0, ALPHA)?, hr.narrow(0, ALPHA, 1)?.sqr()?],
             0,
@@ -381,7 +381,7 @@ fn project_on_device(
             None => Ok(colour),
         };
         let mut colour = keep(clamp_chroma_on_device(&base.narrow(0, 0, 3)?, &bounds)?)?;
-        if config.back_project {
+        if colour_projected {
             // As `project_onto_input` brings them back and clamps them, and why.
             let lr_colour = lr_on_device.narrow(0, 0, 3)?;
             let range = ranges(0..3)?;
@@ -451,19 +451,24 @@ fn settle_blocks_on_device(
 }
 
 /// LR texels of context around a region that change its residual base: the upsampler's (or
-/// the kernel's) own, and two per round of back-projection (a box cell, then a bilinear
-/// spread over the neighbouring cells).
-pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
+/// the kernel's) own, the low-pass projection's blur (its target's colour reads that far),
+/// and two per round of back-projection (a box cell, then a bilinear spread over the
+/// neighbouring cells).
+pub fn context(config: &FilterConfig, upsamplers: &MapUpsamplers) -> usize {
     let upsampled = match config.residual_base {
         ResidualBase::Kernel(kernel) => kernel.radius().ceil() as usize,
-        ResidualBase::Upsampler => upsampler.context(),
+        ResidualBase::Upsampler => (upsamplers.all().map(|u| u.context()).max()).unwrap_or(0),
+    };
+    let low_pass = match config.projects(MapKind::BaseColor) && config.projection_blur > 0.0 {
+        true => gaussian_radius(config.projection_blur),
+        false => 0,
     };
     let projections = match config.back_project {
         false => 0,
         true if config.clamp_chroma && config.clamp_back_project => 1 + LATER_CLAMPS,
         true => 1,
     };
-    upsampled + 2 * BACK_PROJECTIONS * projections
+    upsampled + low_pass + 2 * BACK_PROJECTIONS * projections
 }
 
 /// Iterative back-projection (Irani & Peleg 1991): corrects output-size features `hr` so that
@@ -477,14 +482,27 @@ pub fn context(config: &FilterConfig, upsampler: &dyn RgbUpsampler) -> usize {
 ///
 /// The grey features (metallic, roughness) are then kept within `margin` of their input's
 /// neighbourhoods ([`NearInput`]) and their blocks settled within them; the colour is kept so
-/// with its chroma ([`project_onto_input`]).
-pub fn back_project(hr: &mut Map, lr: &Map, scale: usize, border: Border, margin: f32) {
+/// with its chroma ([`project_onto_input`]). Only the `projected` features are touched, each
+/// feature alone, as back-projection treats every channel.
+pub fn back_project(
+    hr: &mut Map,
+    lr: &Map,
+    scale: usize,
+    border: Border,
+    margin: f32,
+    projected: &[std::ops::Range<usize>],
+) {
+    if projected.is_empty() {
+        return;
+    }
     let mut lr = lr.clone();
     alpha_as_stored(&mut lr);
     alpha_as_stored(hr);
-    back_project_within(hr, &lr, scale, border, stored_range);
+    for features in projected {
+        back_project_channels(hr, &lr, scale, border, features.clone(), stored_range);
+    }
     if margin < 1.0 {
-        for grey in GREY_FEATURES {
+        for grey in GREY_FEATURES.into_iter().filter(|g| projected.contains(g)) {
             let near = NearInput::new(&lr, grey, border, margin, Encoding::Linear);
             near.keep(hr, scale, lr.width());
             near.settle(hr, &lr, scale);
@@ -538,6 +556,15 @@ fn projection_target(seen: &Map, lr: &Map, border: Border, sigma: f32) -> Map {
         }
     }
     target
+}
+
+/// The features of the maps `config` projects ([`FilterConfig::projects`]), map by map in
+/// feature order.
+pub fn projected_features(config: &FilterConfig) -> Vec<std::ops::Range<usize>> {
+    (FEATURE_MAPS.into_iter())
+        .filter(|&kind| config.projects(kind))
+        .filter_map(feature_range)
+        .collect()
 }
 
 /// Features with alpha (r²) as its file stores it, the roughness r.
@@ -721,7 +748,7 @@ fn stored_range(feature: usize) -> (f32, f32) {
 pub fn upsampled_base(
     lr: &Material,
     config: &FilterConfig,
-    upsampler: &dyn RgbUpsampler,
+    upsamplers: &MapUpsamplers,
     scale: usize,
     border: Border,
 ) -> Result<Map> {
@@ -734,7 +761,7 @@ pub fn upsampled_base(
             let mut base = Map::filled(w, h, FEATURES, 0.0);
             upscale_each_map(
                 &feature_maps(lr),
-                upsampler,
+                upsamplers,
                 scale,
                 border,
                 config.map_passes(),

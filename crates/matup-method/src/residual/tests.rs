@@ -109,7 +109,8 @@ fn back_projection_brings_the_box_downsample_back_to_the_input() {
                 / lr.data().len() as f32
         };
         let before = error(&hr);
-        back_project(&mut hr, &lr, 4, border, 1.0);
+        let every = projected_features(&FilterConfig::default());
+        back_project(&mut hr, &lr, 4, border, 1.0, &every);
         let after = error(&hr);
         println!("{border}: mismatch {before:.4} → {after:.4}");
         assert!(before > 0.02, "{border}: {before}");
@@ -205,4 +206,50 @@ fn a_low_pass_projection_keeps_the_input_chroma_and_the_base_detail_in_luma_alon
         (0.005..0.02).contains(&mean_moved),
         "mean detail kept {mean_moved}"
     );
+}
+
+#[test]
+fn a_band_with_the_context_of_a_low_pass_projection_makes_the_whole_runs_rows() {
+    // A noisy colour (a JPEG's noise is high frequencies): its mismatch with a Lanczos base is
+    // blurred over 3σ = 48 LR texels, so a band's colour reads that far.
+    let size = 160;
+    let noise = |i: usize| ((i as u32).wrapping_mul(2_654_435_761) >> 16) as f32 / 65_536.0;
+    let mut lr = Material::uniform(size, [0.4; 3], 0.5, 0.0);
+    lr.base_color = Map::from_fn(size, size, 3, |c, y, x| {
+        0.2 + 0.6 * noise((y * size + x) * 3 + c)
+    });
+    let config = FilterConfig {
+        residual_base: ResidualBase::Kernel(Kernel::Lanczos3),
+        projection_blur: 16.0,
+        ..FilterConfig::default()
+    };
+    // The kernel base needs no upsampler.
+    let lanczos = matup_core::upsample::KernelUpsampler::new(Kernel::Lanczos3);
+    let upsamplers = MapUpsamplers::one(&lanczos);
+    let (scale, border) = (4, Border::Mirror);
+    let whole = residual_base(&lr, &config, &upsamplers, scale, border).unwrap();
+    let context = super::context(&config, &upsamplers);
+    // A band of LR rows 72–87 made from its rows and `reach` rows either side: its colour's
+    // largest difference from the whole run's.
+    let band = |reach: usize| {
+        let (first, rows) = (72, 16);
+        let input = lr.crop(0, first - reach, size, rows + 2 * reach);
+        let base = residual_base(&input, &config, &upsamplers, scale, border).unwrap();
+        let w = size * scale;
+        let mut worst = 0.0f32;
+        for c in 0..3 {
+            let ours = &base.plane(c)[reach * scale * w..][..rows * scale * w];
+            let theirs = &whole.plane(c)[first * scale * w..][..rows * scale * w];
+            for (a, b) in ours.iter().zip(theirs) {
+                worst = worst.max((a - b).abs());
+            }
+        }
+        worst
+    };
+    let (with_reach, without) = (band(context), band(context - gaussian_radius(16.0)));
+    println!(
+        "band's colour off the whole's: {with_reach:.1e}, without the blur's reach {without:.1e}"
+    );
+    assert!(with_reach < 1e-5, "{with_reach}");
+    assert!(without > 1e-4, "{without}");
 }
