@@ -235,13 +235,7 @@ impl InputRoute {
             _ => "clean",
         };
         // Each quality with its maps, where the maps differ.
-        let mut by_quality: Vec<(InputQuality, Vec<String>)> = Vec::new();
-        for &(kind, quality) in &self.maps {
-            match by_quality.iter_mut().find(|(q, _)| *q == quality) {
-                Some((_, kinds)) => kinds.push(kind.to_string()),
-                None => by_quality.push((quality, vec![kind.to_string()])),
-            }
-        }
+        let by_quality = maps_by(self.maps.iter().map(|&(kind, q)| (q, kind)));
         let given = if self.given { " (as given)" } else { "" };
         let route = match by_quality.as_slice() {
             [(InputQuality::Clean, _)] => format!("clean{given}"),
@@ -404,18 +398,24 @@ impl Setup {
     /// maps it makes (`onnx:span_x4_jpeg; normal, metallic: onnx:span_x4_materials`).
     pub fn upsamplers_used(&self) -> String {
         let mut words = self.upsampler_name.clone();
-        let mut others: Vec<(&str, Vec<String>)> = Vec::new();
-        for MapUpsampler { kind, name, .. } in &self.apart {
-            match others.iter_mut().find(|(n, _)| n == name) {
-                Some((_, kinds)) => kinds.push(kind.to_string()),
-                None => others.push((name, vec![kind.to_string()])),
-            }
-        }
-        for (name, kinds) in others {
+        for (name, kinds) in maps_by(self.apart.iter().map(|a| (a.name.as_str(), a.kind))) {
             words += &format!("; {}: {name}", kinds.join(", "));
         }
         words
     }
+}
+
+/// Maps grouped by what they share (a quality, an upsampler's name), in order of first
+/// appearance, each map in words.
+fn maps_by<K: PartialEq>(pairs: impl Iterator<Item = (K, MapKind)>) -> Vec<(K, Vec<String>)> {
+    let mut groups: Vec<(K, Vec<String>)> = Vec::new();
+    for (key, kind) in pairs {
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, kinds)) => kinds.push(kind.to_string()),
+            None => groups.push((key, vec![kind.to_string()])),
+        }
+    }
+    groups
 }
 
 /// Where `upsampler` is `auto`, the maps `map_input_quality` routes apart whose choice
