@@ -273,9 +273,19 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     resaved = resaved.crop(0, 0, 240, 240);
     let by_texels = plan(&resaved, InputQuality::Auto).input;
     assert_eq!(by_texels.quality, InputQuality::Jpeg, "{by_texels:?}");
+    // The maps saved losslessly beside it are taken as the same set: every map a JPEG.
     assert_eq!(
         by_texels.lossy,
-        ["base colour from a JPEG, by its texels (its 8×8 grid at x 6, y 6)"]
+        [
+            "base colour from a JPEG, by its texels (its 8×8 grid at x 6, y 6)",
+            "metallic saved losslessly beside it, as a JPEG of the same set",
+            "normal saved losslessly beside it, as a JPEG of the same set",
+            "roughness saved losslessly beside it, as a JPEG of the same set"
+        ]
+    );
+    assert!(
+        by_texels.maps.iter().all(|&(_, q)| q == Jpeg),
+        "{by_texels:?}"
     );
     // A named upsampler stays; the route still decides the projection.
     let named = Config {

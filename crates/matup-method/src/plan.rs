@@ -282,16 +282,21 @@ struct LossyMap {
 }
 
 /// The filter's maps of `material` stored lossily: those its files' formats say
-/// (`Material::lossy`), and those whose texels show a JPEG's grid.
+/// (`Material::lossy`), those whose texels show a JPEG's grid, and where a grid is found so,
+/// the maps saved losslessly beside it: a JPEG's grid in a lossless file means a set saved
+/// again (DamagedHelmet's crops kept as PNG), and the grid shows less in smooth maps (crop C's
+/// metallic map, its grid unseen, drew 6.7× bicubic's invented structure through the
+/// material network; docs/experiments/2026-11-29-degraded-inputs.md).
 fn lossy_maps(material: &Material) -> Vec<LossyMap> {
-    let by_file = (material.lossy.iter())
+    let mut lossy: Vec<LossyMap> = (material.lossy.iter())
         .filter(|(kind, _)| FEATURE_MAPS.contains(kind))
         .map(|(&kind, storage)| LossyMap {
             kind,
             what: format!("{kind} from {storage}"),
             jpeg: FileFormat::is_jpeg_storage(storage),
-        });
-    let by_texels = (FEATURE_MAPS.into_iter())
+        })
+        .collect();
+    let by_texels: Vec<LossyMap> = (FEATURE_MAPS.into_iter())
         .filter(|kind| !material.lossy.contains_key(kind))
         .filter_map(|kind| {
             let trace = jpeg_trace(kind, material.map(kind)?)?;
@@ -301,8 +306,23 @@ fn lossy_maps(material: &Material) -> Vec<LossyMap> {
                 what: format!("{kind} from a JPEG, by its texels (its 8×8 grid at x {x}, y {y})"),
                 jpeg: true,
             })
-        });
-    by_file.chain(by_texels).collect()
+        })
+        .collect();
+    if !by_texels.is_empty() {
+        let stand_ins = material.stand_ins();
+        let beside = (FEATURE_MAPS.into_iter())
+            .filter(|kind| !material.lossy.contains_key(kind) && !stand_ins.contains(kind))
+            .filter(|kind| by_texels.iter().all(|m| m.kind != *kind))
+            .map(|kind| LossyMap {
+                kind,
+                what: format!("{kind} saved losslessly beside it, as a JPEG of the same set"),
+                jpeg: true,
+            })
+            .collect::<Vec<_>>();
+        lossy.extend(by_texels);
+        lossy.extend(beside);
+    }
+    lossy
 }
 
 impl Plan {
