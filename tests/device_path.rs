@@ -205,8 +205,9 @@ fn the_clamp_brought_back_smoothly_is_the_same_on_the_device_and_in_bands() {
 /// Maps routed apart, as a model's JPEG colour beside a block-compressed normal map and
 /// lossless grey maps runs them: the colour projected onto its low frequencies, the normal map
 /// left as the upsampler made it, roughness and metallic projected exactly. Each map comes out
-/// as the run that treats every map its way makes it, and the device and bands (their context
-/// covering the low-pass blur's reach) give the host's whole maps.
+/// as the run that treats every map its way makes it, and the device and bands give the host's
+/// whole maps (that a band's context covers the blur's reach at σ 16:
+/// `a_band_with_the_context_of_a_low_pass_projection_makes_the_whole_runs_rows`).
 #[test]
 fn maps_routed_apart_are_each_projected_as_their_route_says_on_the_device_and_in_bands() {
     let lr = material(128);
