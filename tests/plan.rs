@@ -104,6 +104,20 @@ fn matups_networks_run_as_the_upsamplers_given_for_them_where_the_route_chooses_
     assert!(e.is_some_and(|e| e.contains("no_such_upsampler")));
 }
 
+/// `material` with each of the four rendered maps marked as stored in `storage`.
+fn every_map_stored_as(material: &Material, storage: &str) -> Material {
+    let mut stored = material.clone();
+    for kind in [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+    ] {
+        (stored.lossy).insert(kind, storage.into());
+    }
+    stored
+}
+
 #[test]
 fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     let clean = Material::uniform(16, [0.5, 0.4, 0.3], 0.6, 0.0);
@@ -173,15 +187,7 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     assert!(why.contains("base colour from JPEG (albedo.jpg)"), "{why}");
     assert!(why.contains("--input-quality clean"), "{why}");
     // Every map a JPEG (DamagedHelmet): one network; the maps but the colour unprojected.
-    let mut all_jpeg = clean.clone();
-    for kind in [
-        MapKind::BaseColor,
-        MapKind::Normal,
-        MapKind::Roughness,
-        MapKind::Metallic,
-    ] {
-        (all_jpeg.lossy).insert(kind, "JPEG (model.glb)".into());
-    }
+    let all_jpeg = every_map_stored_as(&clean, "JPEG (model.glb)");
     let p = plan(&all_jpeg, InputQuality::Auto);
     assert!(apart(&p).is_empty());
     assert_eq!(
@@ -217,15 +223,7 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     assert_eq!(filter.unprojected_maps, [MapKind::Normal]);
     assert_eq!(filter.projection_blur, JPEG_PROJECTION_BLUR);
     // Every map in blocks: nothing projected at all.
-    let mut game = clean.clone();
-    for kind in [
-        MapKind::BaseColor,
-        MapKind::Normal,
-        MapKind::Roughness,
-        MapKind::Metallic,
-    ] {
-        (game.lossy).insert(kind, "BC1 blocks (game.dds)".into());
-    }
+    let game = every_map_stored_as(&clean, "BC1 blocks (game.dds)");
     let p = plan(&game, InputQuality::Auto);
     assert!(apart(&p).is_empty());
     assert!(!p.setup.settings.filter.back_project);

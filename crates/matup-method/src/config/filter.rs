@@ -73,6 +73,12 @@ impl FilterConfig {
         self.back_project && !self.unprojected_maps.contains(&kind)
     }
 
+    /// Whether the base colour is projected onto its input's low frequencies alone
+    /// (`projection_blur`).
+    pub fn projects_low_pass(&self) -> bool {
+        self.projects(MapKind::BaseColor) && self.projection_blur > 0.0
+    }
+
     /// How the per-map path runs the upsampler, as these settings ask.
     pub fn map_passes(&self) -> MapPasses {
         MapPasses {

@@ -4,6 +4,7 @@
 //! artist would run each file through it (per-map super-resolution as a starting point).
 
 use std::borrow::Cow;
+use std::convert::Infallible;
 
 use rayon::prelude::*;
 
@@ -72,20 +73,8 @@ pub fn project_onto_input(
     let margin = config.neighbourhood_margin;
     let projected = projected_features(config);
     let colour_projected = config.projects(MapKind::BaseColor);
-    // What the projections bring the base back to: the input, or (`projection_blur`) for the
-    // base colour its low frequencies.
-    let low_pass = colour_projected && config.projection_blur > 0.0;
-    let target = if low_pass {
-        let seen = box_downsample_channels(base, scale, 0..3);
-        Cow::Owned(projection_target(
-            &seen,
-            &lr_features,
-            border,
-            config.projection_blur,
-        ))
-    } else {
-        Cow::Borrowed(&lr_features)
-    };
+    let seen_colour = || Ok::<_, Infallible>(box_downsample_channels(base, scale, 0..3));
+    let Ok(target) = projection_goal(config, &lr_features, border, seen_colour);
     back_project(base, &target, scale, border, margin, &projected);
     if config.clamp_chroma {
         // The base colour is the features' first three channels, linear.
@@ -301,21 +290,11 @@ fn project_on_device(
     let device = base.device().clone();
     let projected = projected_features(config);
     let colour_projected = config.projects(MapKind::BaseColor);
-    // What the projections bring the base back to, as on the host (`project_onto_input`).
-    let low_pass = colour_projected && config.projection_blur > 0.0;
-    let target = if low_pass {
-        let n = (scale * scale) as f64;
+    let seen_colour = || {
         let sums = device_maps::block_sums(&base.narrow(0, 0, 3)?, scale)?;
-        let seen = device_maps::download(&(sums / n)?)?;
-        Cow::Owned(projection_target(
-            &seen,
-            &lr_features,
-            border,
-            config.projection_blur,
-        ))
-    } else {
-        Cow::Borrowed(&lr_features)
+        device_maps::download(&(sums / (scale * scale) as f64)?)
     };
+    let target = projection_goal(config, &lr_features, border, seen_colour)?;
     let lr_on_device = device_maps::upload(&target, &device)?;
     let ranges = |channels: std::ops::Range<usize>| -> candle_core::Result<[Tensor; 2]> {
         let ends = |end: fn((f32, f32)) -> f32| {
@@ -459,7 +438,7 @@ pub fn context(config: &FilterConfig, upsamplers: &MapUpsamplers) -> usize {
         ResidualBase::Kernel(kernel) => kernel.radius().ceil() as usize,
         ResidualBase::Upsampler => (upsamplers.all().map(|u| u.context()).max()).unwrap_or(0),
     };
-    let low_pass = match config.projects(MapKind::BaseColor) && config.projection_blur > 0.0 {
+    let low_pass = match config.projects_low_pass() {
         true => gaussian_radius(config.projection_blur),
         false => 0,
     };
@@ -565,6 +544,28 @@ pub fn projected_features(config: &FilterConfig) -> Vec<std::ops::Range<usize>> 
         .filter(|&kind| config.projects(kind))
         .filter_map(feature_range)
         .collect()
+}
+
+/// What the projections bring a base back to: `lr_features`, or where `config` brings the
+/// base colour back to its low frequencies ([`FilterConfig::projects_low_pass`]), the
+/// [`projection_target`] of the base's colour box-filtered to the input's size, which
+/// `seen_colour` computes (on the host or on a device) only then.
+fn projection_goal<'a, E>(
+    config: &FilterConfig,
+    lr_features: &'a Map,
+    border: Border,
+    seen_colour: impl FnOnce() -> std::result::Result<Map, E>,
+) -> std::result::Result<Cow<'a, Map>, E> {
+    if !config.projects_low_pass() {
+        return Ok(Cow::Borrowed(lr_features));
+    }
+    let sigma = config.projection_blur;
+    Ok(Cow::Owned(projection_target(
+        &seen_colour()?,
+        lr_features,
+        border,
+        sigma,
+    )))
 }
 
 /// Features with alpha (r²) as its file stores it, the roughness r.
