@@ -43,7 +43,7 @@ fn folders() -> Vec<(String, PathBuf)> {
 
 /// `map` box-filtered to `size` texels wide (renormalised when it holds normals).
 fn to_size(map: &Map, size: usize, normals: bool) -> Option<Map> {
-    if map.width() < size || map.width() % size != 0 {
+    if map.width() < size || !map.width().is_multiple_of(size) {
         return None;
     }
     let mut out = matup::resample::box_downsample(map, map.width() / size);

@@ -159,7 +159,10 @@ fn samples(name: &str, whole: &Material, rng: &mut impl Rng) -> Vec<Sample> {
         tileable,
         material,
     };
-    for size in SIZES.into_iter().filter(|&s| s <= side && side % s == 0) {
+    for size in SIZES
+        .into_iter()
+        .filter(|&s| s <= side && side.is_multiple_of(s))
+    {
         out.push(sample(whole.box_downsample(side / size), size, true));
         let crop = side / 2;
         if size > crop {

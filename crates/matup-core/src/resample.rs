@@ -277,7 +277,7 @@ pub fn box_downsample(map: &Map, factor: usize) -> Map {
 /// callers that correct a few planes of a many-planed map).
 pub fn box_downsample_channels(map: &Map, factor: usize, channels: std::ops::Range<usize>) -> Map {
     assert!(
-        map.width() % factor == 0 && map.height() % factor == 0,
+        map.width().is_multiple_of(factor) && map.height().is_multiple_of(factor),
         "box_downsample: {}×{} is not a multiple of {factor}",
         map.width(),
         map.height()
@@ -607,7 +607,7 @@ pub fn seam_steps(map: &Map, period: usize) -> SeamSteps {
                 interior: 0.0,
             };
         }
-        let period = if period > 1 && n % period == 0 && n / period >= 2 {
+        let period = if period > 1 && n.is_multiple_of(period) && n / period >= 2 {
             period
         } else {
             1

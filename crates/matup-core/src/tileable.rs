@@ -125,7 +125,13 @@ mod tests {
     fn a_tile_grid_whose_joint_lies_on_the_border_is_tileable() {
         // Tiles of 16 texels with a dark joint along their first row and column: the
         // wrap-around step is a joint, like every interior joint.
-        let tile = |y: usize, x: usize| if x % 16 == 0 || y % 16 == 0 { 0.1 } else { 0.8 };
+        let tile = |y: usize, x: usize| {
+            if x.is_multiple_of(16) || y.is_multiple_of(16) {
+                0.1
+            } else {
+                0.8
+            }
+        };
         let noise = |y: usize, x: usize| ((x * 7919 + y * 104729) % 97) as f32 / 970.0;
         let grid = Map::from_fn(64, 64, 3, |_, y, x| tile(y, x) + noise(y, x));
         let (tileable, evidence) = decide_tileable(&material(grid.clone()));

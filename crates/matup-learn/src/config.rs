@@ -204,13 +204,13 @@ impl LearnConfig {
         if let Some(m) = self.train.iter().find(|m| self.val.contains(m)) {
             return Err(format!("'{m}' is in both train and val"));
         }
-        if self.scale < 2 || self.patch % self.scale != 0 || self.patch < 4 * self.scale {
+        if self.scale < 2 || !self.patch.is_multiple_of(self.scale) || self.patch < 4 * self.scale {
             return Err(format!(
                 "patch {} must be a multiple of scale {} and at least 4 LR texels",
                 self.patch, self.scale
             ));
         }
-        if self.val_crop % self.scale != 0 {
+        if !self.val_crop.is_multiple_of(self.scale) {
             return Err(format!(
                 "val_crop {} is not a multiple of scale {}",
                 self.val_crop, self.scale

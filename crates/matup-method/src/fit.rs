@@ -196,7 +196,7 @@ fn fit_filter(
     // Cross-scale self-supervision: the LR material one scale down is the input, the LR
     // material the answer, its exact renders the targets.
     let cross = if config.train.cross_scale > 0.0 {
-        if lr.width() % scale == 0 && lr.height_px() % scale == 0 {
+        if lr.width().is_multiple_of(scale) && lr.height_px().is_multiple_of(scale) {
             let lower = lr.box_downsample(scale);
             let lower_base = residual_base(
                 &lower,

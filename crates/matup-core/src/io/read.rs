@@ -369,7 +369,7 @@ fn same_values(map: &Map, planes: &[usize]) -> bool {
 /// The colour (or grey) channels of a file of `n` channels: all but an alpha, which grey +
 /// alpha and RGBA files have last.
 fn colour_channels(n: usize) -> usize {
-    if n % 2 == 0 {
+    if n.is_multiple_of(2) {
         n - 1
     } else {
         n

@@ -516,7 +516,7 @@ fn resolved(path: &Path) -> PathBuf {
 /// the number `from / 1024`) rewritten for `to` texels, in the tag's case; other names as
 /// they are.
 pub fn retag(stem: &str, from: usize, to: usize) -> String {
-    if from % 1024 != 0 || to % 1024 != 0 {
+    if !from.is_multiple_of(1024) || !to.is_multiple_of(1024) {
         return stem.to_string();
     }
     let bytes = stem.as_bytes();

@@ -213,7 +213,11 @@ impl Filter {
 
 /// `w0`, `b0`, `w1`, `b1`, … for weight and bias of each layer.
 pub fn tensor_name(index: usize) -> String {
-    format!("{}{}", if index % 2 == 0 { "w" } else { "b" }, index / 2)
+    format!(
+        "{}{}",
+        if index.is_multiple_of(2) { "w" } else { "b" },
+        index / 2
+    )
 }
 
 /// A small LR map with variation in every channel, for the window tests.

@@ -132,7 +132,13 @@ fn a_low_pass_projection_takes_back_a_colour_drift_and_leaves_fine_detail_and_ot
         4 | 5 => 0.1,
         _ => 0.3 + 0.2 * (x + y) as f32 / (2 * size) as f32,
     });
-    let checker = |y: usize, x: usize| if (x + y) % 2 == 0 { 0.03 } else { -0.03 };
+    let checker = |y: usize, x: usize| {
+        if (x + y).is_multiple_of(2) {
+            0.03
+        } else {
+            -0.03
+        }
+    };
     let seen = Map::from_fn(size, size, FEATURES, |c, y, x| match c {
         0..=2 => srgb_to_linear(linear_to_srgb(lr.get(c, y, x)) + 0.1 + checker(y, x)),
         _ => lr.get(c, y, x) + 0.05,

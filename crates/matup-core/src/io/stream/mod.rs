@@ -315,7 +315,7 @@ impl ImageWriter {
             ));
         }
         check_side(path, format, width, height)?;
-        if format == FileFormat::Jpeg && channels % 2 == 0 {
+        if format == FileFormat::Jpeg && channels.is_multiple_of(2) {
             return Err(Error::file(
                 path,
                 "JPEG holds no alpha channel; write this map as PNG, TIFF, TGA or EXR (--format)",
