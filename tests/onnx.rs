@@ -510,8 +510,14 @@ impl matup::Watch for StopAt {
 fn a_network_reports_each_batch_of_tiles_and_stops_where_its_watch_says() {
     let image = real_render();
     let images = std::slice::from_ref(&image);
-    // matup's executor on the host, and candle's engine (a GPU's path) on the CPU.
-    for engine in ["", ",engine=candle"] {
+    // matup's executor on the host, candle's engine (a GPU's path) on the CPU, and the GPU
+    // engine on the tests' adapter (lavapipe in CI).
+    let gpu = matup::upsamplers::gpu::test_adapter().map(|a| format!(",device=gpu:{}", a.index));
+    for engine in ["", ",engine=candle"]
+        .into_iter()
+        .map(String::from)
+        .chain(gpu)
+    {
         let spec = format!("onnx:span_x4_materials,tile=16,batch=1{engine}");
         let up = build(&spec);
         let stopping = StopAt {

@@ -20,6 +20,8 @@
 //!   4K² → 16K² takes about 11 minutes on 2 cores);
 //! - `MATUP_BENCH_HOST_ROWS`: the rows also run with `--upsampler bicubic` on the CPU (default
 //!   `1k`): the CPU's part of the path alone, what a GPU's host does besides the network;
+//! - `MATUP_BENCH_DEVICES`: the devices run beside the CPU, `;` between them (default `cuda`
+//!   where nvidia-smi answers; `gpu:0` or `gpu:nvidia` runs the GPU engine through Vulkan);
 //! - `MATUP_BENCH_GPU_VARIANTS`: options of the network (`;` between variants, e.g.
 //!   `precision=tf32;precision=f16`) each also run on the GPU, on the rows of
 //!   `MATUP_BENCH_VARIANT_ROWS` (default `1k`), their maps compared with the CPU's.
@@ -260,6 +262,15 @@ fn main() {
         PathBuf::from,
     );
     let gpu = gpu_memory_used().is_some();
+    let devices: Vec<String> = match std::env::var("MATUP_BENCH_DEVICES") {
+        Ok(list) => list
+            .split(';')
+            .filter(|d| !d.is_empty())
+            .map(String::from)
+            .collect(),
+        Err(_) if gpu => vec!["cuda".into()],
+        Err(_) => vec![],
+    };
     let scratch = tempfile::tempdir().unwrap();
     let inputs = scratch.path().join("inputs");
     let mut table = Vec::new();
@@ -313,13 +324,13 @@ fn main() {
         if cpu_rows.contains(row) {
             runs.push(("cpu".into(), settings(&["--device", "cpu"]), true));
         }
-        if gpu {
-            runs.push(("cuda".into(), settings(&["--device", "cuda"]), true));
-            if variant_rows.contains(row) {
+        for device in &devices {
+            runs.push((device.clone(), settings(&["--device", device]), true));
+            if variant_rows.contains(row) && device.starts_with("cuda") {
                 for options in &variants {
                     let upsampler = format!("{MATERIAL_NETWORK},{options}");
-                    let run = settings(&["--device", "cuda", "--upsampler", &upsampler]);
-                    runs.push((format!("cuda, {options}"), run, true));
+                    let run = settings(&["--device", device, "--upsampler", &upsampler]);
+                    runs.push((format!("{device}, {options}"), run, true));
                 }
             }
         }

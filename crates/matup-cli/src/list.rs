@@ -53,6 +53,30 @@ fn print_list(out: &mut impl Write) -> anyhow::Result<()> {
                 info.scale, info.description, info.licence, ""
             )?;
         }
+        writeln!(out)?;
+        writeln!(
+            out,
+            "GPU adapters (--device gpu:N or gpu:NAME; auto takes the first hardware one, \
+             discrete before integrated, never a software one):"
+        )?;
+        let adapters = matup_upsamplers::gpu::adapters();
+        if adapters.is_empty() {
+            writeln!(
+                out,
+                "  none: this machine offers no Vulkan, Metal or DirectX 12 adapter"
+            )?;
+        }
+        for adapter in adapters {
+            writeln!(out, "  {adapter}")?;
+        }
+        let auto = matup_upsamplers::gpu::auto_adapter();
+        let cuda = matup_core::device::cuda_ordinal("auto").ok().flatten();
+        let chosen = match (cuda, auto) {
+            (Some(n), _) => format!("cuda:{n}"),
+            (None, Some(a)) => format!("gpu:{} ({})", a.index, a.name),
+            (None, None) => "the CPU".into(),
+        };
+        writeln!(out, "  --device auto runs the networks on {chosen}")?;
     }
     writeln!(out)?;
     writeln!(out, "Shading models (--shading NAME[:OPTIONS]):")?;

@@ -159,7 +159,10 @@ pub struct SettingsArgs {
     /// GPU).
     #[arg(long)]
     pub backend: Option<Backend>,
-    /// Where training runs: cpu, cuda or cuda:N (CUDA needs a build with --features cuda).
+    /// Where the networks run: auto (the default: CUDA in a CUDA build, else the first
+    /// hardware GPU adapter, discrete before integrated, else the CPU), cpu, gpu (the first
+    /// adapter), gpu:N or gpu:NAME (an adapter `matup list` shows, by index or part of its
+    /// name), cuda or cuda:N (a build with --features cuda, where training runs too).
     #[arg(long)]
     pub device: Option<String>,
     /// Stop training when the held-out loss stops improving (the default).

@@ -69,6 +69,12 @@ pub trait RgbUpsampler: Send + Sync {
         None
     }
 
+    /// Where it computes and why, in words, where a run should say so: a network on a GPU
+    /// adapter, or on the CPU because `device=auto` found none. `None` for the host's kernels.
+    fn placement(&self) -> Option<String> {
+        None
+    }
+
     /// [`RgbUpsampler::upsample`], the outputs left on [`RgbUpsampler::device`] as
     /// `[3, height, width]` tensors.
     fn upsample_on_device(
@@ -142,6 +148,9 @@ impl<T: RgbUpsampler + ?Sized> RgbUpsampler for std::sync::Arc<T> {
     }
     fn device(&self) -> Option<Device> {
         (**self).device()
+    }
+    fn placement(&self) -> Option<String> {
+        (**self).placement()
     }
     fn upsample_on_device(
         &self,
@@ -362,6 +371,10 @@ impl RgbUpsampler for ThroughNative {
 
     fn device(&self) -> Option<Device> {
         self.inner.device()
+    }
+
+    fn placement(&self) -> Option<String> {
+        self.inner.placement()
     }
 
     fn upsample_on_device(

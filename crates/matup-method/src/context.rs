@@ -97,6 +97,9 @@ impl RgbUpsampler for StopsOnRequest<'_> {
     fn device(&self) -> Option<Device> {
         self.inner.device()
     }
+    fn placement(&self) -> Option<String> {
+        self.inner.placement()
+    }
     fn upsample_on_device(
         &self,
         images: &[Map],

@@ -136,6 +136,10 @@ fn run_levels(
         Some(_) => "oracle (exact renders of the true material)".to_string(),
         None => setup.upsamplers_used(),
     };
+    let network_devices = setup.placements();
+    for placement in &network_devices {
+        progress.note(&format!("network: {placement}"));
+    }
     if let Some(s) = &selection {
         timings.push(("select".to_string(), s.seconds));
     }
@@ -221,6 +225,7 @@ fn run_levels(
             ..setup.settings.clone()
         },
         upsampler_used,
+        network_devices,
         route: plan.reach.describe(),
         tileable: plan.tiling.tileable,
         tiling_evidence: match plan.tiling.grounds {

@@ -414,6 +414,23 @@ impl Setup {
         })
     }
 
+    /// Where each upsampler that says so computes, and why, once each:
+    /// `onnx:span_x4_materials: wgpu on llvmpipe (…) (Vulkan, software adapter): device=gpu:llvmpipe asked for it`.
+    pub fn placements(&self) -> Vec<String> {
+        let mut lines: Vec<String> = Vec::new();
+        let chosen = std::iter::once((&self.upsampler_name, &self.upsampler))
+            .chain(self.apart.iter().map(|a| (&a.name, &a.upsampler)));
+        for (name, upsampler) in chosen {
+            if let Some(placement) = upsampler.placement() {
+                let line = format!("{name}: {placement}");
+                if !lines.contains(&line) {
+                    lines.push(line);
+                }
+            }
+        }
+        lines
+    }
+
     /// The upsamplers that make the maps, in words: the run's, then each other one with the
     /// maps it makes (`onnx:span_x4_jpeg; normal, metallic: onnx:span_x4_materials`).
     pub fn upsamplers_used(&self) -> String {
@@ -596,7 +613,7 @@ pub fn levels_of(scale: usize) -> Vec<usize> {
 /// (the other upsamplers run on the CPU).
 pub fn on_device(mut spec: PluginSpec, device: &str) -> PluginSpec {
     let names_one = (spec.argument.iter()).any(|a| a.split(',').any(|o| o.starts_with("device=")));
-    if spec.name == "onnx" && device != "cpu" && !names_one {
+    if spec.name == "onnx" && !names_one {
         let argument = spec.argument.take().unwrap_or_default();
         spec.argument = Some(format!("{argument},device={device}"));
     }

@@ -22,6 +22,10 @@ pub struct RunReport {
     pub config: Config,
     /// The RGB upsampler that ran (what `auto` chose).
     pub upsampler_used: String,
+    /// Where each network ran (a GPU adapter by the name its driver gives, or the CPU) and
+    /// why (`Setup::placements`).
+    #[serde(default)]
+    pub network_devices: Vec<String>,
     /// How the output size was reached: `×4`, or a size asked for (`×2, then area-shrunk to
     /// 1536×1536`); each level's route is in `levels`.
     pub route: String,

@@ -6,10 +6,13 @@
 //! Rooms:
 //! - `onnx`: a network from an ONNX file and its sidecar, run by matup's executor, tract, or
 //!   candle on a device; its options and the process's cache of loaded networks.
+//! - `gpu`: the GPU adapters wgpu offers (Vulkan, Metal, DirectX 12), found and opened once.
 //! - `tiled`: tiles with context and their feathered blend, on the host or on a device.
 //! - `function`: the `callable` upsampler, a caller's function run on tiles.
 
 pub mod function;
+#[cfg(feature = "onnx")]
+pub mod gpu;
 #[cfg(feature = "onnx")]
 pub mod onnx;
 pub mod tiled;

@@ -78,9 +78,11 @@ pub struct Config {
     pub lights: LightsConfig,
     pub filter: FilterConfig,
     pub train: TrainConfig,
-    /// Where matup computes with tensors: `cpu`, `cuda` or `cuda:N` (a build with the `cuda`
-    /// feature). On a GPU the SR networks run there (the `onnx` upsampler's `device`), and the
-    /// filter trains there.
+    /// Where matup computes (`matup_core::device`): `auto` (CUDA in a CUDA build, else the
+    /// first hardware GPU adapter, else the CPU), `cpu`, `gpu`, `gpu:N`, `gpu:NAME` (a wgpu
+    /// adapter, `matup list`), `cuda` or `cuda:N` (a build with the `cuda` feature). The SR
+    /// networks run there (the `onnx` upsampler's `device`); the filter trains on CUDA where
+    /// the spec resolves to it, else on the CPU.
     pub device: String,
     /// Whether the input maps are clean or degraded by lossy storage (`auto`: each as its file
     /// says): a degraded map runs the network trained on degraded inputs, unprojected
@@ -112,7 +114,7 @@ impl Default for Config {
             lights: LightsConfig::default(),
             filter: FilterConfig::default(),
             train: TrainConfig::default(),
-            device: "cpu".into(),
+            device: "auto".into(),
             input_quality: InputQuality::Auto,
             map_input_quality: BTreeMap::new(),
             networks: BTreeMap::new(),
@@ -203,7 +205,7 @@ impl Config {
             );
         }
         let f = &self.filter;
-        if f.window == 0 || f.window % 2 == 0 {
+        if f.window == 0 || f.window.is_multiple_of(2) {
             return bad(format!(
                 "filter.window must be odd and positive, not {}",
                 f.window

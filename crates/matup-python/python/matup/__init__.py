@@ -268,7 +268,12 @@ def upscale_folder(
 
     ``scale`` is 2, 3, 4, 8 or 16 (default 4); ``size`` an output side instead (4096, "4K",
     "4096x2048"). ``tileable`` True or False decides wrapping (None: decided from the maps).
-    ``normal_convention`` is "opengl" or "directx" where the files do not say. ``upsampler``
+    ``normal_convention`` is "opengl" or "directx" where the files do not say. ``device`` says
+    where the networks run: "auto" (the default: the first hardware GPU adapter, discrete
+    before integrated, through Vulkan, Metal or DirectX 12, else the CPU), "cpu", "gpu" (the
+    first adapter), "gpu:N" or "gpu:NAME" (an adapter ``matup list`` shows, by index or a part
+    of its name, as "gpu:llvmpipe"); the report's ``network_devices`` says where each ran and
+    why. ``upsampler``
     is a registered name (``matup.list()``), a callable or a :class:`Network`. ``networks``
     runs matup's own networks through callables, by name (``{"span_x4_materials": fn}``):
     where the run chooses that network, ``fn`` runs in its place (the same network on a GPU
@@ -404,7 +409,7 @@ def upscale(
     size: Optional[Union[int, str]] = None,
     tileable: Optional[bool] = None,
     normal_convention: Optional[str] = None,
-    device: str = "cpu",
+    device: Optional[str] = None,
     upsampler: Union[str, Callable[[np.ndarray], Any], Network] = "auto",
     networks: Optional[Mapping[str, Any]] = None,
     progress: Union[None, bool, ProgressCallback] = None,

@@ -36,12 +36,12 @@ const OPTIONS: &[PluginOption] = &[
     PluginOption {
         key: "engine",
         default: "auto",
-        help: "what runs the network: matup (its own executor), tract, candle (the executor's graph as candle operations), or auto (matup where the graph allows; candle on a GPU)",
+        help: "what runs the network: matup (its own executor), tract, candle (the executor's graph as candle operations), wgpu (its graph as compute shaders on a GPU adapter), or auto (the device's own: wgpu on a gpu device, candle on cuda, else matup where the graph allows)",
     },
     PluginOption {
         key: "device",
-        default: "cpu",
-        help: "where the network runs: cpu, or cuda[:N] (candle, a build with --features cuda)",
+        default: "auto",
+        help: "where the network runs: auto (CUDA in a CUDA build, else the first hardware GPU adapter, else the CPU), cpu, gpu (the first adapter), gpu:N or gpu:NAME (an adapter matup list shows), or cuda[:N] (a build with --features cuda)",
     },
     PluginOption {
         key: "precision",
@@ -118,6 +118,7 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
     let values = parse_options("onnx", Some(options), OPTIONS)?;
     let device = values["device"].clone();
     let on_gpu = matup_core::device::cuda_ordinal(&device)?.is_some();
+    let on_adapter = if on_gpu { None } else { adapter_for(&device)? };
     let precision = Precision::parse(&values["precision"]).ok_or_else(|| Error::Plugin {
         plugin: "onnx".into(),
         message: format!(
@@ -126,26 +127,32 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
             Precision::ALL.map(Precision::name).join(", ")
         ),
     })?;
-    let choice = match values["engine"].as_str() {
-        "auto" if on_gpu => EngineChoice::Candle(device, precision),
-        "candle" => EngineChoice::Candle(device, precision),
-        "auto" => EngineChoice::Auto,
-        "matup" if !on_gpu => EngineChoice::Matup,
-        "tract" if !on_gpu => EngineChoice::Tract,
-        "matup" | "tract" => {
-            return Err(Error::Plugin {
-                plugin: "onnx".into(),
-                message: format!(
-                    "engine={} runs on the CPU; on device {device} the engine is candle",
-                    values["engine"]
-                ),
-            })
+    let refused = |message: String| Error::Plugin {
+        plugin: "onnx".into(),
+        message,
+    };
+    let choice = match (values["engine"].as_str(), on_adapter) {
+        ("auto", _) if on_gpu => EngineChoice::Candle(device.clone(), precision),
+        ("candle", None) => EngineChoice::Candle(device.clone(), precision),
+        ("auto" | "wgpu", Some(adapter)) => adapter,
+        ("wgpu", None) => {
+            return Err(refused(format!(
+                "engine=wgpu runs on a GPU adapter; device {device} names none \
+                 (use device=gpu, gpu:N or gpu:NAME)"
+            )))
         }
-        other => {
-            return Err(Error::Plugin {
-                plugin: "onnx".into(),
-                message: format!("engine '{other}': known engines are auto, matup, tract, candle"),
-            })
+        ("auto", None) => EngineChoice::Auto,
+        ("matup", None) if !on_gpu => EngineChoice::Matup,
+        ("tract", None) if !on_gpu => EngineChoice::Tract,
+        (engine @ ("matup" | "tract" | "candle"), _) => {
+            return Err(refused(format!(
+                "engine={engine} does not run on device {device}; leave engine=auto there"
+            )))
+        }
+        (other, _) => {
+            return Err(refused(format!(
+                "engine '{other}': known engines are auto, matup, tract, candle, wgpu"
+            )))
         }
     };
     if precision != Precision::F32 && !matches!(choice, EngineChoice::Candle(..)) {
@@ -162,7 +169,16 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
         "" => None,
         given => Some(PathBuf::from(given)),
     };
+    let on_cpu = matches!(choice, EngineChoice::Auto);
     let mut upsampler = OnnxUpsampler::load_source(resolve(model)?, sidecar.as_deref(), choice)?;
+    if on_cpu {
+        upsampler.why = match device.as_str() {
+            "auto" => "device=auto found no hardware GPU adapter (software ones run only when \
+                       named: gpu:NAME)"
+                .into(),
+            other => format!("device={other}"),
+        };
+    }
     upsampler.batch_given = !values["batch"].is_empty();
     for (key, slot) in [
         ("tile", &mut upsampler.info.tile),
@@ -185,10 +201,37 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
     Ok(upsampler)
 }
 
+/// The wgpu adapter a device spec runs the network on, and why: the one `gpu`, `gpu:N` or
+/// `gpu:NAME` names (an error where there is none), or under `auto` the first hardware one,
+/// the CPU taking over where it cannot run the network. `None`: the network runs on the CPU
+/// (`cpu`, or `auto` with no hardware adapter; the upsampler says which).
+fn adapter_for(device: &str) -> Result<Option<EngineChoice>> {
+    use matup_core::device::DeviceSpec;
+    Ok(match DeviceSpec::parse(device)? {
+        DeviceSpec::Gpu(pick) => {
+            let adapter = crate::gpu::find(&pick)?;
+            Some(EngineChoice::Gpu {
+                index: adapter.index,
+                or_cpu: false,
+                why: format!("device={device} asked for it"),
+            })
+        }
+        DeviceSpec::Auto => crate::gpu::auto_adapter().map(|adapter| EngineChoice::Gpu {
+            index: adapter.index,
+            or_cpu: true,
+            why: format!(
+                "device=auto took the first hardware adapter ({})",
+                adapter.kind.name()
+            ),
+        }),
+        DeviceSpec::Cpu | DeviceSpec::Cuda(_) => None,
+    })
+}
+
 inventory::submit! {
     UpsamplerRegistration {
         name: "onnx",
-        description: "a pre-trained SR network: onnx:PATH.onnx or onnx:NAME from the model folders (CPU, or a GPU with device=cuda)",
+        description: "a pre-trained SR network: onnx:PATH.onnx or onnx:NAME from the model folders (on a GPU adapter through wgpu, CUDA, or the CPU: device=)",
         options: OPTIONS,
         create,
     }

@@ -14,6 +14,7 @@ use tract_onnx::prelude::*;
 
 use super::candle_graph::{unit_rgb, Precision, TensorNet};
 use super::convnet::{self, ConvNet, Graph};
+use super::gpu_graph::{GpuError, GpuNet};
 use super::nhwc::{Features, Padding};
 use super::source::{ModelInfo, ModelSource};
 use crate::tiled::{
@@ -34,13 +35,19 @@ pub fn read_graph(path: &Path) -> Result<(ModelProto, Graph)> {
 
 /// Which engine runs a network: `auto` picks matup's executor where the graph allows;
 /// `Candle` runs the executor's graph as candle operations on a device (`cpu`, `cuda`,
-/// `cuda:N`) at a precision.
+/// `cuda:N`) at a precision; `Gpu` runs it on the wgpu adapter `index` (`matup list`), or
+/// where it cannot and `or_cpu`, as `auto` does on the CPU. `why` says why it runs there.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum EngineChoice {
     Auto,
     Matup,
     Tract,
     Candle(String, Precision),
+    Gpu {
+        index: usize,
+        or_cpu: bool,
+        why: String,
+    },
 }
 
 /// What runs the network.
@@ -53,6 +60,8 @@ enum Engine {
     /// The executor's graph as candle operations on a device, and how many tiles of the
     /// sidecar's size fit in its memory.
     Candle { net: TensorNet, free: usize },
+    /// The executor's graph as compute shaders on a wgpu adapter.
+    Gpu(GpuNet),
     /// tract, with its plans by input shape [batch, height, width], and why matup's
     /// executor does not run the graph.
     Tract {
@@ -72,6 +81,8 @@ pub struct OnnxUpsampler {
     fixed: [Option<usize>; 3],
     /// Whether `batch=N` was given (else a GPU runs as many tiles a call as fit).
     pub(super) batch_given: bool,
+    /// Why the network runs where it does (`device=auto` found no hardware adapter, …).
+    pub(super) why: String,
 }
 
 /// The [batch, height, width] an ONNX file's input declares, `None` where it is symbolic.
@@ -138,17 +149,34 @@ impl OnnxUpsampler {
                 "scale, tile and batch must be positive, channel_order rgb or bgr",
             ));
         }
+        let cpu = |choice: &EngineChoice| match ConvNet::from_model(&proto) {
+            Ok(net) => Ok(Engine::Matup { net, pool: None }),
+            Err(why) if *choice == EngineChoice::Matup => {
+                Err(source.error("matup's executor cannot run it", why))
+            }
+            Err(why) => tract_engine(&source, why.to_string()),
+        };
+        let mut why = String::new();
         let engine = match &choice {
             EngineChoice::Candle(device, precision) => {
                 candle_engine(&source, &proto, device, *precision)?
             }
             EngineChoice::Tract => tract_engine(&source, "engine=tract was asked for".into())?,
-            EngineChoice::Auto | EngineChoice::Matup => match ConvNet::from_model(&proto) {
-                Ok(net) => Engine::Matup { net, pool: None },
-                Err(why) if choice == EngineChoice::Matup => {
-                    return Err(source.error("matup's executor cannot run it", why))
+            EngineChoice::Auto | EngineChoice::Matup => cpu(&choice)?,
+            EngineChoice::Gpu {
+                index,
+                or_cpu,
+                why: because,
+            } => match gpu_engine(&source, &proto, *index) {
+                Ok(engine) => {
+                    why = because.clone();
+                    engine
                 }
-                Err(why) => tract_engine(&source, why.to_string())?,
+                Err(e) if *or_cpu => {
+                    why = format!("{because}, but {e}; the CPU runs it");
+                    cpu(&EngineChoice::Auto)?
+                }
+                Err(e) => return Err(e),
             },
         };
         let upsampler = OnnxUpsampler {
@@ -157,6 +185,7 @@ impl OnnxUpsampler {
             engine,
             fixed: fixed_input(&proto),
             batch_given: false,
+            why,
         };
         // Probe: the output must be the input times the sidecar's scale, 3 channels.
         let fixed = upsampler.fixed;
@@ -179,13 +208,31 @@ impl OnnxUpsampler {
         Ok(upsampler)
     }
 
-    /// "matup", "candle on DEVICE", or "tract" and why matup's executor does not run the
-    /// graph.
+    /// "matup", "candle on DEVICE", "wgpu on ADAPTER", or "tract" and why matup's executor
+    /// does not run the graph.
     pub fn engine(&self) -> String {
         match &self.engine {
             Engine::Matup { .. } => "matup".into(),
             Engine::Candle { net, .. } => format!("candle on {}", device_name(net.device())),
+            Engine::Gpu(net) => {
+                let s = &net.gpu().summary;
+                format!("wgpu on {} ({}, {})", s.name, s.backend, s.kind.name())
+            }
             Engine::Tract { because, .. } => format!("tract ({because})"),
+        }
+    }
+
+    /// Where the network runs and why: `wgpu on llvmpipe (…) (Vulkan, software adapter):
+    /// device=gpu:llvmpipe asked for it`, `matup on the CPU: device=auto found no hardware GPU
+    /// adapter`.
+    pub fn placement(&self) -> String {
+        let engine = match &self.engine {
+            Engine::Matup { .. } => "matup on the CPU".to_string(),
+            _ => self.engine(),
+        };
+        match self.why.as_str() {
+            "" => engine,
+            why => format!("{engine}: {why}"),
         }
     }
 
@@ -202,7 +249,7 @@ impl OnnxUpsampler {
             }
             Engine::Tract { executor: e, .. } => *e = executor(threads),
             // The device computes; the host's threads only cut and blend tiles.
-            Engine::Candle { .. } => {}
+            Engine::Candle { .. } | Engine::Gpu(_) => {}
         }
         Ok(())
     }
@@ -294,6 +341,7 @@ impl OnnxUpsampler {
                     None => tiles.iter().map(run).collect(),
                 })
             }
+            Engine::Gpu(net) => self.run_on_gpu(net, tiles, h, w, padding),
             Engine::Candle { net, .. } => {
                 let out = self.run_on_device(net, tiles, h, w, padding)?;
                 let failed = |e: candle_core::Error| self.source.error("inference failed", e);
@@ -334,6 +382,50 @@ impl OnnxUpsampler {
 }
 
 impl OnnxUpsampler {
+    /// [`OnnxUpsampler::run_batch`] on a wgpu adapter. Where its memory does not hold the
+    /// call, the tiles run in halves, down to one a call; past that the error says so.
+    fn run_on_gpu(
+        &self,
+        net: &GpuNet,
+        tiles: &[Vec<f32>],
+        h: usize,
+        w: usize,
+        padding: Padding,
+    ) -> Result<Vec<Map>> {
+        let planes: Vec<&[f32]> = tiles.iter().map(|t| &t[..]).collect();
+        match net.run(&self.network_input(&planes), tiles.len(), h, w, padding) {
+            Ok(out) => {
+                let [olo, ohi] = self.info.output_range;
+                let bgr = self.info.channel_order == "bgr";
+                let n = 3 * h * w * net.scale() * net.scale();
+                let (oh, ow) = (h * net.scale(), w * net.scale());
+                Ok((out.chunks(n))
+                    .map(|planes| {
+                        let plane = oh * ow;
+                        Map::from_fn(ow, oh, 3, |c, y, x| {
+                            let c = if bgr { 2 - c } else { c };
+                            ((planes[c * plane + y * ow + x] - olo) / (ohi - olo)).clamp(0.0, 1.0)
+                        })
+                    })
+                    .collect())
+            }
+            Err(GpuError::OutOfMemory(_)) if tiles.len() > 1 => {
+                let (first, second) = tiles.split_at(tiles.len() / 2);
+                let mut out = self.run_on_gpu(net, first, h, w, padding)?;
+                out.extend(self.run_on_gpu(net, second, h, w, padding)?);
+                Ok(out)
+            }
+            Err(e @ GpuError::OutOfMemory(_)) => Err(self.source.error(
+                "inference failed",
+                format!(
+                    "{e}; one {w}×{h} tile does not fit: lower the onnx upsampler's tile \
+                     (onnx:NAME,tile=N) or run on the CPU (--device cpu)"
+                ),
+            )),
+            Err(e) => Err(self.source.error("inference failed", e)),
+        }
+    }
+
     /// [`OnnxUpsampler::run_batch`] on the candle engine's device, the outputs left there:
     /// `[batch, 3, h·scale, w·scale]`, values in [0, 1].
     fn run_on_device(
@@ -439,6 +531,16 @@ fn keep_f32_convolutions(precision: Precision) {
     }
 }
 
+/// The GPU engine for `proto` on wgpu adapter `index`: the executor's graph, its weights
+/// uploaded once; refused, naming the operation, where its kernels do not cover the graph.
+fn gpu_engine(source: &ModelSource, proto: &ModelProto, index: usize) -> Result<Engine> {
+    let graph =
+        Graph::from_model(proto).map_err(|e| source.error("the GPU engine cannot run it", e))?;
+    let gpu = crate::gpu::open(index)?;
+    let net = GpuNet::new(graph, gpu).map_err(|e| source.error("on the GPU", e))?;
+    Ok(Engine::Gpu(net))
+}
+
 /// tract's engine for the network `source`, which matup's executor does not run `because`.
 fn tract_engine(source: &ModelSource, because: String) -> Result<Engine> {
     let model = source.tract_model()?;
@@ -496,7 +598,10 @@ impl OnnxUpsampler {
         border == Border::Wrap
             && w.max(h) <= self.info.tile
             && self.fixed[1..] == [None, None]
-            && matches!(self.engine, Engine::Matup { .. } | Engine::Candle { .. })
+            && matches!(
+                self.engine,
+                Engine::Matup { .. } | Engine::Candle { .. } | Engine::Gpu(_)
+            )
     }
 }
 
@@ -508,7 +613,11 @@ impl RgbUpsampler for OnnxUpsampler {
     /// The candle engine (a GPU's): the self-ensemble's passes fill its batch together. So
     /// on candle's CPU device too, which tests the GPU's path where there is no GPU.
     fn batches_images(&self) -> bool {
-        matches!(self.engine, Engine::Candle { .. })
+        matches!(self.engine, Engine::Candle { .. } | Engine::Gpu(_))
+    }
+
+    fn placement(&self) -> Option<String> {
+        Some(OnnxUpsampler::placement(self))
     }
 
     /// The sidecar's overlap: the context each tile is run with.
@@ -684,6 +793,10 @@ impl OnnxUpsampler {
     }
 }
 
+/// Bytes of maps one call on a wgpu adapter holds at its peak (wgpu does not say how much of
+/// the adapter's memory is free): 1 GiB, 40 of SPAN's 256² tiles.
+const GPU_CALL_BUDGET: u64 = 1 << 30;
+
 impl OnnxUpsampler {
     /// How many `h × w` inputs one call runs: the network's fixed batch, or as many as the
     /// GPU's memory holds, or the sidecar's batch.
@@ -699,6 +812,9 @@ impl OnnxUpsampler {
                 let in_memory = free / 2 / (cost.bytes + out).max(1);
                 let indexable = (i32::MAX as usize) / cost.largest.max(1);
                 in_memory.min(indexable).max(1)
+            }
+            (None, Engine::Gpu(net)) if !self.batch_given => {
+                net.tiles_per_call(h, w, GPU_CALL_BUDGET)
             }
             (None, _) => self.info.batch,
         }
