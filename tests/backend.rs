@@ -96,9 +96,16 @@ fn backends_and_devices_are_checked_before_anything_runs() {
     assert!(e.contains("CPU only"), "{e}");
 
     let mut c = config(Backend::Auto);
-    c.device = "gpu".into();
+    c.device = "tpu".into();
     let e = c.validate().unwrap_err().to_string();
-    assert!(e.contains("use cpu, cuda or cuda:N"), "{e}");
+    assert!(
+        e.contains("use auto, cpu, gpu, gpu:N, gpu:NAME, cuda or cuda:N"),
+        "{e}"
+    );
+    // A wgpu adapter runs the networks; the filter then trains on the CPU.
+    let mut c = config(Backend::Fused);
+    c.device = "gpu:llvmpipe".into();
+    c.validate().unwrap();
 
     // This build has no CUDA: asking for it says so instead of failing later, also where
     // nothing would be trained (the defaults) and the request would otherwise pass unused.

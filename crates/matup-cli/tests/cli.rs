@@ -838,3 +838,56 @@ fn a_model_missing_its_buffer_is_refused_before_any_work() {
     );
     assert!(!out.exists(), "nothing was made: {err}");
 }
+
+/// Where the machine offers no GPU adapter (here: Vulkan's loader pointed at no driver, and no
+/// Metal or DirectX 12 on Linux), `auto` runs the networks on the CPU and says why in
+/// run.json, `list` says there is none, and `--device gpu` is refused, naming the problem.
+#[cfg(all(feature = "onnx", target_os = "linux"))]
+#[test]
+fn with_no_gpu_adapter_auto_runs_on_the_cpu_and_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let no_driver = dir.path().join("no-driver.json");
+    let without_adapters = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_matup"))
+            .args(args)
+            .env("VK_ICD_FILENAMES", &no_driver)
+            .env("VK_DRIVER_FILES", &no_driver)
+            .output()
+            .unwrap()
+    };
+    let o = without_adapters(&["list"]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("none: this machine offers no Vulkan, Metal or DirectX 12 adapter")
+            && text.contains("--device auto runs the networks on the CPU"),
+        "{text}"
+    );
+    let out = dir.path().join("out");
+    let o = without_adapters(&["upscale", &sample(), "-o", out.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("run.json")).unwrap()).unwrap();
+    assert_eq!(
+        report["network_devices"],
+        serde_json::json!([
+            "onnx:span_x4_materials: matup on the CPU: device=auto found no hardware GPU \
+             adapter (software ones run only when named: gpu:NAME)"
+        ])
+    );
+    let refused = dir.path().join("refused");
+    let o = without_adapters(&[
+        "upscale",
+        &sample(),
+        "-o",
+        refused.to_str().unwrap(),
+        "--device",
+        "gpu",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("device 'gpu': no such GPU adapter (this machine offers no Vulkan"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!refused.exists(), "refused before writing anything");
+}

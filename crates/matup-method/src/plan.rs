@@ -652,12 +652,19 @@ pub fn choose_upsampler(config: &Config) -> Result<(String, Box<dyn RgbUpsampler
         _ => &[],
     };
     let material = material.iter().filter(|_| config.upsamples_maps_only());
+    // A GPU adapter named: a network that cannot run there is an error, not Lanczos in its
+    // place.
+    let names_an_adapter = matches!(
+        matup_core::device::DeviceSpec::parse(&config.device),
+        Ok(matup_core::device::DeviceSpec::Gpu(_))
+    );
     let mut last = None;
     for &spec in material.chain(&AUTO_UPSAMPLERS) {
         match fits(spec) {
             Ok(chosen) => return Ok(chosen),
             // What the caller gave must run: no other upsampler in its place.
             Err(e) if run_instead(config, spec).is_some() => return Err(e),
+            Err(e) if names_an_adapter && spec.starts_with("onnx:") => return Err(e),
             Err(e) => last = Some(e),
         }
     }
