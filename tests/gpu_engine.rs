@@ -155,6 +155,9 @@ fn auto_runs_on_the_first_hardware_adapter_or_on_the_cpu_saying_why() {
         ),
         Some(a) => assert!(placement.contains(&a.name), "{placement}"),
     }
+    // A CPU engine asked for by name runs on the CPU whatever auto would take.
+    let matup_engine = build("onnx:span_x4_ch48,engine=matup");
+    assert_eq!(matup_engine.placement().unwrap(), "matup on the CPU");
     let e = matup::core::upsample::upsampler(
         &"onnx:span_x4_ch48,device=gpu:no-such-adapter"
             .parse()

@@ -118,7 +118,18 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
     let values = parse_options("onnx", Some(options), OPTIONS)?;
     let device = values["device"].clone();
     let on_gpu = matup_core::device::cuda_ordinal(&device)?.is_some();
-    let on_adapter = if on_gpu { None } else { adapter_for(&device)? };
+    // A CPU engine asked for by name runs on the CPU under `auto`; on a named adapter it is
+    // refused below.
+    let cpu_engine = matches!(values["engine"].as_str(), "matup" | "tract" | "candle");
+    let names_adapter = matches!(
+        matup_core::device::DeviceSpec::parse(&device)?,
+        matup_core::device::DeviceSpec::Gpu(_)
+    );
+    let on_adapter = if on_gpu || (cpu_engine && !names_adapter) {
+        None
+    } else {
+        adapter_for(&device)?
+    };
     let precision = Precision::parse(&values["precision"]).ok_or_else(|| Error::Plugin {
         plugin: "onnx".into(),
         message: format!(
