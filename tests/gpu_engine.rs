@@ -42,9 +42,17 @@ fn every_shipped_network_on_the_gpu_is_within_a_level_of_the_cpu() {
         let name = built_in.name;
         // Tiles of 24 with their context, several a call; and the default network whole,
         // wrapping around (the others share its graph: lavapipe is slow).
-        let whole = (name == "span_x4_materials").then_some(("", Border::Wrap));
-        for (options, border) in std::iter::once((",tile=24", Border::Mirror)).chain(whole) {
-            let cpu = build(&format!("onnx:{name}{options},device=cpu"));
+        // Also its maps held in half precision, where the adapter has shader-f16.
+        let default = name == "span_x4_materials";
+        let whole = default.then_some(("", Border::Wrap));
+        let half = (default && gpu::test_adapter().unwrap().shader_f16)
+            .then_some((",tile=24,precision=f16", Border::Mirror));
+        let runs = std::iter::once((",tile=24", Border::Mirror))
+            .chain(whole)
+            .chain(half);
+        for (options, border) in runs {
+            let cpu_options = options.replace(",precision=f16", "");
+            let cpu = build(&format!("onnx:{name}{cpu_options},device=cpu"));
             let on_gpu = build(&format!("onnx:{name}{options},device={device}"));
             let placement = on_gpu.placement().unwrap();
             assert!(placement.starts_with("wgpu on "), "{placement}");

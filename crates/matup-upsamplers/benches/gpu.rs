@@ -117,7 +117,7 @@ fn main() {
         };
         let engine = if device == "cpu" { "matup" } else { "wgpu" };
         let note = if *software {
-            " (software adapter: a check of correctness, not of speed)"
+            ": a check of correctness, not of speed"
         } else {
             ""
         };

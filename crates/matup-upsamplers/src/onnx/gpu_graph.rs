@@ -40,10 +40,9 @@ impl std::fmt::Display for GpuError {
 /// The largest convolution kernel side the `conv` kernel stages (its `MAX_K`).
 const MAX_KERNEL: usize = 5;
 
-/// A convolution's weights and bias on the device.
+/// A convolution's weights, then its bias, on the device.
 struct DeviceConv {
     weights: wgpu::Buffer,
-    bias: wgpu::Buffer,
     shape: [usize; 4],
 }
 
@@ -55,6 +54,7 @@ struct Kernels {
     arithmetic: wgpu::ComputePipeline,
     depth_to_space: wgpu::ComputePipeline,
     resize_nearest: wgpu::ComputePipeline,
+    copy_channels: wgpu::ComputePipeline,
 }
 
 /// A network on a wgpu adapter.
@@ -72,6 +72,8 @@ pub struct GpuNet {
     unused: wgpu::Buffer,
     /// Buffers of maps freed by earlier calls, for the next ones.
     pool: Mutex<Vec<wgpu::Buffer>>,
+    /// Whether the maps are held in half precision (f16; sums stay f32).
+    half: bool,
 }
 
 /// The uniform every kernel reads (`Params` in the shader).
@@ -87,7 +89,8 @@ struct Params {
     mode: u32,
     groups: u32,
     count: u32,
-    pad: [u32; 3],
+    offset: u32,
+    pad: [u32; 2],
 }
 
 /// Per value slot of `graph`: its channels and its size as a multiple of the input's.
@@ -164,10 +167,16 @@ fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
 }
 
 impl Kernels {
-    fn new(device: &wgpu::Device) -> Kernels {
+    /// The kernels, their maps f16 where `half`.
+    fn new(device: &wgpu::Device, half: bool) -> Kernels {
+        let source = include_str!("gpu_kernels.wgsl");
+        let source = match half {
+            true => source.replacen("alias Value = f32;", "enable f16;\nalias Value = f16;", 1),
+            false => source.to_string(),
+        };
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("matup kernels"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("gpu_kernels.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
         });
         let uniform = wgpu::BindGroupLayoutEntry {
             binding: 0,
@@ -211,15 +220,23 @@ impl Kernels {
             arithmetic: pipeline("arithmetic"),
             depth_to_space: pipeline("depth_to_space"),
             resize_nearest: pipeline("resize_nearest"),
+            copy_channels: pipeline("copy_channels"),
             layout,
         }
     }
 }
 
 impl GpuNet {
-    /// `graph` on `gpu`, its weights uploaded; refused, naming the operation, where a kernel
+    /// `graph` on `gpu`, its weights uploaded, its maps held in half precision where `half`
+    /// (the adapter must have `shader-f16`); refused, naming the operation, where a kernel
     /// does not cover it.
-    pub fn new(graph: Graph, gpu: Arc<Gpu>) -> Result<GpuNet, GpuError> {
+    pub fn new(graph: Graph, gpu: Arc<Gpu>, half: bool) -> Result<GpuNet, GpuError> {
+        if half && !gpu.summary.shader_f16 {
+            return Err(GpuError::Unsupported(format!(
+                "half precision: {} has no shader-f16",
+                gpu.summary.name
+            )));
+        }
         for step in &graph.steps {
             if let Op::Conv(conv, _) = &step.op {
                 let [_, _, kh, kw] = conv.shape;
@@ -240,7 +257,7 @@ impl GpuNet {
             })
         };
         let error = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let kernels = Kernels::new(device);
+        let kernels = Kernels::new(device, half);
         let shapes = value_shapes(&graph);
         let mut chains = Vec::with_capacity(graph.steps.len());
         let steps = (graph.steps.iter())
@@ -251,15 +268,13 @@ impl GpuNet {
                     _ => (None, &[]),
                 };
                 chains.push(upload("chain", bytemuck::cast_slice(&chain_words(chain))));
-                let conv = conv.map(|c| DeviceConv {
-                    weights: upload("weights", bytemuck::cast_slice(&c.weights)),
-                    bias: upload(
-                        "bias",
-                        bytemuck::cast_slice(
-                            &c.bias.clone().unwrap_or_else(|| vec![0.0; c.shape[0]]),
-                        ),
-                    ),
-                    shape: c.shape,
+                let conv = conv.map(|c| {
+                    let mut taps = c.weights.clone();
+                    taps.extend(c.bias.clone().unwrap_or_else(|| vec![0.0; c.shape[0]]));
+                    DeviceConv {
+                        weights: upload("weights", bytemuck::cast_slice(&taps)),
+                        shape: c.shape,
+                    }
                 });
                 Step {
                     op: match &step.op {
@@ -294,12 +309,25 @@ impl GpuNet {
             output: graph.output,
             unused,
             pool: Mutex::new(Vec::new()),
+            half,
             gpu,
         })
     }
 
     pub fn gpu(&self) -> &Gpu {
         &self.gpu
+    }
+
+    /// Whether the maps are held in half precision.
+    pub fn half(&self) -> bool {
+        self.half
+    }
+
+    /// Bytes of a map of `values` values: 4 or 2 a value, rounded up to whole words (what
+    /// wgpu binds and copies).
+    fn map_bytes(&self, values: usize) -> u64 {
+        let size = if self.half { 2 } else { 4 };
+        ((values * size) as u64).next_multiple_of(4)
     }
 
     /// The network's scale (the output's size over the input's).
@@ -312,7 +340,7 @@ impl GpuNet {
     pub fn call_bytes(&self, batch: usize, h: usize, w: usize) -> (u64, u64) {
         let bytes = |v: usize| {
             let (c, s) = self.shapes[v];
-            (batch * c * h * s * w * s * 4) as u64
+            self.map_bytes(batch * c * h * s * w * s)
         };
         let largest = (0..self.shapes.len()).map(bytes).max().unwrap_or(0);
         let mut alive: u64 = bytes(0);
@@ -410,14 +438,19 @@ impl GpuNet {
         let device = &self.gpu.device;
         let bytes = |v: usize| {
             let (c, s) = self.shapes[v];
-            (batch * c * h * s * w * s * 4) as u64
+            self.map_bytes(batch * c * h * s * w * s)
         };
         let mut free = Vec::new();
         let mut values: Vec<Option<wgpu::Buffer>> = vec![None; self.shapes.len()];
         let first = self.buffer(bytes(0), &mut free);
-        self.gpu
-            .queue
-            .write_buffer(&first, 0, bytemuck::cast_slice(input));
+        let mut upload: Vec<u8> = match self.half {
+            true => (input.iter())
+                .flat_map(|v| half::f16::from_f32(*v).to_le_bytes())
+                .collect(),
+            false => bytemuck::cast_slice(input).to_vec(),
+        };
+        upload.resize(bytes(0) as usize, 0);
+        self.gpu.queue.write_buffer(&first, 0, &upload);
         values[0] = Some(first);
         let mut encoder = device.create_command_encoder(&Default::default());
         for (i, step) in self.steps.iter().enumerate() {
@@ -449,9 +482,10 @@ impl GpuNet {
                         kernel_w: kw as u32,
                         mode: u32::from(padding == Padding::Wrap),
                         groups,
+                        offset: conv.weights.size() as u32 / 4 - cout as u32,
                         ..base
                     };
-                    let bind = [value(0), &conv.weights, &conv.bias, &self.chains[i], &out];
+                    let bind = [value(0), &self.unused, &conv.weights, &self.chains[i], &out];
                     let size = [sw.div_ceil(8), sh.div_ceil(8), batch as u32 * groups];
                     self.dispatch(&mut encoder, &self.kernels.conv, params, bind, size);
                 }
@@ -468,19 +502,19 @@ impl GpuNet {
                     self.elementwise(&mut encoder, &self.kernels.arithmetic, params, bind);
                 }
                 Op::Concat => {
-                    let plane = (h * s * w * s * 4) as u64;
+                    // A kernel, not buffer copies: an f16 part of an odd plane does not
+                    // start on a whole word.
                     let mut at = 0;
                     for k in 0..step.inputs.len() {
-                        let part = self.shapes[step.inputs[k]].0 as u64;
-                        for image in 0..batch as u64 {
-                            encoder.copy_buffer_to_buffer(
-                                value(k),
-                                image * part * plane,
-                                &out,
-                                (image * co as u64 + at) * plane,
-                                part * plane,
-                            );
-                        }
+                        let part = self.shapes[step.inputs[k]].0;
+                        let params = Params {
+                            channels_in: part as u32,
+                            offset: at as u32,
+                            count: (batch * part * h * s * w * s) as u32,
+                            ..base
+                        };
+                        let bind = [value(k), &self.unused, &self.unused, &self.unused, &out];
+                        self.elementwise(&mut encoder, &self.kernels.copy_channels, params, bind);
                         at += part;
                     }
                 }
@@ -538,7 +572,14 @@ impl GpuNet {
             let view = readback
                 .get_mapped_range(..)
                 .map_err(|e| GpuError::Failed(format!("reading the GPU's output: {e}")))?;
-            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
+            let (c, s) = self.shapes[self.output];
+            let values = batch * c * h * s * w * s;
+            match self.half {
+                true => (view[..2 * values].chunks_exact(2))
+                    .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
+                    .collect(),
+                false => bytemuck::cast_slice::<u8, f32>(&view)[..values].to_vec(),
+            }
         };
         readback.unmap();
         free.push(output);
@@ -712,17 +753,18 @@ mod tests {
         )
     }
 
-    /// `graph` on the GPU against matup's CPU executor on a `w × h` image of `batch` tiles,
-    /// under both paddings: the largest difference.
+    /// `graph` on the GPU (its maps f16 where `half`) against matup's CPU executor on a
+    /// `w × h` image of `batch` tiles, under both paddings: the largest difference.
     fn largest_difference(
         gpu: &Arc<Gpu>,
         proto: &ModelProto,
+        half: bool,
         batch: usize,
         h: usize,
         w: usize,
     ) -> f32 {
         let cpu = ConvNet::from_model(proto).unwrap();
-        let net = GpuNet::new(Graph::from_model(proto).unwrap(), gpu.clone()).unwrap();
+        let net = GpuNet::new(Graph::from_model(proto).unwrap(), gpu.clone(), half).unwrap();
         let planes: Vec<f32> = (0..batch * 3 * h * w)
             .map(|k| ((k * 2654435761usize) % 1000) as f32 / 1000.0)
             .collect();
@@ -831,9 +873,15 @@ mod tests {
             // DepthToSpace of 12 channels by 2 gives 3: an RGB output, as the executor wants.
             let proto = model(nodes, constants.clone(), output);
             for (batch, h, w) in [(1, 13, 11), (3, 8, 20)] {
-                let worst = largest_difference(&gpu, &proto, batch, h, w);
+                let worst = largest_difference(&gpu, &proto, false, batch, h, w);
                 assert!(worst < 2e-5, "{output}, {batch} of {w}×{h}: {worst}");
                 eprintln!("{output}, {batch} of {w}×{h}: largest difference {worst:.2e}");
+                // Maps held in f16 (odd planes, so no part of a concatenation starts on a word).
+                if gpu.summary.shader_f16 {
+                    let worst = largest_difference(&gpu, &proto, true, batch, h, w);
+                    eprintln!("{output}, {batch} of {w}×{h}, f16: largest difference {worst:.2e}");
+                    assert!(worst < 2e-2, "{output}, {batch} of {w}×{h}, f16: {worst}");
+                }
             }
         }
     }
@@ -843,7 +891,7 @@ mod tests {
         let Some(gpu) = test_gpu() else { return };
         let (c, k) = conv("x", "y", 3, 3, 7);
         let proto = model(vec![c], k, "y");
-        let e = GpuNet::new(Graph::from_model(&proto).unwrap(), gpu)
+        let e = GpuNet::new(Graph::from_model(&proto).unwrap(), gpu, false)
             .err()
             .unwrap()
             .to_string();

@@ -1,5 +1,9 @@
+// What the maps hold: f32, or f16 where the adapter has `shader-f16` and the engine runs in
+// half precision (`gpu_graph.rs` swaps this first line). Sums are f32 either way.
+alias Value = f32;
+
 // The GPU engine's kernels (`gpu_graph.rs`): the operations of matup's executor on planar
-// `[batch, channels, height, width]` maps of f32. Every kernel reads its shape from `p`.
+// `[batch, channels, height, width]` maps of `Value`. Every kernel reads its shape from `p`.
 //
 // A per-texel chain (`chain`) is a list of u32 words: its length, then each operation as a code
 // followed by its arguments (f32 bits):
@@ -26,17 +30,20 @@ struct Params {
     groups: u32,
     // Values in the map written (element-wise kernels).
     count: u32,
-    pad0: u32,
+    // Convolutions: where the bias starts in `weights`. Channel copies: the first channel
+    // written.
+    offset: u32,
     pad1: u32,
     pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read> second: array<f32>;
-@group(0) @binding(3) var<storage, read> bias: array<f32>;
+@group(0) @binding(1) var<storage, read> x: array<Value>;
+@group(0) @binding(2) var<storage, read> second: array<Value>;
+// A convolution's weights `[out, in, kh, kw]`, then its bias from `offset`.
+@group(0) @binding(3) var<storage, read> weights: array<f32>;
 @group(0) @binding(4) var<storage, read> chain: array<u32>;
-@group(0) @binding(5) var<storage, read_write> y: array<f32>;
+@group(0) @binding(5) var<storage, read_write> y: array<Value>;
 
 fn sigmoid(v: f32) -> f32 {
     // Clamped: exp of a large argument is infinite, which some drivers do not keep.
@@ -155,7 +162,7 @@ fn conv(
             let sx = source_index(left + i32(px), p.width);
             var v = 0.0;
             if first_in + c < p.channels_in && sy >= 0 && sx >= 0 {
-                v = x[(image * p.channels_in + first_in + c) * plane + u32(sy) * p.width + u32(sx)];
+                v = f32(x[(image * p.channels_in + first_in + c) * plane + u32(sy) * p.width + u32(sx)]);
             }
             staged[(c * PATCH + py) * PATCH + px] = v;
         }
@@ -167,7 +174,7 @@ fn conv(
             let c = i / (k2 * OUT);
             var v = 0.0;
             if first_in + c < p.channels_in && first_out + o < p.channels_out {
-                v = second[((first_out + o) * p.channels_in + first_in + c) * k2 + t];
+                v = weights[((first_out + o) * p.channels_in + first_in + c) * k2 + t];
             }
             taps[(c * OUT + o) * TAPS + t] = v;
         }
@@ -194,8 +201,8 @@ fn conv(
     for (var o = 0u; o < OUT; o++) {
         let channel = first_out + o;
         if channel < p.channels_out {
-            let v = apply_chain(sums[o] + bias[channel], channel);
-            y[(image * p.channels_out + channel) * plane + oy * p.width + ox] = v;
+            let v = apply_chain(sums[o] + weights[p.offset + channel], channel);
+            y[(image * p.channels_out + channel) * plane + oy * p.width + ox] = Value(v);
         }
     }
 }
@@ -214,7 +221,7 @@ fn per_texel(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_
         return;
     }
     let channel = (i / (p.width * p.height)) % p.channels_in;
-    y[i] = apply_chain(x[i], channel);
+    y[i] = Value(apply_chain(f32(x[i]), channel));
 }
 
 // y = x (op) second, maps of one shape.
@@ -224,7 +231,7 @@ fn arithmetic(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation
     if i >= p.count {
         return;
     }
-    y[i] = arith(x[i], second[i], p.mode);
+    y[i] = Value(arith(f32(x[i]), f32(second[i]), p.mode));
 }
 
 // Channels into `factor × factor` texels: x is `[b, c·f², h, w]`, y `[b, c, h·f, w·f]`; DCR
@@ -261,4 +268,19 @@ fn resize_nearest(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invoca
     let oy = (i / ow) % oh;
     let plane = i / (ow * oh);
     y[i] = x[(plane * p.height + oy / f) * p.width + ox / f];
+}
+
+// A map's channels into a wider map's, from channel `offset` (a concatenation's part): x is
+// `[b, channels_in, h, w]`, y `[b, channels_out, h, w]`; `count` is x's values.
+@compute @workgroup_size(256, 1, 1)
+fn copy_channels(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let i = element(group, lane);
+    if i >= p.count {
+        return;
+    }
+    let plane = p.width * p.height;
+    let t = i % plane;
+    let c = (i / plane) % p.channels_in;
+    let image = i / (plane * p.channels_in);
+    y[(image * p.channels_out + p.offset + c) * plane + t] = x[i];
 }

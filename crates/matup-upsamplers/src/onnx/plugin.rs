@@ -46,7 +46,7 @@ const OPTIONS: &[PluginOption] = &[
     PluginOption {
         key: "precision",
         default: "f32",
-        help: "what the candle engine computes in: f32, tf32 (a GPU's tensor cores, f32 values), f16 or bf16 (half-size values, products summed in f32)",
+        help: "what the network computes in: f32; on candle also tf32 (a GPU's tensor cores, f32 values), f16 or bf16 (half-size values, products summed in f32); on a GPU adapter also f16 (maps held in half precision, sums in f32; the adapter needs shader-f16)",
     },
     PluginOption {
         key: "sidecar",
@@ -118,6 +118,14 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
     let values = parse_options("onnx", Some(options), OPTIONS)?;
     let device = values["device"].clone();
     let on_gpu = matup_core::device::cuda_ordinal(&device)?.is_some();
+    let precision = Precision::parse(&values["precision"]).ok_or_else(|| Error::Plugin {
+        plugin: "onnx".into(),
+        message: format!(
+            "precision '{}': known precisions are {}",
+            values["precision"],
+            Precision::ALL.map(Precision::name).join(", ")
+        ),
+    })?;
     // A CPU engine asked for by name runs on the CPU under `auto`; on a named adapter it is
     // refused below.
     let cpu_engine = matches!(values["engine"].as_str(), "matup" | "tract" | "candle");
@@ -128,16 +136,8 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
     let on_adapter = if on_gpu || (cpu_engine && !names_adapter) {
         None
     } else {
-        adapter_for(&device)?
+        adapter_for(&device, precision == Precision::F16)?
     };
-    let precision = Precision::parse(&values["precision"]).ok_or_else(|| Error::Plugin {
-        plugin: "onnx".into(),
-        message: format!(
-            "precision '{}': known precisions are {}",
-            values["precision"],
-            Precision::ALL.map(Precision::name).join(", ")
-        ),
-    })?;
     let refused = |message: String| Error::Plugin {
         plugin: "onnx".into(),
         message,
@@ -166,7 +166,11 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
             )))
         }
     };
-    if precision != Precision::F32 && !matches!(choice, EngineChoice::Candle(..)) {
+    let half_on_adapter = precision == Precision::F16 && matches!(choice, EngineChoice::Gpu { .. });
+    if precision != Precision::F32
+        && !matches!(choice, EngineChoice::Candle(..))
+        && !half_on_adapter
+    {
         return Err(Error::Plugin {
             plugin: "onnx".into(),
             message: format!(
@@ -216,7 +220,7 @@ fn load(argument: &str) -> Result<OnnxUpsampler> {
 /// `gpu:NAME` names (an error where there is none), or under `auto` the first hardware one,
 /// the CPU taking over where it cannot run the network. `None`: the network runs on the CPU
 /// (`cpu`, or `auto` with no hardware adapter; the upsampler says which).
-fn adapter_for(device: &str) -> Result<Option<EngineChoice>> {
+fn adapter_for(device: &str, half: bool) -> Result<Option<EngineChoice>> {
     use matup_core::device::DeviceSpec;
     Ok(match DeviceSpec::parse(device)? {
         DeviceSpec::Gpu(pick) => {
@@ -225,11 +229,13 @@ fn adapter_for(device: &str) -> Result<Option<EngineChoice>> {
                 index: adapter.index,
                 or_cpu: false,
                 why: format!("device={device} asked for it"),
+                half,
             })
         }
         DeviceSpec::Auto => crate::gpu::auto_adapter().map(|adapter| EngineChoice::Gpu {
             index: adapter.index,
             or_cpu: true,
+            half,
             why: format!(
                 "device=auto took the first hardware adapter ({})",
                 adapter.kind.name()

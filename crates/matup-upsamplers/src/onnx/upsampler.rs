@@ -47,6 +47,8 @@ pub enum EngineChoice {
         index: usize,
         or_cpu: bool,
         why: String,
+        /// Maps in half precision (the adapter's `shader-f16`).
+        half: bool,
     },
 }
 
@@ -167,7 +169,8 @@ impl OnnxUpsampler {
                 index,
                 or_cpu,
                 why: because,
-            } => match gpu_engine(&source, &proto, *index) {
+                half,
+            } => match gpu_engine(&source, &proto, *index, *half) {
                 Ok(engine) => {
                     why = because.clone();
                     engine
@@ -216,7 +219,13 @@ impl OnnxUpsampler {
             Engine::Candle { net, .. } => format!("candle on {}", device_name(net.device())),
             Engine::Gpu(net) => {
                 let s = &net.gpu().summary;
-                format!("wgpu on {} ({}, {})", s.name, s.backend, s.kind.name())
+                let half = if net.half() { ", f16" } else { "" };
+                format!(
+                    "wgpu on {} ({}, {}{half})",
+                    s.name,
+                    s.backend,
+                    s.kind.name()
+                )
             }
             Engine::Tract { because, .. } => format!("tract ({because})"),
         }
@@ -533,11 +542,16 @@ fn keep_f32_convolutions(precision: Precision) {
 
 /// The GPU engine for `proto` on wgpu adapter `index`: the executor's graph, its weights
 /// uploaded once; refused, naming the operation, where its kernels do not cover the graph.
-fn gpu_engine(source: &ModelSource, proto: &ModelProto, index: usize) -> Result<Engine> {
+fn gpu_engine(
+    source: &ModelSource,
+    proto: &ModelProto,
+    index: usize,
+    half: bool,
+) -> Result<Engine> {
     let graph =
         Graph::from_model(proto).map_err(|e| source.error("the GPU engine cannot run it", e))?;
     let gpu = crate::gpu::open(index)?;
-    let net = GpuNet::new(graph, gpu).map_err(|e| source.error("on the GPU", e))?;
+    let net = GpuNet::new(graph, gpu, half).map_err(|e| source.error("on the GPU", e))?;
     Ok(Engine::Gpu(net))
 }
 
