@@ -1,8 +1,8 @@
 //! The executor's graph ([`Graph`]) on a GPU through wgpu: the same steps as matup's CPU
 //! executor, each a compute shader written for it (`gpu_kernels.wgsl`) on planar
-//! `[batch, channels, height, width]` maps (f32, or f16 on request). Written here rather than taken from a tensor
-//! crate on wgpu (burn's): a network of this graph needs seven kernels, and the study
-//! (docs/experiments/2026-12-02-gpu-engine.md) weighs the two.
+//! `[batch, channels, height, width]` maps (f32, or f16 on request). Written here rather
+//! than taken from a tensor crate on wgpu (burn's): a network of this graph needs seven
+//! kernels, and the study (docs/experiments/2026-12-02-gpu-engine.md) weighs the two.
 //!
 //! The weights are uploaded once, when the network is loaded; a call uploads a batch of tiles,
 //! records every step in one command buffer, and reads the output back. The maps' buffers are
