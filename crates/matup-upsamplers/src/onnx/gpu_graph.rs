@@ -323,11 +323,12 @@ impl GpuNet {
         self.half
     }
 
-    /// Bytes of a map of `values` values: 4 or 2 a value, rounded up to whole words (what
-    /// wgpu binds and copies).
-    fn map_bytes(&self, values: usize) -> u64 {
+    /// Bytes of value slot `v` in a call of `batch` tiles of `h × w`: 4 or 2 a value, rounded
+    /// up to whole words (what wgpu binds and copies).
+    fn value_bytes(&self, v: usize, batch: usize, h: usize, w: usize) -> u64 {
+        let (c, s) = self.shapes[v];
         let size = if self.half { 2 } else { 4 };
-        ((values * size) as u64).next_multiple_of(4)
+        ((batch * c * h * s * w * s * size) as u64).next_multiple_of(4)
     }
 
     /// The network's scale (the output's size over the input's).
@@ -338,10 +339,7 @@ impl GpuNet {
     /// Bytes of the largest map of a call of `batch` tiles of `h × w`, and of all maps alive
     /// at once at the peak.
     pub fn call_bytes(&self, batch: usize, h: usize, w: usize) -> (u64, u64) {
-        let bytes = |v: usize| {
-            let (c, s) = self.shapes[v];
-            self.map_bytes(batch * c * h * s * w * s)
-        };
+        let bytes = |v: usize| self.value_bytes(v, batch, h, w);
         let largest = (0..self.shapes.len()).map(bytes).max().unwrap_or(0);
         let mut alive: u64 = bytes(0);
         let mut peak = alive;
@@ -436,10 +434,7 @@ impl GpuNet {
         padding: Padding,
     ) -> Result<Vec<f32>, GpuError> {
         let device = &self.gpu.device;
-        let bytes = |v: usize| {
-            let (c, s) = self.shapes[v];
-            self.map_bytes(batch * c * h * s * w * s)
-        };
+        let bytes = |v: usize| self.value_bytes(v, batch, h, w);
         let mut free = Vec::new();
         let mut values: Vec<Option<wgpu::Buffer>> = vec![None; self.shapes.len()];
         let first = self.buffer(bytes(0), &mut free);

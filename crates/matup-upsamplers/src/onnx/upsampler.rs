@@ -350,7 +350,18 @@ impl OnnxUpsampler {
                     None => tiles.iter().map(run).collect(),
                 })
             }
-            Engine::Gpu(net) => self.run_on_gpu(net, tiles, h, w, padding),
+            Engine::Gpu(net) => {
+                let out = self.run_on_gpu(net, tiles, h, w, padding)?;
+                let (oh, ow) = (h * net.scale(), w * net.scale());
+                let plane = oh * ow;
+                Ok((out.chunks(3 * plane))
+                    .map(|planes| {
+                        Map::from_fn(ow, oh, 3, |c, y, x| {
+                            output(planes[channel(c) * plane + y * ow + x])
+                        })
+                    })
+                    .collect())
+            }
             Engine::Candle { net, .. } => {
                 let out = self.run_on_device(net, tiles, h, w, padding)?;
                 let failed = |e: candle_core::Error| self.source.error("inference failed", e);
@@ -391,8 +402,9 @@ impl OnnxUpsampler {
 }
 
 impl OnnxUpsampler {
-    /// [`OnnxUpsampler::run_batch`] on a wgpu adapter. Where its memory does not hold the
-    /// call, the tiles run in halves, down to one a call; past that the error says so.
+    /// The network's output planes (its range and channel order) for `tiles` on a wgpu
+    /// adapter. Where its memory does not hold the call, the tiles run in halves, down to one
+    /// a call; past that the error says so.
     fn run_on_gpu(
         &self,
         net: &GpuNet,
@@ -400,24 +412,10 @@ impl OnnxUpsampler {
         h: usize,
         w: usize,
         padding: Padding,
-    ) -> Result<Vec<Map>> {
+    ) -> Result<Vec<f32>> {
         let planes: Vec<&[f32]> = tiles.iter().map(|t| &t[..]).collect();
         match net.run(&self.network_input(&planes), tiles.len(), h, w, padding) {
-            Ok(out) => {
-                let [olo, ohi] = self.info.output_range;
-                let bgr = self.info.channel_order == "bgr";
-                let n = 3 * h * w * net.scale() * net.scale();
-                let (oh, ow) = (h * net.scale(), w * net.scale());
-                Ok((out.chunks(n))
-                    .map(|planes| {
-                        let plane = oh * ow;
-                        Map::from_fn(ow, oh, 3, |c, y, x| {
-                            let c = if bgr { 2 - c } else { c };
-                            ((planes[c * plane + y * ow + x] - olo) / (ohi - olo)).clamp(0.0, 1.0)
-                        })
-                    })
-                    .collect())
-            }
+            Ok(out) => Ok(out),
             Err(GpuError::OutOfMemory(_)) if tiles.len() > 1 => {
                 let (first, second) = tiles.split_at(tiles.len() / 2);
                 let mut out = self.run_on_gpu(net, first, h, w, padding)?;
