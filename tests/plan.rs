@@ -6,7 +6,7 @@ mod common;
 use std::sync::Arc;
 
 use matup::config::{Config, InputQuality, Selection};
-use matup::degrade::{Degradation, Subsampling};
+use matup::degrade::{BlockFormat, Degradation, Subsampling};
 use matup::material::MapKind;
 use matup::plan::{
     Plan, Reach, TilingGrounds, DEGRADED_NETWORK, JPEG_NETWORK, JPEG_PROJECTION_BLUR,
@@ -275,15 +275,45 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     assert_eq!(
         by_texels.lossy,
         [
-            "base colour from a JPEG, by its texels (its 8×8 grid at x 6, y 6)",
-            "metallic saved losslessly beside it, as a JPEG of the same set",
-            "normal saved losslessly beside it, as a JPEG of the same set",
-            "roughness saved losslessly beside it, as a JPEG of the same set"
+            "a JPEG's 8×8 grid (at x 6, y 6) found in baseColor.png's texels",
+            "metallic saved losslessly beside a JPEG, as a JPEG of the same set",
+            "normal saved losslessly beside a JPEG, as a JPEG of the same set",
+            "roughness saved losslessly beside a JPEG, as a JPEG of the same set"
         ]
     );
     assert!(
         by_texels.maps.iter().all(|&(_, q)| q == Jpeg),
         "{by_texels:?}"
+    );
+    // A game's BC1 colour unpacked to PNG: its blocks say so, off their grid too; the maps
+    // beside it are read for themselves, and stay clean.
+    let mut unpacked = load_material(Some(&folder), &LoadOptions::default()).unwrap();
+    let bc1 = Degradation::Block(BlockFormat::Bc1);
+    unpacked.base_color = (bc1.apply(MapKind::BaseColor, &unpacked.base_color, &mut rng))
+        .unwrap()
+        .crop(1, 2, 240, 240);
+    unpacked = unpacked.crop(0, 0, 240, 240);
+    let by_blocks = plan(&unpacked, InputQuality::Auto);
+    assert_eq!(
+        by_blocks.input.lossy,
+        ["BC1/BC3 blocks (4×4 at x 3, y 2) found in baseColor.png's texels"]
+    );
+    let routes: Vec<_> = by_blocks.input.maps.iter().map(|&(_, q)| q).collect();
+    assert_eq!(
+        routes,
+        [Degraded, Clean, Clean, Clean],
+        "{:?}",
+        by_blocks.input
+    );
+    assert!(
+        (by_blocks.input.describe())
+            .contains("BC1/BC3 blocks (4×4 at x 3, y 2) found in baseColor.png's texels"),
+        "{}",
+        by_blocks.input.describe()
+    );
+    assert_eq!(
+        by_blocks.setup.settings.filter.unprojected_maps,
+        [MapKind::BaseColor]
     );
     // A named upsampler stays; the route still decides the projection.
     let named = Config {

@@ -89,6 +89,10 @@ pub enum Degradation {
     Blur { sigma: f32 },
     /// An unsharp mask, `v + amount · (v − blur(v, sigma))`: the halos of oversharpened assets.
     Halo { sigma: f32, amount: f32 },
+    /// Saved again as an 8-bit PNG: values rounded to 8 bits, and a lossy storage before it no
+    /// longer in the file's format (a game's DDS unpacked, a JPEG kept as PNG); only its texels
+    /// still tell (`crate::texel_trace`).
+    SavedAsPng,
 }
 
 impl Degradation {
@@ -99,6 +103,15 @@ impl Degradation {
             Degradation::Block(format) => format.codec().lossy_storage(),
             Degradation::Jpeg { .. } => FileFormat::Jpeg.lossy_storage(),
             _ => None,
+        }
+    }
+
+    /// What the file is after this step, where the step decides it: `Some(None)` lossless
+    /// (saved as PNG), `Some(Some(storage))` lossy; `None` where it leaves the file as it was.
+    fn storage(&self) -> Option<Option<String>> {
+        match self {
+            Degradation::SavedAsPng => Some(None),
+            d => d.lossy_storage().map(Some),
         }
     }
 
@@ -133,6 +146,7 @@ impl Degradation {
                 })
             }
             Degradation::Blur { sigma } => blurred(&stored, sigma),
+            Degradation::SavedAsPng => per_value(&stored, |v| (v * 255.0).round() / 255.0),
             Degradation::Halo { sigma, amount } => {
                 let blur = blurred(&stored, sigma);
                 Map::from_fn(
@@ -169,7 +183,7 @@ pub fn degrade_material(
         for d in &steps {
             *map = d.apply(kind, map, rng)?;
         }
-        if let Some(storage) = steps.iter().rev().find_map(Degradation::lossy_storage) {
+        if let Some(storage) = steps.iter().rev().find_map(Degradation::storage).flatten() {
             let simulated = format!("{storage} (simulated: {degradation})");
             out.lossy.insert(kind, simulated);
         }
@@ -194,6 +208,8 @@ pub const STORED_KINDS: [MapKind; 5] = [
 /// - `noiseS`: Gaussian noise of S levels; `poissonP`: shot noise of peak P;
 /// - `blurS`: a Gaussian blur of S texels; `haloA`: an unsharp mask of amount A (σ 1.5);
 /// - `ditherN`, `ditherN-fs`: N levels, ordered or Floyd–Steinberg;
+/// - any of them saved again as PNG after, with `-png` (`bc1-png`, `jpeg75-png`, `dds-png`):
+///   as modders unpack a game's textures, its file no longer says what it went through;
 /// - several joined by `+` (`blur0.7+jpeg60`), applied in that order;
 /// - any of them on one map alone, named by its file stem after `@` (`jpeg75@baseColor`: a
 ///   glTF model's JPEG colour beside its PNG maps).
@@ -247,7 +263,10 @@ impl FromStr for MaterialDegradation {
         let steps = text
             .split('+')
             .map(|part| parse_step_on_maps(part.trim()))
-            .collect::<Result<Vec<_>>>()?;
+            .collect::<Result<Vec<_>>>()?
+            .into_iter()
+            .flatten()
+            .collect();
         Ok(MaterialDegradation {
             name: text.to_string(),
             steps,
@@ -256,28 +275,38 @@ impl FromStr for MaterialDegradation {
 }
 
 /// A step, and after `@` the one map it reaches (`jpeg75@baseColor`; another map takes the
-/// step again, `+jpeg75@roughness`: a comma separates the runs of `--degrade`).
-fn parse_step_on_maps(text: &str) -> Result<(Step, Option<Vec<MapKind>>)> {
-    let Some((step, map)) = text.split_once('@') else {
-        return Ok((parse_step(text)?, None));
+/// step again, `+jpeg75@roughness`: a comma separates the runs of `--degrade`); a step named
+/// with `-png` after (`bc1-png`) is that step, then [`Degradation::SavedAsPng`].
+fn parse_step_on_maps(text: &str) -> Result<Vec<(Step, Option<Vec<MapKind>>)>> {
+    let (step, maps) = match text.split_once('@') {
+        None => (text, None),
+        Some((step, map)) => {
+            let kind = (MapKind::from_file_stem(map.trim()))
+                .filter(|kind| STORED_KINDS.contains(kind))
+                .ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "degradation '{text}': no map '{map}'; maps: baseColor, normal, \
+                         roughness, metallic, height"
+                    ))
+                })?;
+            (step.trim(), Some(vec![kind]))
+        }
     };
-    let kind = (MapKind::from_file_stem(map.trim()))
-        .filter(|kind| STORED_KINDS.contains(kind))
-        .ok_or_else(|| {
-            Error::Invalid(format!(
-                "degradation '{text}': no map '{map}'; maps: baseColor, normal, roughness, \
-                 metallic, height"
-            ))
-        })?;
-    Ok((parse_step(step.trim())?, Some(vec![kind])))
+    Ok(match step.strip_suffix("-png") {
+        Some(stored) => vec![
+            (parse_step(stored)?, maps.clone()),
+            (Step::Every(Degradation::SavedAsPng), maps),
+        ],
+        None => vec![(parse_step(step)?, maps)],
+    })
 }
 
 fn parse_step(text: &str) -> Result<Step> {
     let bad = |why: &str| {
         Error::Invalid(format!(
             "degradation '{text}': {why}; known: bc1, bc3, bc4, bc5, dds, jpegQ, jpegQ-444, \
-             noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs (joined by '+', each on one \
-             map alone after '@')"
+             noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs (each saved again as PNG with \
+             '-png' after, joined by '+', each on one map alone after '@')"
         ))
     };
     let integer = |digits: &str, range: std::ops::RangeInclusive<u16>, why: &str| {

@@ -28,7 +28,6 @@ pub mod device_maps;
 mod error;
 mod file_format;
 pub mod io;
-pub mod jpeg_trace;
 pub mod layout;
 pub mod lights;
 pub mod loss;
@@ -44,6 +43,7 @@ pub mod resample;
 pub mod shading;
 pub mod svbrdf;
 pub mod tensor_shading;
+pub mod texel_trace;
 pub mod tileable;
 pub mod upsample;
 

@@ -10,11 +10,11 @@ use std::sync::Arc;
 use crate::config::{Config, InputQuality, Selection, TargetSize, LEVEL_SCALES, SCALES};
 use crate::features::FEATURE_MAPS;
 use crate::select::candidates;
-use matup_core::jpeg_trace::jpeg_trace;
 use matup_core::lights::Light;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
+use matup_core::texel_trace::texel_trace;
 use matup_core::tileable::decide_tileable;
 use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
 use matup_core::FileFormat;
@@ -130,7 +130,7 @@ pub struct InputRoute {
     /// `map_input_quality`); else the files did for some.
     pub given: bool,
     /// The maps stored lossily, each with what its storage was: its file's format
-    /// (`Material::lossy`), or a JPEG's grid in its texels (`matup_core::jpeg_trace`).
+    /// (`Material::lossy`), or BC blocks or a JPEG's grid in its texels (`matup_core::texel_trace`).
     pub lossy: Vec<String>,
 }
 
@@ -142,9 +142,9 @@ pub const JPEG_PROJECTION_BLUR: f32 = 16.0;
 
 impl InputRoute {
     /// Each map by the settings' word for it (`map_input_quality`, else `input_quality`), else
-    /// by its file's, else by its texels'.
-    pub fn of(material: &Material, settings: &Config) -> InputRoute {
-        let stored = lossy_maps(material);
+    /// by its file's, else by its texels' (read across its edges where it is `tileable`).
+    pub fn of(material: &Material, settings: &Config, tileable: bool) -> InputRoute {
+        let stored = lossy_maps(material, tileable);
         let word =
             |kind| (settings.map_input_quality.get(&kind)).unwrap_or(&settings.input_quality);
         // A map the material lacks (its stand-in, flat) is none of them: it goes with the
@@ -282,12 +282,13 @@ struct LossyMap {
 }
 
 /// The filter's maps of `material` stored lossily: those its files' formats say
-/// (`Material::lossy`), those whose texels show a JPEG's grid, and where a grid is found so,
-/// the maps saved losslessly beside it: a JPEG's grid in a lossless file means a set saved
-/// again (DamagedHelmet's crops kept as PNG), and the grid shows less in smooth maps (crop C's
-/// metallic map, its grid unseen, drew 6.7× bicubic's invented structure through the
-/// material network; docs/experiments/2026-11-29-degraded-inputs.md).
-fn lossy_maps(material: &Material) -> Vec<LossyMap> {
+/// (`Material::lossy`), those whose texels show BC blocks or a JPEG's grid, and where a grid
+/// is found so, the maps saved losslessly beside it: a JPEG's grid in a lossless file means a
+/// set saved again (DamagedHelmet's crops kept as PNG), and the grid shows less in smooth maps
+/// (crop C's metallic map, its grid unseen, drew 6.7× bicubic's invented structure through the
+/// material network; docs/experiments/2026-11-29-degraded-inputs.md). A BC map's neighbours
+/// are read for themselves: BC4 blocks hide in smooth maps because they cost them nothing.
+fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
     let mut lossy: Vec<LossyMap> = (material.lossy.iter())
         .filter(|(kind, _)| FEATURE_MAPS.contains(kind))
         .map(|(&kind, storage)| LossyMap {
@@ -299,28 +300,36 @@ fn lossy_maps(material: &Material) -> Vec<LossyMap> {
     let by_texels: Vec<LossyMap> = (FEATURE_MAPS.into_iter())
         .filter(|kind| !material.lossy.contains_key(kind))
         .filter_map(|kind| {
-            let trace = jpeg_trace(kind, material.map(kind)?)?;
-            let [x, y] = trace.offset;
+            let trace = texel_trace(kind, material.map(kind)?, tileable)?;
+            let file = (material.origin.as_ref())
+                .and_then(|o| o.source(kind))
+                .and_then(|f| f.path.file_name())
+                .map_or_else(
+                    || kind.to_string(),
+                    |name| name.to_string_lossy().into_owned(),
+                );
             Some(LossyMap {
                 kind,
-                what: format!("{kind} from a JPEG, by its texels (its 8×8 grid at x {x}, y {y})"),
-                jpeg: true,
+                what: format!("{trace} found in {file}'s texels"),
+                jpeg: trace.is_jpeg(),
             })
         })
         .collect();
-    if !by_texels.is_empty() {
+    if by_texels.iter().any(|m| m.jpeg) {
         let stand_ins = material.stand_ins();
         let beside = (FEATURE_MAPS.into_iter())
             .filter(|kind| !material.lossy.contains_key(kind) && !stand_ins.contains(kind))
             .filter(|kind| by_texels.iter().all(|m| m.kind != *kind))
             .map(|kind| LossyMap {
                 kind,
-                what: format!("{kind} saved losslessly beside it, as a JPEG of the same set"),
+                what: format!("{kind} saved losslessly beside a JPEG, as a JPEG of the same set"),
                 jpeg: true,
             })
             .collect::<Vec<_>>();
         lossy.extend(by_texels);
         lossy.extend(beside);
+    } else {
+        lossy.extend(by_texels);
     }
     lossy
 }
@@ -332,7 +341,8 @@ impl Plan {
     pub fn new(material: &Material, settings: &Config) -> Result<Plan> {
         settings.validate()?;
         let reach = Reach::of(settings, [material.width(), material.height_px()])?;
-        let input = InputRoute::of(material, settings);
+        let tiling = Tiling::of(material, settings);
+        let input = InputRoute::of(material, settings, tiling.tileable);
         let resolved = Config {
             scale: reach.scale,
             size: None,
@@ -347,7 +357,7 @@ impl Plan {
         Ok(Plan {
             asked_size: settings.size,
             reach,
-            tiling: Tiling::of(material, settings),
+            tiling,
             input,
             shading: Arc::from(shading_model(&settings.shading.parse::<PluginSpec>()?)?),
             lights: settings.lights.build(),

@@ -315,6 +315,32 @@ fn lossy_storage_is_marked_as_a_lossy_file_would_be() {
     assert_eq!(dds[&MapKind::Roughness], "BC4 blocks (simulated: dds)");
     // Noise, blur, halos and dithering leave nothing a file's format tells.
     assert!(marked("noise3+blur0.5+halo0.5+dither32").is_empty());
+    // Nor does a lossy file saved again as PNG, on the maps it reached; its texels are the
+    // lossy file's.
+    assert!(marked("bc1-png").is_empty() && marked("dds-png").is_empty());
+    assert_eq!(
+        marked("jpeg75-png@normal+jpeg75@baseColor")
+            .keys()
+            .collect::<Vec<_>>(),
+        [&MapKind::BaseColor]
+    );
+    let d: MaterialDegradation = "jpeg75-444-png".parse().unwrap();
+    assert_eq!(d.to_string(), "jpeg75-444-png");
+    let jpeg = Degradation::Jpeg {
+        quality: 75,
+        subsampling: Subsampling::Full,
+    };
+    assert_eq!(
+        d.for_kind(MapKind::Roughness),
+        vec![jpeg, Degradation::SavedAsPng]
+    );
+    let mut detailed = material.clone();
+    detailed.base_color = detailed_colour(16);
+    let as_png = |name: &str| {
+        let d: MaterialDegradation = name.parse().unwrap();
+        degrade_material(&detailed, &d, &mut rng()).unwrap()
+    };
+    assert_eq!(as_png("bc1-png").base_color, as_png("bc1").base_color);
     // Averaged blocks are no longer what the file stored.
     let degraded = degrade_material(&material, &"bc1".parse().unwrap(), &mut rng()).unwrap();
     assert!(degraded.crop(0, 0, 8, 8).lossy.len() == 4);

@@ -1,0 +1,159 @@
+//! Each detector on real maps the repository ships: clean, and through this repository's own
+//! encoders and decoders, at offsets and sizes.
+
+use super::*;
+use crate::degrade::{BlockFormat, Degradation, Subsampling};
+use crate::io::{load_material, LoadOptions};
+use crate::material::Material;
+use rand::SeedableRng;
+
+/// Real 256² crops the repository ships.
+fn material(name: &str) -> Material {
+    let folder = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data/materials")
+        .join(name);
+    load_material(Some(&folder), &LoadOptions::default()).unwrap()
+}
+
+const MATERIALS: [&str; 3] = [
+    "ambientcg_Bricks059",
+    "ambientcg_Rock035",
+    "ambientcg_Leather025",
+];
+
+const KINDS: [MapKind; 3] = [MapKind::BaseColor, MapKind::Roughness, MapKind::Normal];
+
+fn through(degradation: Degradation, kind: MapKind, map: &Map) -> Map {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0);
+    degradation.apply(kind, map, &mut rng).unwrap()
+}
+
+fn as_jpeg(kind: MapKind, map: &Map, quality: u8) -> Map {
+    let jpeg = Degradation::Jpeg {
+        quality,
+        subsampling: Subsampling::Half,
+    };
+    through(jpeg, kind, map)
+}
+
+/// `map` rolled by `[dx, dy]` texels, wrapping around.
+fn rolled(map: &Map, [dx, dy]: [usize; 2]) -> Map {
+    let (w, h) = (map.width(), map.height());
+    Map::from_fn(w, h, map.channels(), |c, y, x| {
+        map.plane(c)[((y + h - dy % h) % h) * w + (x + w - dx % w) % w]
+    })
+}
+
+#[test]
+fn clean_maps_show_no_trace() {
+    for name in MATERIALS {
+        let m = material(name);
+        for kind in KINDS {
+            let map = m.map(kind).unwrap();
+            for tileable in [false, true] {
+                assert_eq!(texel_trace(kind, map, tileable), None, "{name} {kind}");
+            }
+            // And box-filtered down, as measurements make their inputs.
+            let small = crate::resample::box_downsample(map, 2);
+            assert_eq!(texel_trace(kind, &small, false), None, "{name} {kind} ÷2");
+        }
+    }
+}
+
+#[test]
+fn a_jpeg_saved_again_losslessly_shows_its_grid() {
+    for name in MATERIALS {
+        let m = material(name);
+        // A model's JPEG texture, cropped off its grid and kept as a lossless file.
+        let colour = as_jpeg(MapKind::BaseColor, &m.base_color, 85).crop(3, 5, 200, 180);
+        let trace = jpeg_trace(MapKind::BaseColor, &colour, false);
+        let trace = trace.unwrap_or_else(|| panic!("{name}: JPEG 85 not found"));
+        // The grid of the JPEG, 8 − 3 and 8 − 5 texels into the crop.
+        assert_eq!(trace.offset, [5, 3], "{name}");
+        assert!(
+            trace.strength > 3.0 && trace.contrast > 8.0,
+            "{name}: {trace:?}"
+        );
+        // On a map wider than the window read, the offset is still the map's own: the JPEG
+        // placed 20 texels in, its grid at 20 % 8 = 4.
+        let jpeg = as_jpeg(MapKind::BaseColor, &m.base_color, 85);
+        let at = |v: usize| (v + 256 - 20) % 256;
+        let wide = Map::from_fn(600, 600, 3, |c, y, x| jpeg.plane(c)[at(y) * 256 + at(x)]);
+        let trace = jpeg_trace(MapKind::BaseColor, &wide, false).expect("found past the window");
+        assert_eq!(trace.offset, [4, 4], "{name}");
+    }
+}
+
+#[test]
+fn bc_blocks_decoded_and_saved_losslessly_show_their_palette_at_their_offset() {
+    let cases = [
+        (MapKind::BaseColor, BlockFormat::Bc1, "BC1/BC3"),
+        (MapKind::BaseColor, BlockFormat::Bc3, "BC1/BC3"),
+        (MapKind::Normal, BlockFormat::Bc1, "BC1/BC3"),
+        (MapKind::Normal, BlockFormat::Bc5, "BC5"),
+        (MapKind::Roughness, BlockFormat::Bc4, "BC4"),
+    ];
+    for name in MATERIALS {
+        let m = material(name);
+        for (kind, format, formats) in cases {
+            let decoded = through(Degradation::Block(format), kind, m.map(kind).unwrap());
+            // Crops off the grid (an atlas's tile, a cropped texture), at several sizes.
+            for (x0, y0, w, h) in [
+                (0, 0, 256, 256),
+                (1, 3, 128, 128),
+                (2, 1, 64, 64),
+                (3, 2, 201, 95),
+            ] {
+                let crop = decoded.crop(x0, y0, w, h);
+                let trace = block_trace(kind, &crop, false);
+                let Some(trace) = trace else {
+                    panic!("{name} {kind} {format:?} at ({x0}, {y0}) {w}×{h}: not found");
+                };
+                assert_eq!(trace.palette.formats(), formats, "{name} {kind} {format:?}");
+                let offset = [(4 - x0) % 4, (4 - y0) % 4];
+                assert_eq!(
+                    trace.offset, offset,
+                    "{name} {kind} {format:?} at ({x0}, {y0})"
+                );
+                assert!(
+                    trace.fit > 0.9 && trace.fit - trace.median_fit > 0.5,
+                    "{name} {kind}: {trace:?}"
+                );
+                // The combined reading says blocks, not a JPEG.
+                let found = texel_trace(kind, &crop, false).expect("found");
+                assert!(!found.is_jpeg(), "{name} {kind}: {found}");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_tileable_map_reads_the_same_at_every_roll() {
+    let m = material("ambientcg_Tiles012");
+    for kind in KINDS {
+        let map = m.map(kind).unwrap();
+        let bc = through(Degradation::Block(BlockFormat::Bc1), kind, map);
+        let jpeg = as_jpeg(kind, map, 75);
+        let is_colour = kind == MapKind::BaseColor;
+        for shift in [[0, 0], [37, 53], [1, 2], [255, 7]] {
+            assert_eq!(
+                texel_trace(kind, &rolled(map, shift), true),
+                None,
+                "{kind} {shift:?}"
+            );
+            let blocks = block_trace(kind, &rolled(&bc, shift), true).expect("BC1 found");
+            let expected = [shift[0] % 4, shift[1] % 4];
+            assert_eq!(blocks.offset, expected, "{kind} {shift:?}");
+            // A JPEG's grid shows in the colour map (its smooth maps hide it).
+            let grid = jpeg_trace(kind, &rolled(&jpeg, shift), true);
+            if is_colour {
+                let grid = grid.unwrap_or_else(|| panic!("{kind} JPEG 75 rolled {shift:?}"));
+                assert_eq!(
+                    grid.offset,
+                    [shift[0] % 8, shift[1] % 8],
+                    "{kind} {shift:?}"
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,229 @@
+//! How well matup reads a lossy storage's trace in maps saved again losslessly
+//! (`matup::texel_trace`), which `input_quality = "auto"` routes as degraded: clean maps (none
+//! should be read), and the same maps through BC1, BC3, BC4, BC5 and JPEG, cropped off their
+//! grids (each should be). Maps at the sizes the measurements use: a 256² crop, a 512² crop
+//! box-filtered to 128², and the whole material box-filtered to 128² read as tileable, as it
+//! is and rolled by (37, 53). A clean material counts as misread where any of its four rendered
+//! maps is read; a degraded one as found where the map named in the column is.
+//! `--real DIR` (repeatable) prints what the detectors read on a material folder as it is.
+//!
+//! `cargo run --release --example texel_traces -- [--real DIR]... SET_FOLDER...`
+//! (e.g. `../shared/materials ../shared/corpus`).
+
+use std::path::{Path, PathBuf};
+
+use matup::degrade::{BlockFormat, Degradation, Subsampling};
+use matup::material::MapKind;
+use matup::texel_trace::{noise_level, texel_trace};
+use matup::{load_material, Map, Material};
+use rand::SeedableRng;
+
+const MAPS: [MapKind; 4] = [
+    MapKind::BaseColor,
+    MapKind::Normal,
+    MapKind::Roughness,
+    MapKind::Metallic,
+];
+
+/// Each degraded column: its name, the map it reads, what it went through.
+fn columns() -> Vec<(&'static str, MapKind, Degradation)> {
+    let block = Degradation::Block;
+    let jpeg = |quality| Degradation::Jpeg {
+        quality,
+        subsampling: Subsampling::Half,
+    };
+    vec![
+        ("BC1 colour", MapKind::BaseColor, block(BlockFormat::Bc1)),
+        ("BC3 colour", MapKind::BaseColor, block(BlockFormat::Bc3)),
+        ("BC1 normal", MapKind::Normal, block(BlockFormat::Bc1)),
+        ("BC5 normal", MapKind::Normal, block(BlockFormat::Bc5)),
+        ("BC4 roughness", MapKind::Roughness, block(BlockFormat::Bc4)),
+        ("JPEG 90 colour", MapKind::BaseColor, jpeg(90)),
+        ("JPEG 75 colour", MapKind::BaseColor, jpeg(75)),
+        ("JPEG 75 normal", MapKind::Normal, jpeg(75)),
+    ]
+}
+
+/// A way of cutting a material's input from its folder: name, cut, read as tileable.
+type Cut = (&'static str, fn(&Material) -> Material, bool);
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (mut real, mut sets) = (Vec::new(), Vec::new());
+    let mut args = args.into_iter();
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--real" => real.push(PathBuf::from(args.next().ok_or("--real needs a folder")?)),
+            _ => sets.push(PathBuf::from(arg)),
+        }
+    }
+    for folder in &real {
+        let m = load_material(Some(folder), &Default::default())?;
+        for (label, cut) in [
+            (
+                "as it is",
+                (|m: &Material| m.clone()) as fn(&Material) -> Material,
+            ),
+            ("512² → 128²", cut_box),
+        ] {
+            let m = cut(&m);
+            for kind in MAPS {
+                let trace = texel_trace(kind, m.map(kind).expect("rendered"), false);
+                println!("{} ({label}) {kind}: {trace:?}", folder.display());
+            }
+        }
+    }
+    if sets.is_empty() {
+        return Ok(());
+    }
+    let materials = material_folders(&sets)?;
+    let columns = columns();
+    let names: Vec<&str> = columns.iter().map(|c| c.0).collect();
+    println!(
+        "| input | materials | clean: read as BC | clean: read as JPEG | {} |",
+        names.join(" | ")
+    );
+    println!("|---|---|---|---|{}", "---|".repeat(columns.len()));
+    let cuts: [Cut; 4] = [
+        ("256² crop", cut_crop, false),
+        ("512² → 128² (box)", cut_box, false),
+        ("whole → 128² (box), tileable", cut_whole, true),
+        (
+            "the same rolled (37, 53)",
+            |m| roll(&cut_whole(m), [37, 53]),
+            true,
+        ),
+    ];
+    for (label, cut, tileable) in cuts {
+        let (mut as_bc, mut as_jpeg) = (0, 0);
+        let mut found = vec![0usize; columns.len()];
+        let mut misreads = Vec::new();
+        for (n, folder) in materials.iter().enumerate() {
+            let m = cut(&load_material(Some(folder), &Default::default())?);
+            let traces: Vec<_> = (MAPS.iter())
+                .filter_map(|&k| Some((k, texel_trace(k, m.map(k)?, tileable)?)))
+                .collect();
+            as_bc += usize::from(traces.iter().any(|(_, t)| !t.is_jpeg()));
+            as_jpeg += usize::from(traces.iter().any(|(_, t)| t.is_jpeg()));
+            if !traces.is_empty() {
+                misreads.push(format!("{}: {traces:?}", folder.display()));
+            }
+            for (i, (_, kind, degradation)) in columns.iter().enumerate() {
+                let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
+                let map = degradation.apply(*kind, m.map(*kind).expect("rendered"), &mut rng)?;
+                // Off the grid where the input is a crop: 3 and 5 texels in.
+                let map = if tileable { map } else { off_grid(&map) };
+                found[i] += usize::from(texel_trace(*kind, &map, tileable).is_some());
+            }
+        }
+        let n = materials.len();
+        let cells: Vec<String> = found.iter().map(|f| format!("{f}/{n}")).collect();
+        println!(
+            "| {label} | {n} | {as_bc}/{n} | {as_jpeg}/{n} | {} |",
+            cells.join(" | ")
+        );
+        for line in misreads {
+            eprintln!("{label}, clean, read: {line}");
+        }
+    }
+    noise_table(&materials, cuts[1])?;
+    Ok(())
+}
+
+/// The noise read from each map (`matup::texel_trace::noise_level`, in levels) clean and
+/// through each noise and trace without a grid: the median and the range over the materials.
+fn noise_table(
+    materials: &[PathBuf],
+    (label, cut, tileable): Cut,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let inputs = [
+        "clean", "noise1", "noise2", "noise3", "noise4", "jpeg75", "bc1", "blur0.7",
+    ];
+    println!();
+    println!("Noise read, {label}: median (min–max) over the materials, in levels");
+    println!();
+    println!("| map | {} |", inputs.join(" | "));
+    println!("|---|{}", "---|".repeat(inputs.len()));
+    let loaded: Vec<Material> = (materials.iter())
+        .map(|f| Ok(cut(&load_material(Some(f), &Default::default())?)))
+        .collect::<Result<_, Box<dyn std::error::Error>>>()?;
+    for kind in MAPS {
+        let mut cells = Vec::new();
+        for input in inputs {
+            let mut read: Vec<f64> = Vec::new();
+            for (n, m) in loaded.iter().enumerate() {
+                let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
+                let d = match input {
+                    "clean" => m.clone(),
+                    _ => matup::degrade::degrade_material(m, &input.parse()?, &mut rng)?,
+                };
+                read.extend(noise_level(kind, d.map(kind).expect("rendered"), tileable));
+            }
+            read.sort_by(f64::total_cmp);
+            let (lo, mid, hi) = (read[0], read[read.len() / 2], read[read.len() - 1]);
+            cells.push(format!("{mid:.2} ({lo:.2}–{hi:.2})"));
+        }
+        println!("| {kind} | {} |", cells.join(" | "));
+    }
+    Ok(())
+}
+
+fn off_grid(map: &Map) -> Map {
+    map.crop(3, 5, map.width() - 8, map.height() - 8)
+}
+
+fn roll(m: &Material, [dx, dy]: [usize; 2]) -> Material {
+    let (w, h) = (m.width(), m.height_px());
+    let mut out = m.clone();
+    for kind in MAPS {
+        let map = out.map_mut(kind).expect("rendered");
+        let source = map.clone();
+        *map = Map::from_fn(w, h, source.channels(), |c, y, x| {
+            source.plane(c)[((y + h - dy % h) % h) * w + (x + w - dx % w) % w]
+        });
+    }
+    out
+}
+
+fn cut_crop(m: &Material) -> Material {
+    m.crop(0, 0, m.width().min(256), m.height_px().min(256))
+}
+
+fn cut_box(m: &Material) -> Material {
+    let side = m.width().min(m.height_px()).min(512) / 4 * 4;
+    m.crop(0, 0, side, side).box_downsample(4)
+}
+
+fn cut_whole(m: &Material) -> Material {
+    m.box_downsample((m.width() / 128).max(1))
+}
+
+/// The material folders of each set (a folder of folders) or each folder given.
+fn material_folders(sets: &[PathBuf]) -> std::io::Result<Vec<PathBuf>> {
+    let mut folders = Vec::new();
+    for set in sets {
+        let mut inner: Vec<PathBuf> = std::fs::read_dir(set)?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir())
+            .collect();
+        inner.sort();
+        if inner.is_empty() {
+            folders.push(set.clone());
+        } else {
+            folders.extend(inner.into_iter().filter(|p| has_maps(p)));
+        }
+    }
+    Ok(folders)
+}
+
+fn has_maps(folder: &Path) -> bool {
+    std::fs::read_dir(folder).is_ok_and(|mut d| {
+        d.any(|e| {
+            e.is_ok_and(|e| {
+                e.path()
+                    .extension()
+                    .is_some_and(|x| x == "png" || x == "jpg")
+            })
+        })
+    })
+}
