@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use matup::degrade::{BlockFormat, Degradation, Subsampling};
 use matup::material::MapKind;
-use matup::texel_trace::{noise_level, texel_trace};
+use matup::texel_trace::{noise_reading, texel_trace};
 use matup::{load_material, Map, Material};
 use rand::SeedableRng;
 
@@ -126,12 +126,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             eprintln!("{label}, clean, read: {line}");
         }
     }
+    noise_table(&materials, cuts[0])?;
     noise_table(&materials, cuts[1])?;
     Ok(())
 }
 
-/// The noise read from each map (`matup::texel_trace::noise_level`, in levels) clean and
-/// through each noise and trace without a grid: the median and the range over the materials.
+/// How many materials have a map read as noisy (`matup::texel_trace::noise_reading`: its
+/// flattest patches' σ at least S levels, their half-scale reading at most R of it), clean and
+/// through each noise and trace without a grid, for several S and R.
 fn noise_table(
     materials: &[PathBuf],
     (label, cut, tileable): Cut,
@@ -139,31 +141,49 @@ fn noise_table(
     let inputs = [
         "clean", "noise1", "noise2", "noise3", "noise4", "jpeg75", "bc1", "blur0.7",
     ];
+    let rules = [(1.5, 0.7), (2.0, 0.7), (1.5, 0.8), (2.0, 0.8), (1.5, 0.6)];
     println!();
-    println!("Noise read, {label}: median (min–max) over the materials, in levels");
+    println!("Materials with a map read as noisy, {label}");
     println!();
-    println!("| map | {} |", inputs.join(" | "));
+    println!("| σ ≥, ratio ≤ | {} |", inputs.join(" | "));
     println!("|---|{}", "---|".repeat(inputs.len()));
     let loaded: Vec<Material> = (materials.iter())
         .map(|f| Ok(cut(&load_material(Some(f), &Default::default())?)))
         .collect::<Result<_, Box<dyn std::error::Error>>>()?;
-    for kind in MAPS {
-        let mut cells = Vec::new();
-        for input in inputs {
-            let mut read: Vec<f64> = Vec::new();
-            for (n, m) in loaded.iter().enumerate() {
-                let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
-                let d = match input {
-                    "clean" => m.clone(),
-                    _ => matup::degrade::degrade_material(m, &input.parse()?, &mut rng)?,
-                };
-                read.extend(noise_level(kind, d.map(kind).expect("rendered"), tileable));
+    // Each input's readings, per material, per map.
+    let mut readings = Vec::new();
+    for input in inputs {
+        let mut per_material = Vec::new();
+        for (n, m) in loaded.iter().enumerate() {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
+            let d = match input {
+                "clean" => m.clone(),
+                _ => matup::degrade::degrade_material(m, &input.parse()?, &mut rng)?,
+            };
+            let read: Vec<_> = (MAPS.iter())
+                .filter_map(|&k| Some((k, noise_reading(k, d.map(k)?, tileable)?)))
+                .collect();
+            if input == "clean" || input == "noise3" {
+                eprintln!("{label}, {input}: {}: {read:?}", materials[n].display());
             }
-            read.sort_by(f64::total_cmp);
-            let (lo, mid, hi) = (read[0], read[read.len() / 2], read[read.len() - 1]);
-            cells.push(format!("{mid:.2} ({lo:.2}–{hi:.2})"));
+            per_material.push(read);
         }
-        println!("| {kind} | {} |", cells.join(" | "));
+        readings.push(per_material);
+    }
+    let n = loaded.len();
+    for (sigma, ratio) in rules {
+        let cells: Vec<String> = (readings.iter())
+            .map(|per_material| {
+                let found = (per_material.iter())
+                    .filter(|maps| {
+                        maps.iter()
+                            .any(|(_, r)| r.sigma >= sigma && r.scale_ratio <= ratio)
+                    })
+                    .count();
+                format!("{found}/{n}")
+            })
+            .collect();
+        println!("| {sigma}, {ratio} | {} |", cells.join(" | "));
     }
     Ok(())
 }

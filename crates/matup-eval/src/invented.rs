@@ -22,6 +22,7 @@
 use matup_core::map::Map;
 use matup_core::material::MapKind;
 use matup_core::resample::{gaussian_blur, lr_texel, upsample, Border, Kernel};
+use matup_core::texel_trace::{immerkaer_response, IMMERKAER_GAIN};
 
 /// How many noise deviations a neighbourhood's spread may reach and still count as flat.
 pub const FLAT_NOISE_MULTIPLE: f32 = 2.0;
@@ -123,22 +124,13 @@ fn noise_sigma(plane: &[f32], w: usize, h: usize) -> f32 {
     if w < 3 || h < 3 {
         return 0.0;
     }
-    const KERNEL: [[f32; 3]; 3] = [[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]];
     let mut responses: Vec<f32> = (1..h - 1)
         .flat_map(|y| (1..w - 1).map(move |x| (y, x)))
-        .map(|(y, x)| {
-            let mut sum = 0.0;
-            for (dy, row) in KERNEL.iter().enumerate() {
-                for (dx, k) in row.iter().enumerate() {
-                    sum += k * plane[(y + dy - 1) * w + x + dx - 1];
-                }
-            }
-            sum.abs()
-        })
+        .map(|(y, x)| immerkaer_response(|dx, dy| plane[(y + dy - 1) * w + x + dx - 1]).abs())
         .collect();
     let middle = responses.len() / 2;
     let (_, median, _) = responses.select_nth_unstable_by(middle, f32::total_cmp);
-    *median / (0.6745 * 6.0)
+    *median / (0.6745 * IMMERKAER_GAIN)
 }
 
 /// Whether each texel's 3×3 neighbourhood varies no more than its noise.

@@ -20,7 +20,7 @@ use std::fmt;
 
 pub use blocks::{block_trace, BlockPalette, BlockTrace};
 pub use jpeg::{jpeg_trace, JpegTrace};
-pub use noise::noise_level;
+pub use noise::{immerkaer_response, noise_reading, NoiseReading, IMMERKAER_GAIN};
 
 use crate::map::Map;
 use crate::map_kind::MapKind;

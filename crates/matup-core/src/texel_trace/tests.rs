@@ -132,6 +132,18 @@ fn a_tileable_map_reads_the_same_at_every_roll() {
     let m = material("ambientcg_Tiles012");
     for kind in KINDS {
         let map = m.map(kind).unwrap();
+        // The tile material box-filtered ÷8 from its 1K² (÷4 in the test data): read across
+        // its edges, clean at every roll. Read as a crop, its normal map shows an 8-texel
+        // pattern at offset (0, 0) that a roll takes away.
+        let small = crate::resample::box_downsample(map, 2);
+        for shift in [[0, 0], [37, 53], [5, 0]] {
+            let rolled_small = rolled(&small, shift);
+            assert_eq!(
+                texel_trace(kind, &rolled_small, true),
+                None,
+                "{kind} ÷8 {shift:?}"
+            );
+        }
         let bc = through(Degradation::Block(BlockFormat::Bc1), kind, map);
         let jpeg = as_jpeg(kind, map, 75);
         let is_colour = kind == MapKind::BaseColor;
@@ -156,4 +168,49 @@ fn a_tileable_map_reads_the_same_at_every_roll() {
             }
         }
     }
+}
+
+#[test]
+fn noise_reads_at_its_strength_and_halves_at_half_the_scale() {
+    let noisy = |map: &Map, kind: MapKind, sigma: f32| {
+        through(Degradation::GaussianNoise { sigma }, kind, map)
+    };
+    // On a flat map, the noise itself (a little low: the flattest patches), and half of it at
+    // half the scale.
+    let flat = Map::from_fn(128, 128, 1, |_, _, _| 0.5);
+    let read = noise_reading(
+        MapKind::Roughness,
+        &noisy(&flat, MapKind::Roughness, 3.0),
+        true,
+    );
+    let read = read.expect("128² is enough");
+    assert!((2.5..3.1).contains(&read.sigma), "{read:?}");
+    assert!((0.4..0.6).contains(&read.scale_ratio), "{read:?}");
+    // On real maps: more with more noise, and whiter.
+    for name in MATERIALS {
+        let m = material(name);
+        for kind in KINDS {
+            let map = m.map(kind).unwrap();
+            let [clean, two, four] = [0.0, 2.0, 4.0].map(|s| {
+                let map = if s > 0.0 {
+                    noisy(map, kind, s)
+                } else {
+                    map.clone()
+                };
+                noise_reading(kind, &map, false).unwrap()
+            });
+            assert!(
+                clean.sigma < two.sigma && two.sigma < four.sigma,
+                "{name} {kind}: {clean:?} {four:?}"
+            );
+            assert!(
+                four.scale_ratio < clean.scale_ratio,
+                "{name} {kind}: {clean:?} {four:?}"
+            );
+        }
+    }
+    assert_eq!(
+        noise_reading(MapKind::Roughness, &flat.crop(0, 0, 40, 40), false),
+        None
+    );
 }
