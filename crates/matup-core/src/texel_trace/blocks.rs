@@ -62,6 +62,14 @@ impl BlockPalette {
         }
     }
 
+    /// The channels of the levels read a block of this palette in: RGB, or x (and y).
+    fn channels(self) -> &'static [usize] {
+        match self {
+            BlockPalette::ColourLine => &[0, 1, 2],
+            BlockPalette::Levels { channels } => &[0, 1][..channels],
+        }
+    }
+
     /// The most palette entries a block holds, and so steps between its extremes.
     fn steps(self) -> usize {
         match self {
@@ -98,11 +106,7 @@ pub fn block_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<BlockTrac
         _ => &[BlockPalette::Levels { channels: 1 }],
     };
     (palettes.iter()).find_map(|&palette| {
-        let channels: &[usize] = match palette {
-            BlockPalette::ColourLine => &[0, 1, 2],
-            BlockPalette::Levels { channels } => &[0, 1][..channels],
-        };
-        let levels = Levels::of(kind, map, channels, WINDOW, tileable, BLOCK - 1);
+        let levels = Levels::of(kind, map, palette.channels(), WINDOW, tileable, BLOCK - 1);
         palette_trace(&levels, palette, kind == MapKind::Normal)
     })
 }
@@ -110,7 +114,8 @@ pub fn block_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<BlockTrac
 /// How a block reads against a palette.
 #[derive(Clone, Copy, PartialEq)]
 enum Verdict {
-    /// Too even to tell (its extremes closer than the palette's steps at [`MIN_GAP`]).
+    /// Too even to tell: its extremes closer than the palette's steps at [`MIN_GAP`], too few
+    /// distinct values, or varying along one axis alone.
     Uninformative,
     Fits,
     Misfits,
@@ -168,10 +173,7 @@ fn block_verdict(
     // A block that varies along one axis alone (its rows all alike, or its columns) holds a
     // ramp's few evenly spaced levels, which fit any palette: plates and bevels laid on the
     // 4-texel grid.
-    let channels = match palette {
-        BlockPalette::ColourLine => 3,
-        BlockPalette::Levels { channels } => channels,
-    };
+    let channels = palette.channels().len();
     let alike = |a: usize, b: usize| (0..channels).all(|c| (texel(c, a) - texel(c, b)).abs() < 0.5);
     let rows_alike = (BLOCK..BLOCK * BLOCK).all(|i| alike(i, i % BLOCK));
     let columns_alike = (0..BLOCK * BLOCK).all(|i| alike(i, i - i % BLOCK));
