@@ -315,9 +315,9 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
             })
         })
         .collect();
-    if by_texels.iter().any(|m| m.jpeg) {
+    let beside: Vec<LossyMap> = if by_texels.iter().any(|m| m.jpeg) {
         let stand_ins = material.stand_ins();
-        let beside = (FEATURE_MAPS.into_iter())
+        (FEATURE_MAPS.into_iter())
             .filter(|kind| !material.lossy.contains_key(kind) && !stand_ins.contains(kind))
             .filter(|kind| by_texels.iter().all(|m| m.kind != *kind))
             .map(|kind| LossyMap {
@@ -325,12 +325,12 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
                 what: format!("{kind} saved losslessly beside a JPEG, as a JPEG of the same set"),
                 jpeg: true,
             })
-            .collect::<Vec<_>>();
-        lossy.extend(by_texels);
-        lossy.extend(beside);
+            .collect()
     } else {
-        lossy.extend(by_texels);
-    }
+        Vec::new()
+    };
+    lossy.extend(by_texels);
+    lossy.extend(beside);
     lossy
 }
 
