@@ -4,15 +4,19 @@
 //! texture's blocks that vary hold more, and so do a BC texture's windows that straddle its
 //! blocks: the palette shows at one offset of the 4-texel grid.
 
-use super::Levels;
+use super::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
 
 /// The side of BC's blocks.
 const BLOCK: usize = 4;
 
-/// The largest side read (a larger map's centre): 65536 blocks at each offset, a bounded cost.
-const WINDOW: usize = 1024;
+/// What is read: a tileable map whole up to 1024², else its centre 512² (16384 blocks at each
+/// offset): a bounded cost on any map.
+const REACH: Reach = Reach {
+    whole: 1024,
+    window: 512,
+};
 
 /// The least gap between a palette's neighbouring entries, in levels, for a block to tell:
 /// closer ones fit any smooth block's neighbouring levels.
@@ -106,7 +110,7 @@ pub fn block_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<BlockTrac
         _ => &[BlockPalette::Levels { channels: 1 }],
     };
     (palettes.iter()).find_map(|&palette| {
-        let levels = Levels::of(kind, map, palette.channels(), WINDOW, tileable, BLOCK - 1);
+        let levels = Levels::of(kind, map, palette.channels(), REACH, tileable, BLOCK - 1);
         palette_trace(&levels, palette, kind == MapKind::Normal)
     })
 }

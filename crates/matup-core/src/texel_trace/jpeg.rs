@@ -2,7 +2,7 @@
 //! quantisation step; decoded, re-encoded as 8-bit RGB and transformed again on the same grid,
 //! the coefficients still sit near those multiples, and on no other grid offset do they.
 
-use super::Levels;
+use super::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
 
@@ -28,9 +28,12 @@ const STEPS: std::ops::RangeInclusive<usize> = 2..=24;
 /// Coefficients a step needs before its evidence counts: fewer say nothing either way.
 const MIN_SAMPLES: usize = 32;
 
-/// The largest side read (a larger map's centre): enough blocks (4096) to tell, at a bounded
-/// cost on any map.
-const WINDOW: usize = 512;
+/// What is read: a tileable map whole up to 512² (4096 blocks at each offset), else its centre
+/// 256²: enough blocks (1024) to tell, at a bounded cost on any map.
+const REACH: Reach = Reach {
+    whole: 512,
+    window: 256,
+};
 
 /// The evidence a JPEG grid needs, per 8×8 block of the window, at its best offset.
 /// Measured (docs/experiments/2026-11-29-degraded-inputs.md): DamagedHelmet's base colour
@@ -62,7 +65,7 @@ pub fn jpeg_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<JpegTrace>
     } else {
         &[0]
     };
-    let levels = Levels::of(kind, map, channels, WINDOW, tileable, 7);
+    let levels = Levels::of(kind, map, channels, REACH, tileable, 7);
     let [bw, bh] = levels.blocks(8);
     if bw * bh < 16 {
         return None;

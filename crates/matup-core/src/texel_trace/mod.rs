@@ -62,6 +62,14 @@ pub fn texel_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<TexelTrac
         .or_else(|| jpeg_trace(kind, map, tileable).map(TexelTrace::Jpeg))
 }
 
+/// How much of a map a detector reads: a tileable map whole up to `whole`² (so that every roll
+/// reads the same), else its centre `window`².
+#[derive(Clone, Copy)]
+struct Reach {
+    whole: usize,
+    window: usize,
+}
+
 /// The texels a trace is read from, in 8-bit levels as a file stores them: the whole map
 /// (wrapping around where it tiles), or its centre where it is larger than a detector needs.
 struct Levels {
@@ -78,19 +86,20 @@ struct Levels {
 
 impl Levels {
     /// `channels` of `map` (a map of `kind`) as stored levels (sRGB colour, normals as
-    /// `(n + 1) / 2`, ×255), at most `max_side`² of them; `pad` texels repeated past the
-    /// end where the map tiles and is read whole, so that a block may start on any texel.
+    /// `(n + 1) / 2`, ×255), as far as `reach` says; `pad` texels repeated past the end where
+    /// the map tiles and is read whole, so that a block may start on any texel.
     fn of(
         kind: MapKind,
         map: &Map,
         channels: &[usize],
-        max_side: usize,
+        reach: Reach,
         tileable: bool,
         pad: usize,
     ) -> Levels {
         let (mw, mh) = (map.width(), map.height());
-        let wrap = tileable && mw <= max_side && mh <= max_side;
-        let (width, height) = (mw.min(max_side), mh.min(max_side));
+        let wrap = tileable && mw <= reach.whole && mh <= reach.whole;
+        let side = if wrap { reach.whole } else { reach.window };
+        let (width, height) = (mw.min(side), mh.min(side));
         let origin = [(mw - width) / 2, (mh - height) / 2];
         let pad = if wrap { pad } else { 0 };
         let stride = width + pad;

@@ -6,15 +6,18 @@
 //! texture's own detail is not: it reads about as much at both scales. The map's reading is
 //! that of its flattest tenth of patches.
 
-use super::Levels;
+use super::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
 
 /// The side of the patches read.
 const PATCH: usize = 16;
 
-/// The largest side read (a larger map's centre).
-const WINDOW: usize = 512;
+/// What is read: a tileable map whole up to 512², else its centre 512².
+const REACH: Reach = Reach {
+    whole: 512,
+    window: 512,
+};
 
 /// The share of patches read as the map's: the flattest tenth.
 const FLATTEST: f64 = 0.1;
@@ -40,7 +43,7 @@ pub fn noise_reading(kind: MapKind, map: &Map, tileable: bool) -> Option<NoiseRe
         _ => &[0],
     };
     // Half-scale patches read 2 texels past their 16 (the kernel's reach at half scale).
-    let levels = Levels::of(kind, map, channels, WINDOW, tileable, 4);
+    let levels = Levels::of(kind, map, channels, REACH, tileable, 4);
     let fit = |n: usize| {
         if levels.wrap {
             n / PATCH
