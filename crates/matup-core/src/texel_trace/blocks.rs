@@ -4,6 +4,8 @@
 //! texture's blocks that vary hold more, and so do a BC texture's windows that straddle its
 //! blocks: the palette shows at one offset of the 4-texel grid.
 
+use glam::Vec3;
+
 use super::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
@@ -125,6 +127,17 @@ enum Verdict {
     Misfits,
 }
 
+impl Verdict {
+    /// An informative block's verdict: whether it fits.
+    fn fitting(fits: bool) -> Verdict {
+        if fits {
+            Verdict::Fits
+        } else {
+            Verdict::Misfits
+        }
+    }
+}
+
 /// The palette's trace in `levels`: each of the 16 offsets' share of informative blocks that
 /// fit it, the best against the median. `renormalised`: normals, moved off their palette's
 /// line when read (see [`colour_line_verdict`]).
@@ -210,21 +223,19 @@ fn block_verdict(
 /// a great circle and moves its thirds by several levels: they still lie on one plane through
 /// the origin.
 fn colour_line_verdict(colours: &[[f32; 3]; 16], renormalised: bool) -> Verdict {
-    let distinct = distinct(colours);
     if distinct_within(colours, SAME_ENTRY).len() < MIN_COLOURS {
         return Verdict::Uninformative;
     }
-    let distance2 = |a: &[f32; 3], b: &[f32; 3]| (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>();
-    let (mut a, mut b, mut length2) = (distinct[0], distinct[0], 0.0);
-    for (i, p) in distinct.iter().enumerate() {
-        for q in &distinct[i + 1..] {
-            let d = distance2(p, q);
-            if d > length2 {
-                (a, b, length2) = (*p, *q, d);
+    let distinct: Vec<Vec3> = distinct(colours).into_iter().map(Vec3::from).collect();
+    let (mut a, mut b) = (distinct[0], distinct[0]);
+    for (i, &p) in distinct.iter().enumerate() {
+        for &q in &distinct[i + 1..] {
+            if p.distance_squared(q) > a.distance_squared(b) {
+                (a, b) = (p, q);
             }
         }
     }
-    let length = length2.sqrt();
+    let length = a.distance(b);
     if length < 3.0 * MIN_GAP {
         return Verdict::Uninformative;
     }
@@ -232,39 +243,31 @@ fn colour_line_verdict(colours: &[[f32; 3]; 16], renormalised: bool) -> Verdict 
         return Verdict::Misfits;
     }
     if renormalised {
-        return on_plane_through_origin(&distinct, a, b);
+        return Verdict::fitting(on_plane_through_origin(&distinct, a, b));
     }
-    let along: Vec<f32> = (distinct.iter())
-        .map(|p| {
-            let t = (0..3).map(|c| (p[c] - a[c]) * (b[c] - a[c])).sum::<f32>() / length2;
-            let off = (0..3)
-                .map(|c| (p[c] - a[c] - t * (b[c] - a[c])).powi(2))
-                .sum::<f32>();
-            if off.sqrt() > TOLERANCE {
-                f32::NAN
-            } else {
-                t * length
-            }
-        })
-        .collect();
-    on_even_steps(&along, length, BlockPalette::ColourLine.steps())
+    let direction = (b - a) / length;
+    let mut along = Vec::with_capacity(distinct.len());
+    for &p in &distinct {
+        let t = (p - a).dot(direction);
+        if (p - a - t * direction).length() > TOLERANCE {
+            return Verdict::Misfits;
+        }
+        along.push(t);
+    }
+    let steps = BlockPalette::ColourLine.steps();
+    Verdict::fitting(on_even_steps(&along, length, steps))
 }
 
 /// Whether `colours` (stored normals) lie within [`TOLERANCE`] of the plane through the
 /// origin (the stored level 127.5) and `a` and `b`.
-fn on_plane_through_origin(colours: &[[f32; 3]], a: [f32; 3], b: [f32; 3]) -> Verdict {
-    let from_origin = |p: [f32; 3]| glam::Vec3::from(p) - glam::Vec3::splat(127.5);
-    let normal = from_origin(a).cross(from_origin(b));
+fn on_plane_through_origin(colours: &[Vec3], a: Vec3, b: Vec3) -> bool {
+    let origin = Vec3::splat(127.5);
+    let normal = (a - origin).cross(b - origin);
     if normal.length() < 1e-3 {
-        return Verdict::Fits;
+        return true;
     }
     let normal = normal.normalize();
-    let near = (colours.iter()).all(|&p| from_origin(p).dot(normal).abs() <= TOLERANCE);
-    if near {
-        Verdict::Fits
-    } else {
-        Verdict::Misfits
-    }
+    (colours.iter()).all(|&p| (p - origin).dot(normal).abs() <= TOLERANCE)
 }
 
 /// One channel of a block against BC4's palette: at most eight levels, evenly spaced between
@@ -289,34 +292,22 @@ fn levels_verdict(values: &[f32; 16]) -> Verdict {
         }
         let (lo, span) = spread(vs);
         let along: Vec<f32> = distinct.iter().map(|v| v[0] - lo).collect();
-        on_even_steps(&along, span, steps) == Verdict::Fits
+        on_even_steps(&along, span, steps)
     };
     // BC4's six-level blocks keep 0 and 255 apart from their line.
     let inner: Vec<f32> = (values.iter().copied())
         .filter(|&v| v > 0.5 && v < 254.5)
         .collect();
-    if fits(values) || (inner.len() < values.len() && fits(&inner)) {
-        Verdict::Fits
-    } else {
-        Verdict::Misfits
-    }
+    Verdict::fitting(fits(values) || (inner.len() < values.len() && fits(&inner)))
 }
 
-/// Whether positions `along` a segment of `length` (in levels; NaN where off it) sit within
-/// [`TOLERANCE`] of one of its even divisions into at most `max_steps` steps.
-fn on_even_steps(along: &[f32], length: f32, max_steps: usize) -> Verdict {
-    if along.iter().any(|t| t.is_nan()) {
-        return Verdict::Misfits;
-    }
-    let fits = (1..=max_steps).any(|steps| {
+/// Whether positions `along` a segment of `length` (in levels) sit within [`TOLERANCE`] of one
+/// of its even divisions into at most `max_steps` steps.
+fn on_even_steps(along: &[f32], length: f32, max_steps: usize) -> bool {
+    (1..=max_steps).any(|steps| {
         let step = length / steps as f32;
         (along.iter()).all(|&t| (t - (t / step).round() * step).abs() <= TOLERANCE)
-    });
-    if fits {
-        Verdict::Fits
-    } else {
-        Verdict::Misfits
-    }
+    })
 }
 
 /// The distinct values of `texels`, to the nearest level (a decoded palette's entries are
