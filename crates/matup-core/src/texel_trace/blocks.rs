@@ -6,7 +6,7 @@
 
 use glam::Vec3;
 
-use super::{Levels, Reach};
+use super::levels::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
 

@@ -2,7 +2,7 @@
 //! quantisation step; decoded, re-encoded as 8-bit RGB and transformed again on the same grid,
 //! the coefficients still sit near those multiples, and on no other grid offset do they.
 
-use super::{Levels, Reach};
+use super::levels::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
 

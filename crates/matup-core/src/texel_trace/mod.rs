@@ -14,6 +14,7 @@
 
 mod blocks;
 mod jpeg;
+mod levels;
 mod noise;
 
 use std::fmt;
@@ -60,96 +61,6 @@ impl fmt::Display for TexelTrace {
 pub fn texel_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<TexelTrace> {
     (block_trace(kind, map, tileable).map(TexelTrace::Blocks))
         .or_else(|| jpeg_trace(kind, map, tileable).map(TexelTrace::Jpeg))
-}
-
-/// How much of a map a detector reads: a tileable map whole up to `whole`² (so that every roll
-/// reads the same), else its centre `window`².
-#[derive(Clone, Copy)]
-struct Reach {
-    whole: usize,
-    window: usize,
-}
-
-/// The texels a trace is read from, in 8-bit levels as a file stores them: the whole map
-/// (wrapping around where it tiles), or its centre where it is larger than a detector needs.
-struct Levels {
-    /// The first texel's place in the map: [x, y].
-    origin: [usize; 2],
-    width: usize,
-    height: usize,
-    wrap: bool,
-    /// One plane per channel read, row-major, `(width + pad) × (height + pad)`: where the
-    /// window wraps, its first `pad` columns and rows repeated past its end.
-    planes: Vec<Vec<f32>>,
-    stride: usize,
-}
-
-impl Levels {
-    /// `channels` of `map` (a map of `kind`) as stored levels (sRGB colour, normals as
-    /// `(n + 1) / 2`, ×255), as far as `reach` says; `pad` texels repeated past the end where
-    /// the map tiles and is read whole, so that a block may start on any texel.
-    fn of(
-        kind: MapKind,
-        map: &Map,
-        channels: &[usize],
-        reach: Reach,
-        tileable: bool,
-        pad: usize,
-    ) -> Levels {
-        let (mw, mh) = (map.width(), map.height());
-        let wrap = tileable && mw <= reach.whole && mh <= reach.whole;
-        let side = if wrap { reach.whole } else { reach.window };
-        let (width, height) = (mw.min(side), mh.min(side));
-        let origin = [(mw - width) / 2, (mh - height) / 2];
-        let pad = if wrap { pad } else { 0 };
-        let stride = width + pad;
-        let planes = (channels.iter())
-            .map(|&c| {
-                let plane = map.plane(c);
-                let mut out = Vec::with_capacity(stride * (height + pad));
-                for y in 0..height + pad {
-                    let row = (origin[1] + y % height) * mw;
-                    for x in 0..width + pad {
-                        let v = plane[row + origin[0] + x % width];
-                        out.push(kind.stored(c, v).clamp(0.0, 1.0) * 255.0);
-                    }
-                }
-                out
-            })
-            .collect();
-        Levels {
-            origin,
-            width,
-            height,
-            wrap,
-            planes,
-            stride,
-        }
-    }
-
-    /// The blocks of side `side` that fit along each axis at every offset of a `side` grid:
-    /// all of them where the window wraps, else those clear of both ends at every offset (as
-    /// many at each, so that no offset reads more).
-    fn blocks(&self, side: usize) -> [usize; 2] {
-        let fit = |n: usize| {
-            if self.wrap {
-                n / side
-            } else {
-                (n + 1 - side) / side
-            }
-        };
-        [fit(self.width), fit(self.height)]
-    }
-
-    /// The level of channel `c` (its index among those read) at `[x, y]` of the window.
-    fn at(&self, c: usize, x: usize, y: usize) -> f32 {
-        self.planes[c][y * self.stride + x]
-    }
-
-    /// An offset in the window as the map's own: the grid's phase from its top-left texel.
-    fn map_offset(&self, [x, y]: [usize; 2], side: usize) -> [usize; 2] {
-        [(self.origin[0] + x) % side, (self.origin[1] + y) % side]
-    }
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 //! texture's own detail is not: it reads about as much at both scales. The map's reading is
 //! that of its flattest tenth of patches.
 
-use super::{Levels, Reach};
+use super::levels::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
 
