@@ -4,7 +4,8 @@
 //! grids (each should be). Maps at the sizes the measurements use: a 256² crop, a 512² crop
 //! box-filtered to 128², and the whole material box-filtered to 128² read as tileable, as it
 //! is and rolled by (37, 53). A clean material counts as misread where any of its four rendered
-//! maps is read; a degraded one as found where the map named in the column is.
+//! maps is read; a degraded one as found where the map named in the column is. Then, at each
+//! size, the materials read as lying over one noise, clean and degraded.
 //! `--real DIR` (repeatable) prints what the detectors read on a material folder as it is.
 //!
 //! `cargo run --release --example texel_traces -- [--real DIR]... SET_FOLDER...`
@@ -14,10 +15,11 @@ use std::path::{Path, PathBuf};
 
 use matup::degrade::{BlockFormat, Degradation, Subsampling};
 use matup::material::MapKind;
-use matup::texel_trace::{noise_reading, texel_trace};
+use matup::texel_trace::{noise_floor, texel_trace};
 use matup::{load_material, Map, Material};
 use rand::SeedableRng;
 
+/// The maps read (the noise table also reads the first three alone: no metallic map).
 const MAPS: [MapKind; 4] = [
     MapKind::BaseColor,
     MapKind::Normal,
@@ -126,14 +128,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             eprintln!("{label}, clean, read: {line}");
         }
     }
-    noise_table(&materials, cuts[0])?;
-    noise_table(&materials, cuts[1])?;
+    for cut in cuts {
+        noise_table(&materials, cut)?;
+    }
     Ok(())
 }
 
-/// How many materials have a map read as noisy (`matup::texel_trace::noise_reading`: its
-/// flattest patches' σ at least S levels, their half-scale reading at most R of it), clean and
-/// through each noise and trace without a grid, for several S and R.
+/// How many materials read as lying over one noise (`matup::texel_trace::noise_floor`), clean
+/// and through each noise and each trace without a grid: with their four maps, and with three
+/// (no metallic map, as many folders have none).
 fn noise_table(
     materials: &[PathBuf],
     (label, cut, tileable): Cut,
@@ -141,49 +144,41 @@ fn noise_table(
     let inputs = [
         "clean", "noise1", "noise2", "noise3", "noise4", "jpeg75", "bc1", "blur0.7",
     ];
-    let rules = [(1.5, 0.7), (2.0, 0.7), (1.5, 0.8), (2.0, 0.8), (1.5, 0.6)];
     println!();
-    println!("Materials with a map read as noisy, {label}");
+    println!("Materials read as noisy (noise under every map), {label}");
     println!();
-    println!("| σ ≥, ratio ≤ | {} |", inputs.join(" | "));
+    println!("| maps | {} |", inputs.join(" | "));
     println!("|---|{}", "---|".repeat(inputs.len()));
     let loaded: Vec<Material> = (materials.iter())
         .map(|f| Ok(cut(&load_material(Some(f), &Default::default())?)))
         .collect::<Result<_, Box<dyn std::error::Error>>>()?;
-    // Each input's readings, per material, per map.
-    let mut readings = Vec::new();
-    for input in inputs {
-        let mut per_material = Vec::new();
-        for (n, m) in loaded.iter().enumerate() {
-            let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
-            let d = match input {
-                "clean" => m.clone(),
-                _ => matup::degrade::degrade_material(m, &input.parse()?, &mut rng)?,
-            };
-            let read: Vec<_> = (MAPS.iter())
-                .filter_map(|&k| Some((k, noise_reading(k, d.map(k)?, tileable)?)))
-                .collect();
-            if input == "clean" || input == "noise3" {
-                eprintln!("{label}, {input}: {}: {read:?}", materials[n].display());
+    for kinds in [&MAPS[..], &MAPS[..3]] {
+        let mut cells = Vec::new();
+        for input in inputs {
+            let mut found = 0;
+            for (n, m) in loaded.iter().enumerate() {
+                let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
+                let d = match input {
+                    "clean" => m.clone(),
+                    _ => matup::degrade::degrade_material(m, &input.parse()?, &mut rng)?,
+                };
+                let maps: Vec<_> = (kinds.iter())
+                    .filter_map(|&k| Some((k, d.map(k)?)))
+                    .collect();
+                if let Some(floor) = noise_floor(&maps, tileable) {
+                    found += 1;
+                    if input == "clean" {
+                        let name = materials[n].display();
+                        eprintln!(
+                            "{label}, {} maps, clean, read: {name}: {floor}",
+                            kinds.len()
+                        );
+                    }
+                }
             }
-            per_material.push(read);
+            cells.push(format!("{found}/{}", loaded.len()));
         }
-        readings.push(per_material);
-    }
-    let n = loaded.len();
-    for (sigma, ratio) in rules {
-        let cells: Vec<String> = (readings.iter())
-            .map(|per_material| {
-                let found = (per_material.iter())
-                    .filter(|maps| {
-                        maps.iter()
-                            .any(|(_, r)| r.sigma >= sigma && r.scale_ratio <= ratio)
-                    })
-                    .count();
-                format!("{found}/{n}")
-            })
-            .collect();
-        println!("| {sigma}, {ratio} | {} |", cells.join(" | "));
+        println!("| {} | {} |", kinds.len(), cells.join(" | "));
     }
     Ok(())
 }

@@ -6,7 +6,7 @@ mod common;
 use std::sync::Arc;
 
 use matup::config::{Config, InputQuality, Selection};
-use matup::degrade::{BlockFormat, Degradation, Subsampling};
+use matup::degrade::{degrade_material, BlockFormat, Degradation, Subsampling};
 use matup::material::MapKind;
 use matup::plan::{
     Plan, Reach, TilingGrounds, DEGRADED_NETWORK, JPEG_NETWORK, JPEG_PROJECTION_BLUR,
@@ -314,6 +314,26 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     assert_eq!(
         by_blocks.setup.settings.filter.unprojected_maps,
         [MapKind::BaseColor]
+    );
+    // Noise under every map, as a noisy scan's set: every map runs degraded, said once.
+    let leather = common::test_material("ambientcg_Leather025");
+    let small = load_material(Some(&leather), &LoadOptions::default())
+        .unwrap()
+        .box_downsample(2);
+    assert!(!plan(&small, InputQuality::Auto).input.degraded());
+    let noisy = degrade_material(&small, &"noise3".parse().unwrap(), &mut rng).unwrap();
+    let by_noise = plan(&noisy, InputQuality::Auto).input;
+    assert!(
+        by_noise.maps.iter().all(|&(_, q)| q == Degraded),
+        "{by_noise:?}"
+    );
+    let [said] = by_noise.lossy.as_slice() else {
+        panic!("{:?}", by_noise.lossy)
+    };
+    assert!(
+        said.starts_with("noise of σ 2.")
+            && said.ends_with("under all 4 maps, found in their texels"),
+        "{said}"
     );
     // A named upsampler stays; the route still decides the projection.
     let named = Config {

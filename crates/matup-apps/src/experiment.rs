@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::html::{escape, href};
 use crate::view::write_view;
-use matup_core::degrade::{degrade_material, MaterialDegradation};
+use matup_core::degrade::{degraded_input, MaterialDegradation};
 use matup_core::io::{load_material, save_material, write_atomic, LoadOptions, Names, SaveOptions};
 use matup_core::lights::LightSetSpec;
 use matup_core::material::{FileFormat, Material, NormalConvention};
@@ -434,12 +434,11 @@ fn make_pair(
             ),
         ));
     }
-    let mut lr = truth.box_downsample(f);
-    if let Some(d) = degrade {
-        let seed = (material_name(path).bytes()).fold(0u64, |h, b| h.wrapping_mul(31) ^ b as u64);
-        lr = degrade_material(&lr, d, &mut StdRng::seed_from_u64(seed))
-            .map_err(|e| Error::material(path, format!("degraded as '{d}': {e}")))?;
-    }
+    let seed = (material_name(path).bytes()).fold(0u64, |h, b| h.wrapping_mul(31) ^ b as u64);
+    let lr = degraded_input(&truth, f, degrade, &mut StdRng::seed_from_u64(seed)).map_err(|e| {
+        let d = degrade.map(|d| d.to_string()).unwrap_or_default();
+        Error::material(path, format!("degraded as '{d}': {e}"))
+    })?;
     Ok(Pair { truth, lr })
 }
 

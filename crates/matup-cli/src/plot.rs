@@ -5,8 +5,11 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::anyhow;
+use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+use image::{ExtendedColorType, ImageEncoder};
 use matup_apps::experiment::Row;
 use matup_draw::text::FONT; // shipped, so that a machine without fonts can plot
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -49,16 +52,33 @@ pub fn plot_time_vs_error(rows: &[Row], path: &Path) -> anyhow::Result<()> {
     if points.is_empty() {
         return Ok(());
     }
+    write_png(path, (1100, 700), |root| draw(&points, root))
+}
+
+type Drawn = Result<(), Box<dyn std::error::Error>>;
+
+/// A `size` plot drawn by `draw`, written to `path` as a PNG compressed as far as it goes
+/// (every training run keeps its curves in the repository): beside the target first and
+/// renamed over it, like every output.
+fn write_png(
+    path: &Path,
+    (width, height): (u32, u32),
+    draw: impl FnOnce(DrawingArea<BitMapBackend<'_>, Shift>) -> Drawn,
+) -> anyhow::Result<()> {
     let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
-    // Written beside the target and renamed over it, like every output.
+    let mut pixels = vec![0u8; width as usize * height as usize * 3];
+    let root = BitMapBackend::with_buffer(&mut pixels, (width, height)).into_drawing_area();
+    draw(root).map_err(|e| anyhow!("{}: cannot draw the plot: {e}", path.display()))?;
     let tmp = path.with_extension("partial.png");
-    draw(&points, &tmp).map_err(|e| anyhow!("{}: cannot draw the plot: {e}", path.display()))?;
+    let file = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+    PngEncoder::new_with_quality(file, CompressionType::Best, FilterType::Adaptive)
+        .write_image(&pixels, width, height, ExtendedColorType::Rgb8)
+        .map_err(|e| anyhow!("{}: cannot write the plot: {e}", path.display()))?;
     std::fs::rename(&tmp, path)?;
     Ok(())
 }
 
-fn draw(points: &[(String, f64, f64)], path: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    let root = BitMapBackend::new(path, (1100, 700)).into_drawing_area();
+fn draw(points: &[(String, f64, f64)], root: DrawingArea<BitMapBackend<'_>, Shift>) -> Drawn {
     root.fill(&WHITE)?;
     let (t_min, t_max) = points.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), p| {
         (lo.min(p.1), hi.max(p.1))
@@ -141,13 +161,9 @@ pub fn plot_learning_curves(run: &Path, validated: &str) -> anyhow::Result<()> {
     if loss.is_empty() {
         return Ok(());
     }
-    let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
-    let path = run.join("curves.png");
-    let tmp = run.join("curves.partial.png");
-    draw_curves(&loss, &gains, validated, &tmp)
-        .map_err(|e| anyhow!("{}: cannot draw the plot: {e}", path.display()))?;
-    std::fs::rename(&tmp, path)?;
-    Ok(())
+    write_png(&run.join("curves.png"), (1400, 600), |root| {
+        draw_curves(&loss, &gains, validated, root)
+    })
 }
 
 type Curve = Vec<(f64, f64)>;
@@ -156,9 +172,8 @@ fn draw_curves(
     loss: &Curve,
     gains: &BTreeMap<String, Curve>,
     validated: &str,
-    path: &Path,
-) -> Result<(), Box<dyn std::error::Error>> {
-    let root = BitMapBackend::new(path, (1400, 600)).into_drawing_area();
+    root: DrawingArea<BitMapBackend<'_>, Shift>,
+) -> Drawn {
     root.fill(&WHITE)?;
     let (left, right) = root.split_horizontally(560);
     let last_step = loss.last().map_or(1.0, |p| p.0).max(1.0);

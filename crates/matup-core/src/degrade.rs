@@ -175,20 +175,64 @@ pub fn degrade_material(
     rng: &mut impl Rng,
 ) -> Result<Material> {
     let mut out = material.clone();
-    for kind in STORED_KINDS {
-        let Some(map) = out.map_mut(kind) else {
-            continue;
-        };
-        let steps = degradation.for_kind(kind);
-        for d in &steps {
-            *map = d.apply(kind, map, rng)?;
+    // Each run of steps between resizes: every map through the whole run in turn, then the
+    // material halved (which also forgets what its files were: it is saved again).
+    for (i, run) in degradation
+        .steps
+        .split(|(s, _)| *s == Step::Halved)
+        .enumerate()
+    {
+        if i > 0 {
+            out = out.box_downsample(2);
+            for kind in STORED_KINDS {
+                if let Some(map) = out.map_mut(kind) {
+                    *map = Degradation::SavedAsPng.apply(kind, map, rng)?;
+                }
+            }
         }
-        if let Some(storage) = steps.iter().rev().find_map(Degradation::storage).flatten() {
-            let simulated = format!("{storage} (simulated: {degradation})");
-            out.lossy.insert(kind, simulated);
+        for kind in STORED_KINDS {
+            let Some(map) = out.map_mut(kind) else {
+                continue;
+            };
+            let steps = steps_for(run, kind);
+            for d in &steps {
+                *map = d.apply(kind, map, rng)?;
+            }
+            if let Some(storage) = steps.iter().rev().find_map(Degradation::storage) {
+                match storage {
+                    Some(storage) => {
+                        let simulated = format!("{storage} (simulated: {degradation})");
+                        out.lossy.insert(kind, simulated)
+                    }
+                    None => out.lossy.remove(&kind),
+                };
+            }
         }
     }
     Ok(out)
+}
+
+/// The input a measurement upsamples: `truth` box-filtered to 1/`factor` of its size, through
+/// `degradation` where one is named. A degradation that halves the maps after they were
+/// stored (`jpeg75+half`) starts from the truth that many times less reduced, so that the
+/// input still comes out at 1/`factor`.
+pub fn degraded_input(
+    truth: &Material,
+    factor: usize,
+    degradation: Option<&MaterialDegradation>,
+    rng: &mut impl Rng,
+) -> Result<Material> {
+    let Some(degradation) = degradation else {
+        return Ok(truth.box_downsample(factor));
+    };
+    let shrink = degradation.shrink();
+    if !factor.is_multiple_of(shrink) {
+        return Err(Error::Invalid(format!(
+            "degradation '{degradation}' halves the maps after they are stored (to 1/{shrink} \
+             in all), so the factor must be a multiple of {shrink}, not {factor}"
+        )));
+    }
+    degrade_material(&truth.box_downsample(factor / shrink), degradation, rng)
 }
 
 /// The maps a degradation reaches: those files store as images.
@@ -210,6 +254,9 @@ pub const STORED_KINDS: [MapKind; 5] = [
 /// - `ditherN`, `ditherN-fs`: N levels, ordered or Floyd–Steinberg;
 /// - any of them saved again as PNG after, with `-png` (`bc1-png`, `jpeg75-png`, `dds-png`):
 ///   as modders unpack a game's textures, its file no longer says what it went through;
+/// - `half`: every map resized to half its size and saved again as PNG, as textures are
+///   downsized after they were stored (`jpeg75+half`: a JPEG's grid and steps blurred away);
+///   [`degraded_input`] cuts the input at twice the size first;
 /// - several joined by `+` (`blur0.7+jpeg60`), applied in that order;
 /// - any of them on one map alone, named by its file stem after `@` (`jpeg75@baseColor`: a
 ///   glTF model's JPEG colour beside its PNG maps).
@@ -225,19 +272,38 @@ pub struct MaterialDegradation {
 enum Step {
     Every(Degradation),
     AsGamesShip,
+    /// The whole material resized to half its size (each 2×2 texels' mean, base colour in
+    /// linear light) and saved again as 8-bit PNG: a texture downsized after it was stored.
+    Halved,
 }
 
 impl MaterialDegradation {
-    /// The degradations each map of `kind` goes through, in order.
+    /// The degradations each map of `kind` goes through, in order (resizes apart).
     pub fn for_kind(&self, kind: MapKind) -> Vec<Degradation> {
-        (self.steps.iter())
-            .filter(|(_, maps)| maps.as_ref().is_none_or(|maps| maps.contains(&kind)))
-            .map(|(step, _)| match *step {
-                Step::Every(d) => d,
-                Step::AsGamesShip => Degradation::Block(shipped_block_format(kind)),
-            })
-            .collect()
+        steps_for(&self.steps, kind)
     }
+
+    /// How many times larger than the input the maps it starts from are: 2 for each `half`.
+    pub fn shrink(&self) -> usize {
+        let halvings = self
+            .steps
+            .iter()
+            .filter(|(s, _)| *s == Step::Halved)
+            .count();
+        1 << halvings
+    }
+}
+
+/// The map degradations of `steps` that reach a map of `kind`, in order.
+fn steps_for(steps: &[(Step, Option<Vec<MapKind>>)], kind: MapKind) -> Vec<Degradation> {
+    (steps.iter())
+        .filter(|(_, maps)| maps.as_ref().is_none_or(|maps| maps.contains(&kind)))
+        .filter_map(|(step, _)| match *step {
+            Step::Every(d) => Some(d),
+            Step::AsGamesShip => Some(Degradation::Block(shipped_block_format(kind))),
+            Step::Halved => None,
+        })
+        .collect()
 }
 
 /// The block format games store a map of `kind` in: BC5 for normals, BC4 for grey maps, BC1
@@ -292,6 +358,14 @@ fn parse_step_on_maps(text: &str) -> Result<Vec<(Step, Option<Vec<MapKind>>)>> {
             (step.trim(), Some(vec![kind]))
         }
     };
+    if step == "half" {
+        if maps.is_some() {
+            return Err(Error::Invalid(format!(
+                "degradation '{text}': 'half' resizes every map, it takes no '@'"
+            )));
+        }
+        return Ok(vec![(Step::Halved, None)]);
+    }
     Ok(match step.strip_suffix("-png") {
         Some(stored) => vec![
             (parse_step(stored)?, maps.clone()),
@@ -306,7 +380,7 @@ fn parse_step(text: &str) -> Result<Step> {
         Error::Invalid(format!(
             "degradation '{text}': {why}; known: bc1, bc3, bc4, bc5, dds, jpegQ, jpegQ-444, \
              noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs (each saved again as PNG with \
-             '-png' after, joined by '+', each on one map alone after '@')"
+             '-png' after, joined by '+', each on one map alone after '@'), half"
         ))
     };
     let integer = |digits: &str, range: std::ops::RangeInclusive<u16>, why: &str| {

@@ -14,10 +14,11 @@ use matup_core::lights::Light;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
-use matup_core::texel_trace::texel_trace;
+use matup_core::texel_trace::{noise_floor, texel_trace};
 use matup_core::tileable::decide_tileable;
 use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
 use matup_core::FileFormat;
+use matup_core::Map;
 use matup_core::{Error, PluginSpec, Result};
 
 /// What a run of one material carries out.
@@ -129,8 +130,9 @@ pub struct InputRoute {
     /// Whether the settings said so for every map (`input_quality`, `--input-quality`,
     /// `map_input_quality`); else the files did for some.
     pub given: bool,
-    /// The maps stored lossily, each with what its storage was: its file's format
-    /// (`Material::lossy`), or BC blocks or a JPEG's grid in its texels (`matup_core::texel_trace`).
+    /// The maps stored lossily or noisy, each with what it went through: its file's format
+    /// (`Material::lossy`), or BC blocks, a JPEG's grid or noise under every map in its texels
+    /// (`matup_core::texel_trace`).
     pub lossy: Vec<String>,
 }
 
@@ -164,10 +166,12 @@ impl InputRoute {
             .map(|kind| (kind, quality_of(kind).unwrap_or(quality)))
             .collect();
         let given = FEATURE_MAPS.iter().all(|&k| *word(k) != InputQuality::Auto);
-        let lossy = (stored.into_iter())
+        let mut lossy: Vec<String> = (stored.into_iter())
             .filter(|m| word(m.kind) == &InputQuality::Auto)
             .map(|m| m.what)
             .collect();
+        // Noise under every map is said once.
+        lossy.dedup();
         InputRoute {
             quality,
             maps,
@@ -250,11 +254,11 @@ impl InputRoute {
         match (self.degraded(), self.given) {
             (_, true) => format!("input: {route}"),
             (true, false) => format!(
-                "input: {route}; stored lossily: {}; --input-quality clean decides otherwise",
+                "input: {route}; read as degraded: {}; --input-quality clean decides otherwise",
                 self.lossy.join("; ")
             ),
-            (false, false) => "input: clean (no map was stored lossily; --input-quality degraded \
-                               decides otherwise, for noisy or once-compressed maps)"
+            (false, false) => "input: clean (no map was stored lossily or read as noisy; \
+                               --input-quality degraded decides otherwise)"
                 .to_string(),
         }
     }
@@ -331,7 +335,32 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
     };
     lossy.extend(by_texels);
     lossy.extend(beside);
+    let noisy = noisy_maps(material, tileable, &lossy);
+    lossy.extend(noisy);
     lossy
+}
+
+/// Where one noise lies under all of the material's own filter maps
+/// ([`matup_core::texel_trace::noise_floor`]; stand-ins are flat, not clean), those of them
+/// not read as lossily stored already: noise costs the material network as blocks do (σ 3 of
+/// noise, docs/experiments/2026-12-02-texel-traces.md).
+fn noisy_maps(material: &Material, tileable: bool, lossy: &[LossyMap]) -> Vec<LossyMap> {
+    let stand_ins = material.stand_ins();
+    let own: Vec<(MapKind, &Map)> = (FEATURE_MAPS.into_iter())
+        .filter(|kind| !stand_ins.contains(kind))
+        .filter_map(|kind| Some((kind, material.map(kind)?)))
+        .collect();
+    let Some(floor) = noise_floor(&own, tileable) else {
+        return Vec::new();
+    };
+    (own.into_iter())
+        .filter(|(kind, _)| lossy.iter().all(|m| m.kind != *kind))
+        .map(|(kind, _)| LossyMap {
+            kind,
+            what: format!("{floor}, found in their texels"),
+            jpeg: false,
+        })
+        .collect()
 }
 
 impl Plan {

@@ -346,3 +346,39 @@ fn lossy_storage_is_marked_as_a_lossy_file_would_be() {
     assert!(degraded.crop(0, 0, 8, 8).lossy.len() == 4);
     assert!(degraded.box_downsample(2).lossy.is_empty());
 }
+
+#[test]
+fn half_resizes_after_storing_and_the_input_is_cut_larger_for_it() {
+    let d: MaterialDegradation = "jpeg75+half".parse().unwrap();
+    assert_eq!((d.shrink(), d.to_string().as_str()), (2, "jpeg75+half"));
+    assert_eq!("jpeg75".parse::<MaterialDegradation>().unwrap().shrink(), 1);
+    assert_eq!(
+        "half+half".parse::<MaterialDegradation>().unwrap().shrink(),
+        4
+    );
+    let mut truth = Material::uniform(64, [0.5; 3], 0.5, 0.5);
+    truth.base_color = detailed_colour(64);
+    truth.height = Some(smooth_grey(64));
+    // Every map, the height too, comes out at 1/4: cut at 1/2, stored, halved.
+    let input = degraded_input(&truth, 4, Some(&d), &mut rng()).unwrap();
+    assert_eq!((input.width(), input.height_px()), (16, 16));
+    assert_eq!(input.height.as_ref().map(|h| h.width()), Some(16));
+    // Saved again after the resize: no file says JPEG, and the values are 8-bit levels.
+    assert!(input.lossy.is_empty(), "{:?}", input.lossy);
+    let stored = MapKind::Roughness.stored(0, input.roughness.plane(0)[37]) * 255.0;
+    assert!((stored - stored.round()).abs() < 1e-3, "{stored}");
+    // The JPEG's blocks are averaged, not gone: the input is not the clean one halved.
+    let clean = degraded_input(&truth, 4, None, &mut rng()).unwrap();
+    let moved = stored_error(MapKind::BaseColor, &clean.base_color, &input.base_color);
+    assert!(moved > 0.3, "{moved:.2} levels");
+    // Without a resize, the input is the truth box-filtered, then degraded.
+    let plain: MaterialDegradation = "noise3".parse().unwrap();
+    let direct = degrade_material(&truth.box_downsample(4), &plain, &mut rng()).unwrap();
+    let via = degraded_input(&truth, 4, Some(&plain), &mut rng()).unwrap();
+    assert_eq!(direct.base_color, via.base_color);
+    // What cannot be: a factor half cannot divide, a resize of one map alone.
+    let odd = degraded_input(&truth, 3, Some(&d), &mut rng()).unwrap_err();
+    assert!(odd.to_string().contains("multiple of 2"), "{odd}");
+    let one = "half@baseColor".parse::<MaterialDegradation>().unwrap_err();
+    assert!(one.to_string().contains("resizes every map"), "{one}");
+}

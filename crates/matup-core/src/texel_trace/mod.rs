@@ -21,7 +21,9 @@ use std::fmt;
 
 pub use blocks::{block_trace, BlockPalette, BlockTrace};
 pub use jpeg::{jpeg_trace, JpegTrace};
-pub use noise::{immerkaer_response, noise_reading, NoiseReading, IMMERKAER_GAIN};
+pub use noise::{
+    immerkaer_response, noise_floor, noise_reading, NoiseFloor, NoiseReading, IMMERKAER_GAIN,
+};
 
 use crate::map::Map;
 use crate::map_kind::MapKind;

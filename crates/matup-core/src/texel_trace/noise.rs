@@ -1,10 +1,16 @@
 //! Noise's trace, which has no grid: a scan's sensor noise, or noise added after, shows where a
-//! map is flattest, where a texture's own detail does not hide it. Each 16×16 patch is read
-//! through a kernel blind to planes and gentle slopes (Immerkær's 3×3 Laplacian difference,
-//! whose response to Gaussian noise of σ has a mean magnitude of 6σ·√(2/π)), at the map's
-//! scale and at half of it. Noise is white: at half the scale it reads half as much. A
-//! texture's own detail is not: it reads about as much at both scales. The map's reading is
-//! that of its flattest tenth of patches.
+//! map is flattest, where a texture's own detail does not hide it. Each texel's 16×16 patch
+//! is read through a kernel blind to planes and gentle slopes (Immerkær's 3×3 Laplacian
+//! difference, whose response to Gaussian noise of σ has a mean magnitude of 6σ·√(2/π)), at
+//! the map's scale and at half of it (each 2×2 texels' mean, the kernel's taps 2 texels apart).
+//! Noise is white: at half the scale it reads half as much. A texture's own detail is not: it
+//! reads about as much at both scales. A map's reading is that of its flattest tenth of
+//! patches. A patch at every texel, not on a grid: a tileable map rolled reads the same.
+//!
+//! One map alone does not tell noise from a fine grain: box-filtered to 128², a fabric's or an
+//! asphalt's grain is about as white as noise (docs/experiments/2026-12-02-texel-traces.md).
+//! A material does ([`noise_floor`]): noise lies under every map alike, while a clean
+//! material's maps are not all grainy; most have a smooth or constant one.
 
 use super::levels::{Levels, Reach};
 use crate::map::Map;
@@ -12,6 +18,13 @@ use crate::map_kind::MapKind;
 
 /// The side of the patches read.
 const PATCH: usize = 16;
+
+/// How far past its patch a patch's reading reaches: the half-scale kernel's taps, 2 texels
+/// apart, on 2×2 means.
+const REACH_PAST: usize = 6;
+
+/// The least side of a map read.
+const MIN_SIDE: usize = 64;
 
 /// What is read: a tileable map whole up to 512², else its centre 512².
 const REACH: Reach = Reach {
@@ -31,95 +44,165 @@ pub struct NoiseReading {
     /// What they read at half the scale over what they read at the map's: 0.5 for white
     /// noise, about 1 for a texture's own detail.
     pub scale_ratio: f64,
+    /// The share of their texels at black or white, where noise is clipped and reads about
+    /// half as much (a metallic map at 0).
+    pub clipped: f64,
+}
+
+/// The least σ, in 8-bit levels, that noise under every map must read: σ 3 of noise reads
+/// 2.6–2.9, clean maps' flattest patches 0–1.5 but for fine grains.
+const FLOOR: f64 = 2.2;
+
+/// The share of clipped texels past which a map need only read half of [`FLOOR`].
+const CLIPPED: f64 = 0.1;
+
+/// The half-scale ratio at most that a map reads as white.
+const WHITE: f64 = 0.9;
+
+/// How many maps a material needs, and how many of them must read white: three (of four,
+/// where it has a metallic map), since one grainy map may be as white as noise.
+const WHITE_MAPS: usize = 3;
+
+/// Noise found under every map of a material.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NoiseFloor {
+    /// The least its maps' flattest patches read, in 8-bit levels (unclipped maps).
+    pub sigma: f64,
+    /// The maps read.
+    pub maps: usize,
+}
+
+impl std::fmt::Display for NoiseFloor {
+    /// "noise of σ 2.7 levels under all 4 maps".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (sigma, maps) = (self.sigma, self.maps);
+        write!(f, "noise of σ {sigma:.1} levels under all {maps} maps")
+    }
+}
+
+/// Whether `maps` (each of its kind; a material's own maps, not stand-ins) read as lying over
+/// one noise: every map's flattest patches read at least [`FLOOR`] (half of it where they are
+/// clipped), and at least [`WHITE_MAPS`] of them white. `None` for a clean material, or fewer
+/// than [`WHITE_MAPS`] maps large enough to read. `tileable`: patches wrap around.
+pub fn noise_floor(maps: &[(MapKind, &Map)], tileable: bool) -> Option<NoiseFloor> {
+    let readings: Vec<NoiseReading> = (maps.iter())
+        .map(|&(kind, map)| noise_reading(kind, map, tileable))
+        .collect::<Option<_>>()?;
+    if readings.len() < WHITE_MAPS {
+        return None;
+    }
+    let above_floor = |r: &NoiseReading| {
+        let floor = if r.clipped >= CLIPPED {
+            FLOOR / 2.0
+        } else {
+            FLOOR
+        };
+        r.sigma >= floor
+    };
+    let white = readings.iter().filter(|r| r.scale_ratio <= WHITE).count();
+    if !readings.iter().all(above_floor) || white < WHITE_MAPS {
+        return None;
+    }
+    let unclipped = readings.iter().filter(|r| r.clipped < CLIPPED);
+    let sigma = unclipped.map(|r| r.sigma).fold(f64::INFINITY, f64::min);
+    Some(NoiseFloor {
+        sigma: if sigma.is_finite() { sigma } else { FLOOR },
+        maps: readings.len(),
+    })
 }
 
 /// What `map`'s flattest patches read (see the module's text); `None` for a map too small to
-/// tell (fewer than 16 patches). Colour maps: each channel read apart, the median channel's;
+/// tell (under 64 texels a side). Colour maps: each channel read apart, the median channel's;
 /// normals: x and y; grey maps: their value. `tileable`: patches wrap around the map's edges.
 pub fn noise_reading(kind: MapKind, map: &Map, tileable: bool) -> Option<NoiseReading> {
+    if map.width() < MIN_SIDE || map.height() < MIN_SIDE {
+        return None;
+    }
     let channels: &[usize] = match map.channels() {
         _ if kind == MapKind::Normal => &[0, 1],
         n if n >= 3 => &[0, 1, 2],
         _ => &[0],
     };
-    // Half-scale patches read 2 texels past their 16 (the kernel's reach at half scale).
-    let levels = Levels::of(kind, map, channels, REACH, tileable, 4);
-    let fit = |n: usize| {
-        if levels.wrap {
-            n / PATCH
-        } else {
-            n.saturating_sub(4) / PATCH
-        }
-    };
+    let pad = PATCH + REACH_PAST;
+    let levels = Levels::of(kind, map, channels, REACH, tileable, pad);
+    // A patch at every texel where the map wraps, else at every texel whose reach fits.
+    let fit = |n: usize| if levels.wrap { n } else { n + 1 - pad };
     let (pw, ph) = (fit(levels.width), fit(levels.height));
-    if pw * ph < 16 {
-        return None;
-    }
     let mut readings: Vec<NoiseReading> = (0..channels.len())
-        .map(|c| {
-            let half = half_scale(&levels, c);
-            let mut patches: Vec<(f64, f64)> = (0..pw * ph)
-                .map(|p| {
-                    let [x, y] = [p % pw * PATCH, p / pw * PATCH];
-                    let fine = kernel_sigma(PATCH, |i, j| levels.at(c, x + i, y + j));
-                    let coarse = kernel_sigma(PATCH / 2, |i, j| half.at(x / 2 + i, y / 2 + j));
-                    (fine, coarse)
-                })
-                .collect();
-            patches.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let flattest = &patches[..((patches.len() as f64 * FLATTEST) as usize).max(4)];
-            let median = |mut v: Vec<f64>| {
-                v.sort_by(f64::total_cmp);
-                v[v.len() / 2]
-            };
-            let sigma = median(flattest.iter().map(|p| p.0).collect());
-            let scale_ratio = median(flattest.iter().map(|p| p.1 / p.0.max(1e-6)).collect());
-            NoiseReading { sigma, scale_ratio }
-        })
+        .map(|c| channel_reading(&levels, c, [pw, ph]))
         .collect();
     readings.sort_by(|a, b| a.sigma.total_cmp(&b.sigma));
     Some(readings.swap_remove(readings.len() / 2))
 }
 
-/// Channel `c` of `levels` at half its scale (each 2×2 texels' mean), as far as it is read.
-struct HalfScale {
-    values: Vec<f32>,
+/// Channel `c`'s reading from the patches whose corners are the first `[pw, ph]` texels.
+fn channel_reading(levels: &Levels, c: usize, [pw, ph]: [usize; 2]) -> NoiseReading {
+    let rows = levels.planes[c].len() / levels.stride;
+    let (w, h) = (levels.stride, rows);
+    let at = |x: usize, y: usize| levels.at(c, x, y);
+    // Each texel's kernel responses (the kernel's corner there), and whether it is clipped.
+    let fine = Sums::of(w - 2, h - 2, |x, y| {
+        immerkaer_response(|i, j| at(x + i, y + j)).abs() as f64
+    });
+    let mean2 =
+        |x: usize, y: usize| (at(x, y) + at(x + 1, y) + at(x, y + 1) + at(x + 1, y + 1)) / 4.0;
+    let coarse = Sums::of(w - REACH_PAST, h - REACH_PAST, |x, y| {
+        immerkaer_response(|i, j| mean2(x + 2 * i, y + 2 * j)).abs() as f64
+    });
+    let clipped = Sums::of(w, h, |x, y| {
+        let v = at(x, y);
+        f64::from(u8::from(v <= 0.5 || v >= 254.5))
+    });
+    let to_sigma = (std::f64::consts::FRAC_PI_2).sqrt() / IMMERKAER_GAIN as f64;
+    let area = (PATCH * PATCH) as f64;
+    let mut patches: Vec<[f64; 3]> = (0..pw * ph)
+        .map(|i| {
+            let (x, y) = (i % pw, i / pw);
+            [
+                fine.patch(x, y, PATCH) / area * to_sigma,
+                coarse.patch(x, y, PATCH) / area * to_sigma,
+                clipped.patch(x, y, PATCH + 2) / ((PATCH + 2) * (PATCH + 2)) as f64,
+            ]
+        })
+        .collect();
+    patches.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    let flattest = &patches[..((patches.len() as f64 * FLATTEST) as usize).max(4)];
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    NoiseReading {
+        sigma: median(flattest.iter().map(|p| p[0]).collect()),
+        scale_ratio: median(flattest.iter().map(|p| p[1] / p[0].max(1e-6)).collect()),
+        clipped: median(flattest.iter().map(|p| p[2]).collect()),
+    }
+}
+
+/// A summed-area table of a `w × h` field: any square's sum in four lookups.
+struct Sums {
+    table: Vec<f64>,
     stride: usize,
 }
 
-impl HalfScale {
-    fn at(&self, x: usize, y: usize) -> f32 {
-        self.values[y * self.stride + x]
-    }
-}
-
-fn half_scale(levels: &Levels, c: usize) -> HalfScale {
-    let rows = levels.planes[c].len() / levels.stride;
-    let (w, h) = (levels.stride / 2, rows / 2);
-    let values = (0..w * h)
-        .map(|i| {
-            let (x, y) = (2 * (i % w), 2 * (i / w));
-            let sum = levels.at(c, x, y)
-                + levels.at(c, x + 1, y)
-                + levels.at(c, x, y + 1)
-                + levels.at(c, x + 1, y + 1);
-            sum / 4.0
-        })
-        .collect();
-    HalfScale { values, stride: w }
-}
-
-/// The noise σ a `side`² patch of kernel outputs reads, `value(i, j)` its texels from its
-/// corner (each output centred one texel further in).
-fn kernel_sigma(side: usize, value: impl Fn(usize, usize) -> f32) -> f64 {
-    let mut sum = 0.0f64;
-    for py in 0..side {
-        for px in 0..side {
-            sum += immerkaer_response(|kx, ky| value(px + kx, py + ky)).abs() as f64;
+impl Sums {
+    fn of(w: usize, h: usize, value: impl Fn(usize, usize) -> f64) -> Sums {
+        let stride = w + 1;
+        let mut table = vec![0.0; stride * (h + 1)];
+        for y in 0..h {
+            let mut row = 0.0;
+            for x in 0..w {
+                row += value(x, y);
+                table[(y + 1) * stride + x + 1] = table[y * stride + x + 1] + row;
+            }
         }
+        Sums { table, stride }
     }
-    let mean = sum / (side * side) as f64;
-    mean * (std::f64::consts::FRAC_PI_2).sqrt() / IMMERKAER_GAIN as f64
+
+    /// The sum over the `side`² square whose corner is `(x, y)`.
+    fn patch(&self, x: usize, y: usize, side: usize) -> f64 {
+        let t = |x: usize, y: usize| self.table[y * self.stride + x];
+        t(x + side, y + side) - t(x, y + side) - t(x + side, y) + t(x, y)
+    }
 }
 
 /// Immerkær's Laplacian difference (1995) on the 3×3 texels `value(x, y)` (x, y in 0..3):

@@ -214,3 +214,120 @@ fn noise_reads_at_its_strength_and_halves_at_half_the_scale() {
         None
     );
 }
+
+/// Every material the repository ships, box-filtered to 128² as measurements make inputs.
+fn shipped_at_128() -> Vec<(String, Material)> {
+    let folder =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/materials");
+    let mut names: Vec<String> = std::fs::read_dir(folder)
+        .unwrap()
+        .filter_map(|e| Some(e.ok()?.file_name().to_str()?.to_string()))
+        .filter(|n| !n.ends_with(".md"))
+        .collect();
+    names.sort();
+    (names.into_iter())
+        .map(|n| {
+            let m = material(&n).box_downsample(2);
+            (n, m)
+        })
+        .collect()
+}
+
+/// The four maps `noise_floor` reads of `m` (three without its metallic one).
+fn floor_of(m: &Material, with_metallic: bool, tileable: bool) -> Option<NoiseFloor> {
+    let kinds = [
+        MapKind::BaseColor,
+        MapKind::Normal,
+        MapKind::Roughness,
+        MapKind::Metallic,
+    ];
+    let kinds = if with_metallic {
+        &kinds[..]
+    } else {
+        &kinds[..3]
+    };
+    let maps: Vec<(MapKind, &Map)> = kinds.iter().map(|&k| (k, m.map(k).unwrap())).collect();
+    noise_floor(&maps, tileable)
+}
+
+#[test]
+fn noise_under_every_map_is_read_and_clean_materials_are_not() {
+    let materials = shipped_at_128();
+    assert_eq!(materials.len(), 14);
+    let mut found = 0;
+    for (n, (name, clean)) in materials.iter().enumerate() {
+        for with_metallic in [true, false] {
+            assert_eq!(floor_of(clean, with_metallic, false), None, "{name}");
+        }
+        let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
+        let noisy = |d: &str, rng: &mut rand::rngs::StdRng| {
+            crate::degrade::degrade_material(clean, &d.parse().unwrap(), rng).unwrap()
+        };
+        // σ 1 hides under the maps' own texture; JPEG and blur are no noise.
+        for d in ["noise1", "jpeg75", "blur0.7"] {
+            assert_eq!(
+                floor_of(&noisy(d, &mut rng), true, false),
+                None,
+                "{name} {d}"
+            );
+        }
+        if let Some(floor) = floor_of(&noisy("noise3", &mut rng), true, false) {
+            assert!((2.2..5.0).contains(&floor.sigma), "{name}: {floor}");
+            assert_eq!(
+                floor.to_string().split(" under ").nth(1),
+                Some("all 4 maps")
+            );
+            found += 1;
+        }
+    }
+    assert!(found >= 12, "σ 3 of noise read under {found} of 14");
+    // One map alone, or two, is not enough to tell noise from a grain.
+    let (_, m) = &materials[0];
+    let noisy = crate::degrade::degrade_material(
+        m,
+        &"noise4".parse().unwrap(),
+        &mut rand::rngs::StdRng::seed_from_u64(0),
+    )
+    .unwrap();
+    let two = [
+        (MapKind::BaseColor, &noisy.base_color),
+        (MapKind::Normal, &noisy.normal),
+    ];
+    assert_eq!(noise_floor(&two, false), None);
+}
+
+#[test]
+fn a_noise_floor_reads_alike_at_any_roll_of_a_tileable_material() {
+    // Its patches sit on a grid that does not roll with the material: the reading moves a
+    // little, the decision does not.
+    let roll_all = |m: &Material, by: [usize; 2]| {
+        let mut out = m.clone();
+        for kind in [
+            MapKind::BaseColor,
+            MapKind::Normal,
+            MapKind::Roughness,
+            MapKind::Metallic,
+        ] {
+            *out.map_mut(kind).unwrap() = rolled(m.map(kind).unwrap(), by);
+        }
+        out
+    };
+    for (n, (name, clean)) in shipped_at_128().iter().enumerate() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
+        let noisy = crate::degrade::degrade_material(clean, &"noise3".parse().unwrap(), &mut rng);
+        for m in [clean.clone(), noisy.unwrap()] {
+            let read = floor_of(&m, true, true);
+            for by in [[37, 53], [8, 120]] {
+                let again = floor_of(&roll_all(&m, by), true, true);
+                assert_eq!(
+                    read.is_some(),
+                    again.is_some(),
+                    "{name} {by:?}: {read:?} {again:?}"
+                );
+                if let (Some(a), Some(b)) = (&read, &again) {
+                    assert!((a.sigma - b.sigma).abs() < 0.3, "{name} {by:?}: {a} {b}");
+                }
+            }
+        }
+    }
+}

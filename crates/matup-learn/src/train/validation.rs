@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use candle_core::Device;
-use matup_core::degrade::{degrade_material, MaterialDegradation};
+use matup_core::degrade::{degraded_input, MaterialDegradation};
 use matup_core::map::Map;
 use matup_core::render::render;
 use matup_core::resample::Border;
@@ -60,7 +60,7 @@ pub fn validation_set(config: &LearnConfig) -> Result<Vec<ValMaterial>> {
             set.push(ValMaterial {
                 name: format!("{}+{name}", v.name),
                 truth: v.truth.clone(),
-                lr: degrade_material(&v.lr, &degradation, &mut rng)?,
+                lr: degraded_input(&v.truth, config.scale, Some(&degradation), &mut rng)?,
             });
         }
     }

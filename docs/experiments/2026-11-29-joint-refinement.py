@@ -16,9 +16,9 @@ box-filters back to the input), added to the defaults' maps. The last convolutio
 zero, so training starts from today's defaults.
 
 Usage (torch, numpy, pillow; `matup` on PATH for the evaluation):
-  python scripts/joint-refinement-study.py train --width 64 --depth 4 --steps 3000 \
+  python docs/experiments/2026-11-29-joint-refinement.py train --width 64 --depth 4 --steps 3000 \
       --data DIR [DIR...] --out RUN
-  python scripts/joint-refinement-study.py apply --run RUN --step N --data EVAL_DIR --out OUT
+  python docs/experiments/2026-11-29-joint-refinement.py apply --run RUN --step N --data EVAL_DIR --out OUT
 """
 
 import argparse

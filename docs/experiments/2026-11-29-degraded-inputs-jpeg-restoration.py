@@ -23,7 +23,7 @@ Data: `matup sweep` with `view = true` keeps each material's truth crop in
 no `degrade` and `baselines = []` (the shared 10 and the val 6, 512² crops).
 
 Usage (numpy, pillow, jpeglib; `matup` on PATH):
-  python scripts/jpeg-restoration-study.py SWEEP_OUTPUTS WORK
+  python docs/experiments/2026-11-29-degraded-inputs-jpeg-restoration.py SWEEP_OUTPUTS WORK
 """
 
 import json

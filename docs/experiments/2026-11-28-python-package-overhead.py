@@ -9,7 +9,7 @@ alternated so both see the same machine).
    as the ONNX network's sidecar says (256-texel tiles, 22 of context, 4 a call); the maps of
    the two are compared too.
 
-Usage: python scripts/python-overhead.py MATERIAL CLI SPAN.safetensors [REPEATS [REPEATS_2]]
+Usage: python docs/experiments/2026-11-28-python-package-overhead.py MATERIAL CLI SPAN.safetensors [REPEATS [REPEATS_2]]
 (REPEATS for the first comparison, REPEATS_2 for the second, default the same; needs the matup
 package, torch and spandrel).
 """

@@ -7,7 +7,7 @@
 # shipped network: today's defaults) and at the end (the adapted network), both as
 # `matup upscale`'s defaults run them, rendered under held-out lights.
 #
-# Usage: scripts/adapt-study.sh VARIANT ITERATIONS LEARNING_RATE PATCH EVERY [EXTRA_TOML] -- MATERIAL...
+# Usage: docs/experiments/2026-11-28-adaptation.sh VARIANT ITERATIONS LEARNING_RATE PATCH EVERY [EXTRA_TOML] -- MATERIAL...
 #   VARIANT names the output folder runs/adapt/VARIANT; the truth is validated every EVERY
 #   steps (the curve); EXTRA_TOML is appended to the learn config (for example
 #   'normal_weight = 0.5'); CROP (env, default 512) is the truth's side.

@@ -4,7 +4,7 @@
 offsets, no multiple of 8, not tileable; box-filtered to 64²–1024²; judged at --max-side at
 most). Prints each signal's accuracy with the threshold that fits the set best (optimistic).
 
-  python3 scripts/tileability_signals.py ../shared/materials ../shared/corpus
+  python3 docs/experiments/2026-11-25-tileability-detection.py ../shared/materials ../shared/corpus
 
 Needs numpy and Pillow. See docs/experiments/2026-11-25-tileability-detection.md.
 """

@@ -1,6 +1,6 @@
 // The example workflow loaded into a running ComfyUI's page, as a screenshot (headless
 // Debian chromium through playwright-core from npm). Usage, with ComfyUI on PORT:
-//   node scripts/comfyui-screenshot.js PORT comfyui/example_workflow_api.json OUT.png
+//   node docs/experiments/2026-11-28-python-package-screenshot.js PORT comfyui/example_workflow_api.json OUT.png
 const { chromium } = require('playwright-core');
 const fs = require('fs');
 (async () => {
