@@ -6,7 +6,8 @@
 //! is and rolled by (37, 53). A clean material counts as misread where any of its four rendered
 //! maps is read; a degraded one as found where the map named in the column is. Then, at each
 //! size, the materials read as lying over one noise, clean and degraded.
-//! `--real DIR` (repeatable) prints what the detectors read on a material folder as it is.
+//! `--real DIR` (repeatable) prints what the detectors read on a material folder as it is;
+//! `--noise-only` prints the noise tables alone.
 //!
 //! `cargo run --release --example texel_traces -- [--real DIR]... SET_FOLDER...`
 //! (e.g. `../shared/materials ../shared/corpus`).
@@ -51,11 +52,12 @@ type Cut = (&'static str, fn(&Material) -> Material, bool);
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let (mut real, mut sets) = (Vec::new(), Vec::new());
+    let (mut real, mut sets, mut noise_only) = (Vec::new(), Vec::new(), false);
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
         match arg.as_str() {
             "--real" => real.push(PathBuf::from(args.next().ok_or("--real needs a folder")?)),
+            "--noise-only" => noise_only = true,
             _ => sets.push(PathBuf::from(arg)),
         }
     }
@@ -79,13 +81,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Ok(());
     }
     let materials = material_folders(&sets)?;
-    let columns = columns();
-    let names: Vec<&str> = columns.iter().map(|c| c.0).collect();
-    println!(
-        "| input | materials | clean: read as BC | clean: read as JPEG | {} |",
-        names.join(" | ")
-    );
-    println!("|---|---|---|---|{}", "---|".repeat(columns.len()));
     let cuts: [Cut; 4] = [
         ("256² crop", cut_crop, false),
         ("512² → 128² (box)", cut_box, false),
@@ -96,7 +91,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             true,
         ),
     ];
-    for (label, cut, tileable) in cuts {
+    if !noise_only {
+        block_table(&materials, &cuts)?;
+    }
+    for cut in cuts {
+        noise_table(&materials, cut)?;
+    }
+    Ok(())
+}
+
+/// How many clean materials are read as BC or JPEG, and how many degraded maps are found, at
+/// each cut.
+fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::error::Error>> {
+    let columns = columns();
+    let names: Vec<&str> = columns.iter().map(|c| c.0).collect();
+    println!(
+        "| input | materials | clean: read as BC | clean: read as JPEG | {} |",
+        names.join(" | ")
+    );
+    println!("|---|---|---|---|{}", "---|".repeat(columns.len()));
+    for &(label, cut, tileable) in cuts {
         let (mut as_bc, mut as_jpeg) = (0, 0);
         let mut found = vec![0usize; columns.len()];
         let mut misreads = Vec::new();
@@ -128,15 +142,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             eprintln!("{label}, clean, read: {line}");
         }
     }
-    for cut in cuts {
-        noise_table(&materials, cut)?;
-    }
     Ok(())
 }
 
 /// How many materials read as lying over one noise (`matup::texel_trace::noise_floor`), clean
-/// and through each noise and each trace without a grid: with their four maps, and with three
-/// (no metallic map, as many folders have none).
+/// and through each noise and each trace without a grid: with all their maps as the route reads
+/// them (base colour, normal, roughness, metallic, and height where they have one), with the
+/// four alone, without the metallic map (many folders have none), and with three (no metallic,
+/// no height: never read, as the route needs four; shown for what three maps would read).
 fn noise_table(
     materials: &[PathBuf],
     (label, cut, tileable): Cut,
@@ -152,7 +165,16 @@ fn noise_table(
     let loaded: Vec<Material> = (materials.iter())
         .map(|f| Ok(cut(&load_material(Some(f), &Default::default())?)))
         .collect::<Result<_, Box<dyn std::error::Error>>>()?;
-    for kinds in [&MAPS[..], &MAPS[..3]] {
+    const HEIGHT: MapKind = MapKind::Height;
+    let with_height = [MAPS[0], MAPS[1], MAPS[2], MAPS[3], HEIGHT];
+    let no_metallic = [MAPS[0], MAPS[1], MAPS[2], HEIGHT];
+    let rows: [(&str, &[MapKind]); 4] = [
+        ("all, height too", &with_height),
+        ("colour, normal, roughness, metallic", &MAPS),
+        ("no metallic, height too", &no_metallic),
+        ("colour, normal, roughness", &MAPS[..3]),
+    ];
+    for (row, kinds) in rows {
         let mut cells = Vec::new();
         for input in inputs {
             let mut found = 0;
@@ -169,16 +191,13 @@ fn noise_table(
                     found += 1;
                     if input == "clean" {
                         let name = materials[n].display();
-                        eprintln!(
-                            "{label}, {} maps, clean, read: {name}: {floor}",
-                            kinds.len()
-                        );
+                        eprintln!("{label}, {row}, clean, read: {name}: {floor}");
                     }
                 }
             }
             cells.push(format!("{found}/{}", loaded.len()));
         }
-        println!("| {} | {} |", kinds.len(), cells.join(" | "));
+        println!("| {row} | {} |", cells.join(" | "));
     }
     Ok(())
 }

@@ -332,7 +332,7 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     };
     assert!(
         said.starts_with("noise of σ 2.")
-            && said.ends_with("under all 4 maps, found in their texels"),
+            && said.ends_with("under all 5 maps, found in their texels"),
         "{said}"
     );
     // A named upsampler stays; the route still decides the projection.

@@ -51,9 +51,10 @@ pub struct BenchArgs {
     pub eval_lights: usize,
     /// Degrade each LR input first, against its clean truth: bc1, bc3, bc4, bc5, dds (as games
     /// ship them), jpegQ, jpegQ-444, noiseS, poissonP, blurS, haloA, ditherN, ditherN-fs, each
-    /// saved again as PNG with '-png' after (bc1-png), several joined by '+', each on one map
-    /// alone after '@' (jpeg75@baseColor); comma-separated for several runs of each material
-    /// ("clean" for none).
+    /// saved again as PNG with '-png' after (bc1-png), half (resized to half after storing,
+    /// the input cut twice as large first: jpeg75+half), several joined by '+', each on one
+    /// map alone after '@' (jpeg75@baseColor); comma-separated for several runs of each
+    /// material ("clean" for none).
     #[arg(long, value_delimiter = ',')]
     pub degrade: Vec<String>,
     /// Keep every method's maps (outputs/MATERIAL/METHOD/, the truth beside them) and write

@@ -340,13 +340,13 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
     lossy
 }
 
-/// Where one noise lies under all of the material's own filter maps
-/// ([`matup_core::texel_trace::noise_floor`]; stand-ins are flat, not clean), those of them
+/// Where one noise lies under all of the material's own maps, its height too
+/// ([`matup_core::texel_trace::noise_floor`]; stand-ins are flat, not clean), the filter maps
 /// not read as lossily stored already: noise costs the material network as blocks do (σ 3 of
 /// noise, docs/experiments/2026-12-02-texel-traces.md).
 fn noisy_maps(material: &Material, tileable: bool, lossy: &[LossyMap]) -> Vec<LossyMap> {
     let stand_ins = material.stand_ins();
-    let own: Vec<(MapKind, &Map)> = (FEATURE_MAPS.into_iter())
+    let own: Vec<(MapKind, &Map)> = (FEATURE_MAPS.into_iter().chain([MapKind::Height]))
         .filter(|kind| !stand_ins.contains(kind))
         .filter_map(|kind| Some((kind, material.map(kind)?)))
         .collect();
@@ -354,6 +354,7 @@ fn noisy_maps(material: &Material, tileable: bool, lossy: &[LossyMap]) -> Vec<Lo
         return Vec::new();
     };
     (own.into_iter())
+        .filter(|(kind, _)| FEATURE_MAPS.contains(kind))
         .filter(|(kind, _)| lossy.iter().all(|m| m.kind != *kind))
         .map(|(kind, _)| LossyMap {
             kind,

@@ -12,6 +12,8 @@
 //! A material does ([`noise_floor`]): noise lies under every map alike, while a clean
 //! material's maps are not all grainy; most have a smooth or constant one.
 
+use std::ops::RangeInclusive;
+
 use super::levels::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
@@ -47,6 +49,9 @@ pub struct NoiseReading {
     /// The share of their texels at black or white, where noise is clipped and reads about
     /// half as much (a metallic map at 0).
     pub clipped: f64,
+    /// What the median patch reads over what the flattest read: about 1 where the whole map
+    /// is as flat as its flattest patches (a flat map under noise), more where it has texture.
+    pub spread: f64,
 }
 
 /// The least σ, in 8-bit levels, that noise under every map must read: σ 3 of noise reads
@@ -56,12 +61,25 @@ const FLOOR: f64 = 2.2;
 /// The share of clipped texels past which a map need only read half of [`FLOOR`].
 const CLIPPED: f64 = 0.1;
 
-/// The half-scale ratio at most that a map reads as white.
-const WHITE: f64 = 0.9;
+/// The half-scale ratios of a map read as white: as white as noise (0.5), and no whiter: a
+/// weave at a 2-texel period reads below 0.35.
+const WHITE: RangeInclusive<f64> = 0.35..=0.9;
 
-/// How many maps a material needs, and how many of them must read white: three (of four,
-/// where it has a metallic map), since one grainy map may be as white as noise.
+/// A witness to noise, one map flat but for it: all its patches read within 1.5× its
+/// flattest, and about as white as noise alone reads (half-scale ratio ≤ 0.7); or a map
+/// clipped at black or white (a constant metallic map under noise). Without one, a material of
+/// fine grains in every map was read as noisy (2 of the 109 clean materials at 128² where the
+/// metallic map is left out).
+const WITNESS_SPREAD: f64 = 1.5;
+const WITNESS_WHITE: RangeInclusive<f64> = 0.35..=0.7;
+
+/// How many of its maps must read white: three, since one grainy map may be as white as noise.
 const WHITE_MAPS: usize = 3;
+
+/// How many maps a material needs: four. With three (no metallic map), the fine grain of all
+/// three read as noise on 6 of 109 clean materials at 128², against none with four
+/// (docs/experiments/2026-12-02-texel-traces.md).
+const MIN_MAPS: usize = 4;
 
 /// Noise found under every map of a material.
 #[derive(Clone, Debug, PartialEq)]
@@ -82,13 +100,14 @@ impl std::fmt::Display for NoiseFloor {
 
 /// Whether `maps` (each of its kind; a material's own maps, not stand-ins) read as lying over
 /// one noise: every map's flattest patches read at least [`FLOOR`] (half of it where they are
-/// clipped), and at least [`WHITE_MAPS`] of them white. `None` for a clean material, or fewer
-/// than [`WHITE_MAPS`] maps large enough to read. `tileable`: patches wrap around.
+/// clipped), at least [`WHITE_MAPS`] of them white, and one of them a witness (a map flat but
+/// for the noise). `None` for a clean material, or one of fewer than [`MIN_MAPS`] maps large
+/// enough to read. `tileable`: patches wrap around.
 pub fn noise_floor(maps: &[(MapKind, &Map)], tileable: bool) -> Option<NoiseFloor> {
     let readings: Vec<NoiseReading> = (maps.iter())
         .map(|&(kind, map)| noise_reading(kind, map, tileable))
         .collect::<Option<_>>()?;
-    if readings.len() < WHITE_MAPS {
+    if readings.len() < MIN_MAPS {
         return None;
     }
     let above_floor = |r: &NoiseReading| {
@@ -99,8 +118,14 @@ pub fn noise_floor(maps: &[(MapKind, &Map)], tileable: bool) -> Option<NoiseFloo
         };
         r.sigma >= floor
     };
-    let white = readings.iter().filter(|r| r.scale_ratio <= WHITE).count();
-    if !readings.iter().all(above_floor) || white < WHITE_MAPS {
+    let white = (readings.iter())
+        .filter(|r| WHITE.contains(&r.scale_ratio))
+        .count();
+    let witness = |r: &NoiseReading| {
+        r.clipped >= CLIPPED
+            || (r.spread <= WITNESS_SPREAD && WITNESS_WHITE.contains(&r.scale_ratio))
+    };
+    if !readings.iter().all(above_floor) || white < WHITE_MAPS || !readings.iter().any(witness) {
         return None;
     }
     let unclipped = readings.iter().filter(|r| r.clipped < CLIPPED);
@@ -171,10 +196,12 @@ fn channel_reading(levels: &Levels, c: usize, [pw, ph]: [usize; 2]) -> NoiseRead
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
+    let sigma = median(flattest.iter().map(|p| p[0]).collect());
     NoiseReading {
-        sigma: median(flattest.iter().map(|p| p[0]).collect()),
+        sigma,
         scale_ratio: median(flattest.iter().map(|p| p[1] / p[0].max(1e-6)).collect()),
         clipped: median(flattest.iter().map(|p| p[2]).collect()),
+        spread: patches[patches.len() / 2][0] / sigma.max(1e-6),
     }
 }
 
