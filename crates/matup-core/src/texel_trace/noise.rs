@@ -67,9 +67,9 @@ const WHITE: RangeInclusive<f64> = 0.35..=0.9;
 
 /// A witness to noise, one map flat but for it: all its patches read within 1.5× its
 /// flattest, and about as white as noise alone reads (half-scale ratio ≤ 0.7); or a map
-/// clipped at black or white (a constant metallic map under noise). Without one, a material of
-/// fine grains in every map was read as noisy (2 of the 109 clean materials at 128² where the
-/// metallic map is left out).
+/// clipped at black or white (a constant metallic map under noise). Without a witness and the
+/// band's lower end, 4 of the 109 clean materials read as noisy at 128² where the metallic
+/// map is left out (fine grains in every map), 1 with them.
 const WITNESS_SPREAD: f64 = 1.5;
 const WITNESS_WHITE: RangeInclusive<f64> = 0.35..=0.7;
 
@@ -84,7 +84,7 @@ const MIN_MAPS: usize = 4;
 /// Noise found under every map of a material.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NoiseFloor {
-    /// The least its maps' flattest patches read, in 8-bit levels (unclipped maps).
+    /// The least its unclipped maps' flattest patches read, in 8-bit levels.
     pub sigma: f64,
     /// The maps read.
     pub maps: usize,
@@ -128,10 +128,16 @@ pub fn noise_floor(maps: &[(MapKind, &Map)], tileable: bool) -> Option<NoiseFloo
     if !readings.iter().all(above_floor) || white < WHITE_MAPS || !readings.iter().any(witness) {
         return None;
     }
-    let unclipped = readings.iter().filter(|r| r.clipped < CLIPPED);
-    let sigma = unclipped.map(|r| r.sigma).fold(f64::INFINITY, f64::min);
+    // The least σ of the unclipped maps (of all, where every map is clipped).
+    let least = |clipped_too: bool| {
+        (readings.iter())
+            .filter(|r| clipped_too || r.clipped < CLIPPED)
+            .map(|r| r.sigma)
+            .fold(f64::INFINITY, f64::min)
+    };
+    let sigma = Some(least(false)).filter(|s| s.is_finite());
     Some(NoiseFloor {
-        sigma: if sigma.is_finite() { sigma } else { FLOOR },
+        sigma: sigma.unwrap_or_else(|| least(true)),
         maps: readings.len(),
     })
 }
