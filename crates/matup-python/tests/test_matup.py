@@ -4,6 +4,7 @@ PyTorch callable and the ComfyUI nodes are tested by tests/test_torch.py)."""
 import json
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import threading
@@ -272,6 +273,9 @@ def test_ctrl_c_stops_a_run_and_leaves_no_partial_output(tmp_path):
         return bicubic(batch)
 
     network = matup.Network(slow, scale=4, tile=32, batch=1)
+    # A shell's background job starts with SIGINT ignored, and interrupt_main then does nothing:
+    # Ctrl-C's own handler is installed for the test, as in a terminal.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(1.0, _thread.interrupt_main)
     timer.start()
     start = time.perf_counter()
@@ -280,6 +284,7 @@ def test_ctrl_c_stops_a_run_and_leaves_no_partial_output(tmp_path):
             matup.upscale_folder(SAMPLE, tmp_path / "out", upsampler=network, progress=False)
     finally:
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     # It stopped at the next call, not at the end of the run (16 tiles × passes × maps).
     assert time.perf_counter() - start < 5.0
     assert not [p for p in (tmp_path / "out").glob("*.png")], "a partial output was left"
