@@ -1,7 +1,7 @@
 //! How well matup reads a lossy storage's trace in maps saved again losslessly
 //! (`matup::texel_trace`), which `input_quality = "auto"` routes as degraded: clean maps (none
-//! should be read), and the same maps through BC1, BC3, BC4, BC5 and JPEG, cropped off their
-//! grids (each should be). Maps at the sizes the measurements use: a 256² crop, a 512² crop
+//! should be read), and the same maps through BC1, BC3, BC4, BC5, JPEG and dithering to 32
+//! levels, cropped off their grids (each should be). Maps at the sizes the measurements use: a 256² crop, a 512² crop
 //! box-filtered to 128², and the whole material box-filtered to 128² read as tileable, as it
 //! is and rolled by (37, 53). A clean material counts as misread where any of its four rendered
 //! maps is read; a degraded one as found where the map named in the column is. Then, at each
@@ -14,9 +14,9 @@
 
 use std::path::{Path, PathBuf};
 
-use matup::degrade::{BlockFormat, Degradation, Subsampling};
+use matup::degrade::{BlockFormat, Degradation, DitherMethod, Subsampling};
 use matup::material::MapKind;
-use matup::texel_trace::{noise_floor, texel_trace};
+use matup::texel_trace::{noise_floor, texel_trace, TexelTrace};
 use matup::{load_material, Map, Material};
 use rand::SeedableRng;
 
@@ -35,6 +35,7 @@ fn columns() -> Vec<(&'static str, MapKind, Degradation)> {
         quality,
         subsampling: Subsampling::Half,
     };
+    let dither = |method| Degradation::Dither { levels: 32, method };
     vec![
         ("BC1 colour", MapKind::BaseColor, block(BlockFormat::Bc1)),
         ("BC3 colour", MapKind::BaseColor, block(BlockFormat::Bc3)),
@@ -44,6 +45,21 @@ fn columns() -> Vec<(&'static str, MapKind, Degradation)> {
         ("JPEG 90 colour", MapKind::BaseColor, jpeg(90)),
         ("JPEG 75 colour", MapKind::BaseColor, jpeg(75)),
         ("JPEG 75 normal", MapKind::Normal, jpeg(75)),
+        (
+            "dither 32 colour (FS)",
+            MapKind::BaseColor,
+            dither(DitherMethod::ErrorDiffusion),
+        ),
+        (
+            "dither 32 colour (ordered)",
+            MapKind::BaseColor,
+            dither(DitherMethod::Ordered),
+        ),
+        (
+            "dither 32 roughness (FS)",
+            MapKind::Roughness,
+            dither(DitherMethod::ErrorDiffusion),
+        ),
     ]
 }
 
@@ -100,18 +116,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// How many clean materials are read as BC or JPEG, and how many degraded maps are found, at
-/// each cut.
+/// How many clean materials are read as BC, JPEG or few levels, and how many degraded maps
+/// are found, at each cut.
 fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::error::Error>> {
     let columns = columns();
     let names: Vec<&str> = columns.iter().map(|c| c.0).collect();
     println!(
-        "| input | materials | clean: read as BC | clean: read as JPEG | {} |",
+        "| input | materials | clean: read as BC | clean: read as JPEG | clean: read as few \
+         levels | {} |",
         names.join(" | ")
     );
-    println!("|---|---|---|---|{}", "---|".repeat(columns.len()));
+    println!("|---|---|---|---|---|{}", "---|".repeat(columns.len()));
     for &(label, cut, tileable) in cuts {
-        let (mut as_bc, mut as_jpeg) = (0, 0);
+        let (mut as_bc, mut as_jpeg, mut as_few) = (0, 0, 0);
         let mut found = vec![0usize; columns.len()];
         let mut misreads = Vec::new();
         for (n, folder) in materials.iter().enumerate() {
@@ -119,8 +136,11 @@ fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::e
             let traces: Vec<_> = (MAPS.iter())
                 .filter_map(|&k| Some((k, texel_trace(k, m.map(k)?, tileable)?)))
                 .collect();
-            as_bc += usize::from(traces.iter().any(|(_, t)| !t.is_jpeg()));
-            as_jpeg += usize::from(traces.iter().any(|(_, t)| t.is_jpeg()));
+            let read_as =
+                |is: fn(&TexelTrace) -> bool| usize::from(traces.iter().any(|(_, t)| is(t)));
+            as_bc += read_as(|t| matches!(t, TexelTrace::Blocks(_)));
+            as_jpeg += read_as(|t| matches!(t, TexelTrace::Jpeg(_)));
+            as_few += read_as(|t| matches!(t, TexelTrace::Quantised(_)));
             if !traces.is_empty() {
                 misreads.push(format!("{}: {traces:?}", folder.display()));
             }
@@ -135,7 +155,7 @@ fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::e
         let n = materials.len();
         let cells: Vec<String> = found.iter().map(|f| format!("{f}/{n}")).collect();
         println!(
-            "| {label} | {n} | {as_bc}/{n} | {as_jpeg}/{n} | {} |",
+            "| {label} | {n} | {as_bc}/{n} | {as_jpeg}/{n} | {as_few}/{n} | {} |",
             cells.join(" | ")
         );
         for line in misreads {

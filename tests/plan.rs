@@ -6,7 +6,9 @@ mod common;
 use std::sync::Arc;
 
 use matup::config::{Config, InputQuality, Selection};
-use matup::degrade::{degrade_material, BlockFormat, Degradation, Subsampling};
+use matup::degrade::{
+    degrade_material, BlockFormat, Degradation, MaterialDegradation, Subsampling,
+};
 use matup::material::MapKind;
 use matup::plan::{
     Plan, Reach, TilingGrounds, DEGRADED_NETWORK, JPEG_NETWORK, JPEG_PROJECTION_BLUR,
@@ -315,6 +317,29 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
         by_blocks.setup.settings.filter.unprojected_maps,
         [MapKind::BaseColor]
     );
+    // A 16-bit texture's colour and roughness, dithered to 32 levels and unpacked to PNG: their
+    // few levels say so; the normal map beside them is read for itself.
+    let mut dithered = load_material(Some(&folder), &LoadOptions::default()).unwrap();
+    let fs32: MaterialDegradation = "dither32-fs@baseColor+dither32-fs@roughness"
+        .parse()
+        .unwrap();
+    dithered = degrade_material(&dithered, &fs32, &mut rng).unwrap();
+    let by_levels = plan(&dithered, InputQuality::Auto);
+    assert_eq!(
+        by_levels.input.lossy,
+        [
+            "32 levels a channel (dithered or posterised) found in baseColor.png's texels",
+            "32 levels a channel (dithered or posterised) found in roughness.png's texels"
+        ]
+    );
+    let routes: Vec<_> = by_levels.input.maps.iter().map(|&(_, q)| q).collect();
+    assert_eq!(
+        routes,
+        [Degraded, Clean, Clean, Degraded],
+        "{:?}",
+        by_levels.input
+    );
+    assert_eq!(by_levels.setup.upsampler_name, DEGRADED_NETWORK);
     // Noise under every map, as a noisy scan's set: every map runs degraded, said once.
     let leather = common::test_material("ambientcg_Leather025");
     let small = load_material(Some(&leather), &LoadOptions::default())

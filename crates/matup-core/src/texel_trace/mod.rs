@@ -2,7 +2,8 @@
 //! texture unpacked to PNG, a model's JPEG cropped and kept as PNG. Its file no longer says so
 //! (`Material::lossy` reads files), its texels do: BC's 4×4 blocks of few colours on a line
 //! ([`block_trace`]) and JPEG's 8×8 blocks of coefficients on a quantiser's steps
-//! ([`jpeg_trace`]), each tested at every offset of its grid, since crops and atlases shift it.
+//! ([`jpeg_trace`]), each tested at every offset of its grid, since crops and atlases shift it;
+//! dithering's or posterising's few levels a channel ([`quantised_trace`]).
 //!
 //! Written here because no crate does it: image forensics libraries read a JPEG's quality from
 //! its own tables, and texture tools read a DDS's format from its header; a lossless copy has
@@ -16,6 +17,7 @@ mod blocks;
 mod jpeg;
 mod levels;
 mod noise;
+mod quantised;
 
 use std::fmt;
 
@@ -24,6 +26,7 @@ pub use jpeg::{jpeg_trace, JpegTrace};
 pub use noise::{
     immerkaer_response, noise_floor, noise_reading, NoiseFloor, NoiseReading, IMMERKAER_GAIN,
 };
+pub use quantised::{quantised_trace, QuantisedTrace};
 
 use crate::map::Map;
 use crate::map_kind::MapKind;
@@ -33,6 +36,7 @@ use crate::map_kind::MapKind;
 pub enum TexelTrace {
     Blocks(BlockTrace),
     Jpeg(JpegTrace),
+    Quantised(QuantisedTrace),
 }
 
 impl TexelTrace {
@@ -43,7 +47,8 @@ impl TexelTrace {
 }
 
 impl fmt::Display for TexelTrace {
-    /// "BC1 blocks (4×4 at x 1, y 3)", "a JPEG's 8×8 grid (at x 0, y 0)".
+    /// "BC1 blocks (4×4 at x 1, y 3)", "a JPEG's 8×8 grid (at x 0, y 0)", "32 levels a
+    /// channel (dithered or posterised)".
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             TexelTrace::Blocks(b) => {
@@ -54,15 +59,30 @@ impl fmt::Display for TexelTrace {
                 let [x, y] = j.offset;
                 write!(f, "a JPEG's 8×8 grid (at x {x}, y {y})")
             }
+            TexelTrace::Quantised(q) => {
+                let read: Vec<String> = (q.levels.iter().flatten()).map(usize::to_string).collect();
+                let mut distinct = read.clone();
+                distinct.dedup();
+                match distinct.as_slice() {
+                    [one] => write!(f, "{one} levels a channel (dithered or posterised)"),
+                    _ => write!(
+                        f,
+                        "{} levels a channel (dithered or posterised)",
+                        read.join("/")
+                    ),
+                }
+            }
         }
     }
 }
 
 /// The trace of lossy storage in `map`'s texels (a map of `kind`), if one shows: BC blocks,
-/// else a JPEG's grid. `tileable`: the map wraps around (its blocks read across its edges).
+/// else a JPEG's grid, else few levels a channel. `tileable`: the map wraps around (its blocks
+/// read across its edges).
 pub fn texel_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<TexelTrace> {
     (block_trace(kind, map, tileable).map(TexelTrace::Blocks))
         .or_else(|| jpeg_trace(kind, map, tileable).map(TexelTrace::Jpeg))
+        .or_else(|| quantised_trace(kind, map, tileable).map(TexelTrace::Quantised))
 }
 
 #[cfg(test)]

@@ -171,6 +171,72 @@ fn a_tileable_map_reads_the_same_at_every_roll() {
 }
 
 #[test]
+fn dithered_and_posterised_maps_show_their_levels_at_any_crop_and_roll() {
+    use crate::degrade::DitherMethod;
+    let fs32 = Degradation::Dither {
+        levels: 32,
+        method: DitherMethod::ErrorDiffusion,
+    };
+    // Leather025's light, flat base colour (10 levels wide) keeps 2 or 3 levels of 32 a
+    // channel: as few as a mask's, too few to tell.
+    let leather = material("ambientcg_Leather025");
+    let flat = through(fs32, MapKind::BaseColor, &leather.base_color);
+    assert_eq!(quantised_trace(MapKind::BaseColor, &flat, false), None);
+    for name in ["ambientcg_Bricks059", "ambientcg_Rock035"] {
+        let m = material(name);
+        for kind in [MapKind::BaseColor, MapKind::Roughness] {
+            let map = m.map(kind).unwrap();
+            for (levels, method) in [
+                (32, DitherMethod::ErrorDiffusion),
+                (32, DitherMethod::Ordered),
+                (16, DitherMethod::ErrorDiffusion),
+                (64, DitherMethod::Ordered),
+            ] {
+                let dithered = through(Degradation::Dither { levels, method }, kind, map);
+                for (x0, y0, w, h) in [(0, 0, 256, 256), (3, 5, 120, 97)] {
+                    let crop = dithered.crop(x0, y0, w, h);
+                    let Some(TexelTrace::Quantised(trace)) = texel_trace(kind, &crop, false) else {
+                        panic!("{name} {kind} {levels} levels {method:?} at ({x0}, {y0})");
+                    };
+                    // A channel too flat to tell is the only one not read.
+                    assert!(
+                        (trace.levels.iter()).all(|&l| l == Some(levels as usize) || l.is_none()),
+                        "{name} {kind} {levels} {method:?}: {trace:?}"
+                    );
+                }
+                let read = |map: &Map| quantised_trace(kind, map, true);
+                assert_eq!(
+                    read(&rolled(&dithered, [37, 53])),
+                    read(&dithered),
+                    "{name}"
+                );
+            }
+        }
+        // A 16-bit texture widened to 8 bits as GPUs do (RGB565: 5, 6, 5 bits, the top bits
+        // repeated below), read as 32/64/32 levels.
+        let widen = |v: f32, bits: u32| {
+            let q = (v * ((1 << bits) - 1) as f32).round() as u32;
+            ((q << (8 - bits)) | (q >> (2 * bits - 8))) as f32 / 255.0
+        };
+        let stored = &m.base_color;
+        let rgb565 = Map::from_fn(256, 256, 3, |c, y, x| {
+            let srgb = MapKind::BaseColor.stored(c, stored.plane(c)[y * 256 + x]);
+            let widened = widen(srgb, if c == 1 { 6 } else { 5 });
+            MapKind::BaseColor.from_stored(c, widened)
+        });
+        let found = quantised_trace(MapKind::BaseColor, &rgb565, false).expect("RGB565 read");
+        assert_eq!(found.levels, vec![Some(32), Some(64), Some(32)], "{name}");
+        assert_eq!(
+            TexelTrace::Quantised(found).to_string(),
+            "32/64/32 levels a channel (dithered or posterised)"
+        );
+        // Normals are renormalised when read, off any ladder: not read.
+        let normal = through(fs32, MapKind::Normal, &m.normal);
+        assert_eq!(quantised_trace(MapKind::Normal, &normal, false), None);
+    }
+}
+
+#[test]
 fn noise_reads_at_its_strength_and_halves_at_half_the_scale() {
     let noisy = |map: &Map, kind: MapKind, sigma: f32| {
         through(Degradation::GaussianNoise { sigma }, kind, map)
