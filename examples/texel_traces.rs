@@ -4,7 +4,7 @@
 //! levels, cropped off their grids (each should be). Maps at the sizes the measurements use: a 256² crop, a 512² crop
 //! box-filtered to 128², and the whole material box-filtered to 128² read as tileable, as it
 //! is and rolled by (37, 53). A clean material counts as misread where any of its four rendered
-//! maps is read; a degraded one as found where the map named in the column is. Then, at each
+//! maps is read (and for few levels, its height too, which the route reads as a witness); a degraded one as found where the map named in the column is. Then, at each
 //! size, the materials read as lying over one noise, clean and degraded.
 //! `--real DIR` (repeatable) prints what the detectors read on a material folder as it is;
 //! `--noise-only` prints the noise tables alone.
@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 use matup::degrade::{BlockFormat, Degradation, DitherMethod, Subsampling};
 use matup::material::MapKind;
-use matup::texel_trace::{noise_floor, texel_trace, TexelTrace};
+use matup::texel_trace::{noise_floor, quantised_trace, texel_trace, QuantisedTrace, TexelTrace};
 use matup::{load_material, Map, Material};
 use rand::SeedableRng;
 
@@ -123,12 +123,12 @@ fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::e
     let names: Vec<&str> = columns.iter().map(|c| c.0).collect();
     println!(
         "| input | materials | clean: read as BC | clean: read as JPEG | clean: read as few \
-         levels | {} |",
+         levels | {} | dither 32 (FS), every map: the set read |",
         names.join(" | ")
     );
-    println!("|---|---|---|---|---|{}", "---|".repeat(columns.len()));
+    println!("|---|---|---|---|---|{}---|", "---|".repeat(columns.len()));
     for &(label, cut, tileable) in cuts {
-        let (mut as_bc, mut as_jpeg, mut as_few) = (0, 0, 0);
+        let (mut as_bc, mut as_jpeg, mut as_few, mut dithered_sets) = (0, 0, 0, 0);
         let mut found = vec![0usize; columns.len()];
         let mut misreads = Vec::new();
         for (n, folder) in materials.iter().enumerate() {
@@ -140,10 +140,25 @@ fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::e
                 |is: fn(&TexelTrace) -> bool| usize::from(traces.iter().any(|(_, t)| is(t)));
             as_bc += read_as(|t| matches!(t, TexelTrace::Blocks(_)));
             as_jpeg += read_as(|t| matches!(t, TexelTrace::Jpeg(_)));
-            as_few += read_as(|t| matches!(t, TexelTrace::Quantised(_)));
+            let height_levels = few_levels_in_height(&m, tileable);
+            as_few += usize::from(
+                height_levels.is_some() || read_as(|t| matches!(t, TexelTrace::Quantised(_))) > 0,
+            );
+            if let Some(levels) = height_levels {
+                misreads.push(format!("{}: height {levels:?}", folder.display()));
+            }
             if !traces.is_empty() {
                 misreads.push(format!("{}: {traces:?}", folder.display()));
             }
+            // Every map dithered, as a 16-bit set: read where any map shows its levels.
+            let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
+            let set = matup::degrade::degrade_material(&m, &"dither32-fs".parse()?, &mut rng)?;
+            let shown = (MAPS.iter()).any(|&k| {
+                set.map(k)
+                    .and_then(|map| texel_trace(k, map, tileable))
+                    .is_some()
+            });
+            dithered_sets += usize::from(shown || few_levels_in_height(&set, tileable).is_some());
             for (i, (_, kind, degradation)) in columns.iter().enumerate() {
                 let mut rng = rand::rngs::StdRng::seed_from_u64(n as u64);
                 let map = degradation.apply(*kind, m.map(*kind).expect("rendered"), &mut rng)?;
@@ -155,7 +170,8 @@ fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::e
         let n = materials.len();
         let cells: Vec<String> = found.iter().map(|f| format!("{f}/{n}")).collect();
         println!(
-            "| {label} | {n} | {as_bc}/{n} | {as_jpeg}/{n} | {as_few}/{n} | {} |",
+            "| {label} | {n} | {as_bc}/{n} | {as_jpeg}/{n} | {as_few}/{n} | {} | \
+             {dithered_sets}/{n} |",
             cells.join(" | ")
         );
         for line in misreads {
@@ -163,6 +179,11 @@ fn block_table(materials: &[PathBuf], cuts: &[Cut]) -> Result<(), Box<dyn std::e
         }
     }
     Ok(())
+}
+
+/// Few levels in `m`'s height, which the route reads as a witness for the set.
+fn few_levels_in_height(m: &Material, tileable: bool) -> Option<QuantisedTrace> {
+    quantised_trace(MapKind::Height, m.map(MapKind::Height)?, tileable)
 }
 
 /// How many materials read as lying over one noise (`matup::texel_trace::noise_floor`), clean

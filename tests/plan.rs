@@ -317,29 +317,47 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
         by_blocks.setup.settings.filter.unprojected_maps,
         [MapKind::BaseColor]
     );
-    // A 16-bit texture's colour and roughness, dithered to 32 levels and unpacked to PNG: their
-    // few levels say so; the normal map beside them is read for itself.
-    let mut dithered = load_material(Some(&folder), &LoadOptions::default()).unwrap();
+    // A 16-bit texture set's colour and roughness, dithered to 32 levels and unpacked to PNG:
+    // their few levels say so, and the maps beside them (its normals renormalised off any
+    // ladder) are taken as the same set.
+    let clean_bricks = load_material(Some(&folder), &LoadOptions::default()).unwrap();
     let fs32: MaterialDegradation = "dither32-fs@baseColor+dither32-fs@roughness"
         .parse()
         .unwrap();
-    dithered = degrade_material(&dithered, &fs32, &mut rng).unwrap();
+    let dithered = degrade_material(&clean_bricks, &fs32, &mut rng).unwrap();
     let by_levels = plan(&dithered, InputQuality::Auto);
+    let found = |file: &str| {
+        format!("32 levels a channel (dithered or posterised) found in {file}'s texels")
+    };
+    let beside = |kind: &str| {
+        format!(
+            "{kind} saved losslessly beside a map of few levels, as one set dithered or posterised"
+        )
+    };
     assert_eq!(
         by_levels.input.lossy,
         [
-            "32 levels a channel (dithered or posterised) found in baseColor.png's texels",
-            "32 levels a channel (dithered or posterised) found in roughness.png's texels"
+            found("baseColor.png"),
+            found("roughness.png"),
+            beside("metallic"),
+            beside("normal")
         ]
     );
-    let routes: Vec<_> = by_levels.input.maps.iter().map(|&(_, q)| q).collect();
-    assert_eq!(
-        routes,
-        [Degraded, Clean, Clean, Degraded],
+    assert!(
+        (by_levels.input.maps.iter()).all(|&(_, q)| q == Degraded),
         "{:?}",
         by_levels.input
     );
     assert_eq!(by_levels.setup.upsampler_name, DEGRADED_NETWORK);
+    // The height alone shows its levels: a witness for the set, itself not a filter map.
+    let fs32_height: MaterialDegradation = "dither32-fs@height".parse().unwrap();
+    let dithered = degrade_material(&clean_bricks, &fs32_height, &mut rng).unwrap();
+    let by_height = plan(&dithered, InputQuality::Auto).input;
+    assert_eq!(by_height.lossy[0], found("height.png"), "{by_height:?}");
+    assert!(
+        by_height.maps.iter().all(|&(_, q)| q == Degraded),
+        "{by_height:?}"
+    );
     // Noise under every map, as a noisy scan's set: every map runs degraded, said once.
     let leather = common::test_material("ambientcg_Leather025");
     let small = load_material(Some(&leather), &LoadOptions::default())

@@ -14,7 +14,7 @@ use matup_core::lights::Light;
 use matup_core::material::{MapKind, Material};
 use matup_core::resample::Border;
 use matup_core::shading::{shading_model, ShadingModel};
-use matup_core::texel_trace::{noise_floor, texel_trace};
+use matup_core::texel_trace::{noise_floor, quantised_trace, texel_trace, TexelTrace};
 use matup_core::tileable::decide_tileable;
 use matup_core::upsample::{check_scale, upsampler, RgbUpsampler};
 use matup_core::FileFormat;
@@ -283,15 +283,24 @@ struct LossyMap {
     /// Its storage, in words.
     what: String,
     jpeg: bool,
+    /// Whether its texels lie on few levels a channel (dithered or posterised).
+    few_levels: bool,
 }
 
 /// The filter's maps of `material` stored lossily: those its files' formats say
-/// (`Material::lossy`), those whose texels show BC blocks or a JPEG's grid, and where a grid
-/// is found so, the maps saved losslessly beside it: a JPEG's grid in a lossless file means a
-/// set saved again (DamagedHelmet's crops kept as PNG), and the grid shows less in smooth maps
-/// (crop C's metallic map, its grid unseen, drew 6.7× bicubic's invented structure through the
-/// material network; docs/experiments/2026-11-29-degraded-inputs.md). A BC map's neighbours
-/// are read for themselves: BC4 blocks hide in smooth maps because they cost them nothing.
+/// (`Material::lossy`), those whose texels show BC blocks, a JPEG's grid or few levels, and
+/// where a grid or few levels are found so, the maps saved losslessly beside them:
+/// - a JPEG's grid in a lossless file means a set saved again (DamagedHelmet's crops kept as
+///   PNG), and the grid shows less in smooth maps (crop C's metallic map, its grid unseen, drew
+///   6.7× bicubic's invented structure through the material network;
+///   docs/experiments/2026-11-29-degraded-inputs.md);
+/// - few levels mean a set dithered or posterised together (a 16-bit game texture set), whose
+///   normals (renormalised when read) and narrow maps show no ladder: left clean beside a
+///   dithered colour, they cost 2.4 dB on Metal053C (docs/experiments/2026-12-02-texel-traces.md).
+///   The height is read as a witness too.
+///
+/// A BC map's neighbours are read for themselves: BC4 blocks hide in smooth maps because they
+/// cost them nothing.
 fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
     let mut lossy: Vec<LossyMap> = (material.lossy.iter())
         .filter(|(kind, _)| FEATURE_MAPS.contains(kind))
@@ -299,45 +308,76 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
             kind,
             what: format!("{kind} from {storage}"),
             jpeg: FileFormat::is_jpeg_storage(storage),
+            few_levels: false,
         })
         .collect();
+    let stand_ins = material.stand_ins();
     let by_texels: Vec<LossyMap> = (FEATURE_MAPS.into_iter())
         .filter(|kind| !material.lossy.contains_key(kind))
         .filter_map(|kind| {
             let trace = texel_trace(kind, material.map(kind)?, tileable)?;
-            let file = (material.origin.as_ref())
-                .and_then(|o| o.source(kind))
-                .and_then(|f| f.path.file_name())
-                .map_or_else(
-                    || kind.to_string(),
-                    |name| name.to_string_lossy().into_owned(),
-                );
             Some(LossyMap {
                 kind,
-                what: format!("{trace} found in {file}'s texels"),
+                what: format!("{trace} found in {}'s texels", file_name(material, kind)),
                 jpeg: trace.is_jpeg(),
+                few_levels: matches!(trace, TexelTrace::Quantised(_)),
             })
         })
         .collect();
-    let beside: Vec<LossyMap> = if by_texels.iter().any(|m| m.jpeg) {
-        let stand_ins = material.stand_ins();
-        (FEATURE_MAPS.into_iter())
+    let height_levels = (!stand_ins.contains(&MapKind::Height))
+        .then(|| material.map(MapKind::Height))
+        .flatten()
+        .and_then(|height| quantised_trace(MapKind::Height, height, tileable))
+        .map(|trace| LossyMap {
+            kind: MapKind::Height,
+            what: format!(
+                "{} found in {}'s texels",
+                TexelTrace::Quantised(trace),
+                file_name(material, MapKind::Height)
+            ),
+            jpeg: false,
+            few_levels: true,
+        });
+    let beside_what = if by_texels.iter().any(|m| m.jpeg) {
+        Some(("a JPEG, as a JPEG of the same set", true))
+    } else if by_texels.iter().chain(&height_levels).any(|m| m.few_levels) {
+        Some((
+            "a map of few levels, as one set dithered or posterised",
+            false,
+        ))
+    } else {
+        None
+    };
+    let beside: Vec<LossyMap> = match beside_what {
+        Some((what, jpeg)) => (FEATURE_MAPS.into_iter())
             .filter(|kind| !material.lossy.contains_key(kind) && !stand_ins.contains(kind))
             .filter(|kind| by_texels.iter().all(|m| m.kind != *kind))
             .map(|kind| LossyMap {
                 kind,
-                what: format!("{kind} saved losslessly beside a JPEG, as a JPEG of the same set"),
-                jpeg: true,
+                what: format!("{kind} saved losslessly beside {what}"),
+                jpeg,
+                few_levels: false,
             })
-            .collect()
-    } else {
-        Vec::new()
+            .collect(),
+        None => Vec::new(),
     };
     lossy.extend(by_texels);
+    lossy.extend(height_levels);
     lossy.extend(beside);
     let noisy = noisy_maps(material, tileable, &lossy);
     lossy.extend(noisy);
     lossy
+}
+
+/// The name of the file `material`'s map of `kind` came from, else the map's name.
+fn file_name(material: &Material, kind: MapKind) -> String {
+    (material.origin.as_ref())
+        .and_then(|o| o.source(kind))
+        .and_then(|f| f.path.file_name())
+        .map_or_else(
+            || kind.to_string(),
+            |name| name.to_string_lossy().into_owned(),
+        )
 }
 
 /// Where one noise lies under all of the material's own maps, its height too
@@ -360,6 +400,7 @@ fn noisy_maps(material: &Material, tileable: bool, lossy: &[LossyMap]) -> Vec<Lo
             kind,
             what: format!("{floor}, found in their texels"),
             jpeg: false,
+            few_levels: false,
         })
         .collect()
 }
