@@ -273,8 +273,20 @@ fn cut_whole(m: &Material) -> Material {
     m.box_downsample((m.width() / 128).max(1))
 }
 
-/// The material folders of each set (a folder of folders) or each folder given.
+/// The material folders of each set (a folder of folders) or each folder given, those that
+/// load (corpus-extra has sets whose maps differ in size; each skipped is said on stderr).
 fn material_folders(sets: &[PathBuf]) -> std::io::Result<Vec<PathBuf>> {
+    let mut loading = Vec::new();
+    for folder in all_material_folders(sets)? {
+        match load_material(Some(&folder), &Default::default()) {
+            Ok(_) => loading.push(folder),
+            Err(e) => eprintln!("skipped: {e}"),
+        }
+    }
+    Ok(loading)
+}
+
+fn all_material_folders(sets: &[PathBuf]) -> std::io::Result<Vec<PathBuf>> {
     let mut folders = Vec::new();
     for set in sets {
         let mut inner: Vec<PathBuf> = std::fs::read_dir(set)?

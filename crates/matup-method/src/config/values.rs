@@ -310,8 +310,9 @@ pub enum Selection {
 #[serde(rename_all = "kebab-case")]
 pub enum InputQuality {
     /// Map by map: JPEG where the map was stored as a JPEG (by its file or its texels),
-    /// degraded where in another lossy format (lossy WebP, BC1–BC5 blocks: `Material::lossy`),
-    /// clean otherwise.
+    /// degraded where in another lossy format (lossy WebP, BC1–BC5 blocks: `Material::lossy`,
+    /// or BC blocks in its texels), dithered or posterised to few levels, or under one noise
+    /// with every map (`matup_core::texel_trace`), clean otherwise.
     Auto,
     /// Clean maps: the material network, its output back-projected onto the input.
     Clean,
