@@ -60,17 +60,14 @@ impl fmt::Display for TexelTrace {
                 write!(f, "a JPEG's 8×8 grid (at x {x}, y {y})")
             }
             TexelTrace::Quantised(q) => {
-                let read: Vec<String> = (q.levels.iter().flatten()).map(usize::to_string).collect();
-                let mut distinct = read.clone();
-                distinct.dedup();
-                match distinct.as_slice() {
-                    [one] => write!(f, "{one} levels a channel (dithered or posterised)"),
-                    _ => write!(
-                        f,
-                        "{} levels a channel (dithered or posterised)",
-                        read.join("/")
-                    ),
+                let mut read: Vec<String> =
+                    (q.levels.iter().flatten()).map(usize::to_string).collect();
+                // One number where every channel read has the same ladder.
+                if read.windows(2).all(|w| w[0] == w[1]) {
+                    read.truncate(1);
                 }
+                let levels = read.join("/");
+                write!(f, "{levels} levels a channel (dithered or posterised)")
             }
         }
     }

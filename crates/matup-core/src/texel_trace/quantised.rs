@@ -44,16 +44,32 @@ pub fn quantised_trace(kind: MapKind, map: &Map, tileable: bool) -> Option<Quant
     }
     let channels: Vec<usize> = (0..map.channels().min(3)).collect();
     let levels = Levels::of(kind, map, &channels, REACH, tileable, 0);
-    let read: Vec<Option<Option<usize>>> = (0..channels.len())
+    let read: Vec<Channel> = (0..channels.len())
         .map(|c| channel_ladder(&histogram(&levels, c)))
         .collect();
     // Every channel that varies enough on a ladder, and at least one that does.
-    if read.iter().any(Option::is_none) || read.iter().all(|r| *r == Some(None)) {
+    let spread = read.contains(&Channel::Spread);
+    if spread || read.iter().all(|r| *r == Channel::TooFew) {
         return None;
     }
-    Some(QuantisedTrace {
-        levels: read.into_iter().flatten().collect(),
-    })
+    let levels = (read.into_iter())
+        .map(|r| match r {
+            Channel::OnLadder(n) => Some(n),
+            _ => None,
+        })
+        .collect();
+    Some(QuantisedTrace { levels })
+}
+
+/// What one channel's histogram says.
+#[derive(Clone, Copy, PartialEq)]
+enum Channel {
+    /// Too few distinct values to tell (a mask, a flat map): on every ladder.
+    TooFew,
+    /// On a ladder of this many levels, the fewest that hold it.
+    OnLadder(usize),
+    /// On no ladder of at most [`MAX_LEVELS`].
+    Spread,
 }
 
 /// How many texels of channel `c` hold each 8-bit level.
@@ -67,12 +83,11 @@ fn histogram(levels: &Levels, c: usize) -> [usize; 256] {
     counts
 }
 
-/// A channel's reading from its histogram: `Some(Some(n))` on a ladder of `n` levels (the
-/// fewest that hold it), `Some(None)` too few distinct values to tell, `None` on no ladder.
-fn channel_ladder(counts: &[usize; 256]) -> Option<Option<usize>> {
+/// A channel's reading from its histogram.
+fn channel_ladder(counts: &[usize; 256]) -> Channel {
     let distinct = counts.iter().filter(|&&n| n > 0).count();
     if distinct < MIN_RUNGS {
-        return Some(None);
+        return Channel::TooFew;
     }
     let total: usize = counts.iter().sum();
     let holds = |ladder: &[u8]| {
@@ -82,7 +97,7 @@ fn channel_ladder(counts: &[usize; 256]) -> Option<Option<usize>> {
     };
     (ladders())
         .find(|(_, ladder)| holds(ladder))
-        .map(|(n, _)| Some(n))
+        .map_or(Channel::Spread, |(n, _)| Channel::OnLadder(n))
 }
 
 /// Every ladder tried, fewest levels first: `n` levels evenly spread over 0–255 and rounded,
