@@ -1,8 +1,7 @@
 //! Few levels' trace: a map dithered or posterised to at most 64 levels a channel (a 16-bit
-//! RGB565 or RGB555 texture, a palette) keeps every texel on that ladder of levels, where an
-//! 8-bit texture's own values land on a ladder of N levels about N/256 of the time. Read from
-//! the histogram alone, so any offset and any roll of a map reads the same.
-
+//! RGB565 or RGB555 texture) keeps every texel on that ladder of levels, where an 8-bit
+//! texture's own values land on a ladder of N levels about N/256 of the time. Read from the
+//! histogram alone, so any offset and any roll of a map reads the same.
 use super::levels::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
