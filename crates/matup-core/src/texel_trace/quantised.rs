@@ -2,6 +2,7 @@
 //! RGB565 or RGB555 texture) keeps every texel on that ladder of levels, where an 8-bit
 //! texture's own values land on a ladder of N levels about N/256 of the time. Read from the
 //! histogram alone, so any offset and any roll of a map reads the same.
+
 use super::levels::{Levels, Reach};
 use crate::map::Map;
 use crate::map_kind::MapKind;
