@@ -1,11 +1,12 @@
 //! How well matup reads a lossy storage's trace in maps saved again losslessly
 //! (`matup::texel_trace`), which `input_quality = "auto"` routes as degraded: clean maps (none
 //! should be read), and the same maps through BC1, BC3, BC4, BC5, JPEG and dithering to 32
-//! levels, cropped off their grids (each should be). Maps at the sizes the measurements use: a 256² crop, a 512² crop
-//! box-filtered to 128², and the whole material box-filtered to 128² read as tileable, as it
-//! is and rolled by (37, 53). A clean material counts as misread where any of its four rendered
-//! maps is read (and for few levels, its height too, which the route reads as a witness); a degraded one as found where the map named in the column is. Then, at each
-//! size, the materials read as lying over one noise, clean and degraded.
+//! levels, cropped off their grids (each should be). Maps at the sizes the measurements use: a
+//! 256² crop, a 512² crop box-filtered to 128², and the whole material box-filtered to 128²
+//! read as tileable, as it is and rolled by (37, 53). A clean material counts as misread where
+//! any of its four rendered maps is read (and for few levels, its height too, which the route
+//! reads as a witness); a degraded one as found where the map named in the column is. Then, at
+//! each size, the materials read as lying over one noise, clean and degraded.
 //! `--real DIR` (repeatable) prints what the detectors read on a material folder as it is;
 //! `--noise-only` prints the noise tables alone.
 //!

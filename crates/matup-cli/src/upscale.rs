@@ -73,10 +73,10 @@ pub struct SettingsArgs {
     /// its file or its texels, degraded where a lossy WebP or BC1–BC5 blocks by its file or
     /// its texels, few levels (dithered or posterised) or noise under every map by its
     /// texels, clean otherwise), or every map clean, jpeg, or degraded (maps once compressed,
-    /// resized and saved again losslessly). Degraded maps run the network trained on degraded inputs
-    /// and are not back-projected; JPEG maps run the one trained on JPEG inputs, a JPEG base
-    /// colour projected onto the input's low frequencies alone; clean maps beside them run as
-    /// in a clean material. A settings file's [map_input_quality] decides map by map.
+    /// resized and saved again losslessly). Degraded maps run the network trained on degraded
+    /// inputs and are not back-projected; JPEG maps run the one trained on JPEG inputs, a JPEG
+    /// base colour projected onto the input's low frequencies alone; clean maps beside them
+    /// run as in a clean material. A settings file's [map_input_quality] decides map by map.
     #[arg(long, value_name = "auto|clean|jpeg|degraded")]
     pub input_quality: Option<InputQuality>,
     /// Shading model (see `matup list`).
