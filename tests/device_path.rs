@@ -431,3 +431,64 @@ fn maps_made_on_the_device_are_written_from_samples_made_there() {
         }
     }
 }
+
+/// A noisy material's normals (`filter.normal_blend_noise`, as the route sets it where it
+/// reads noise: every map unprojected): each texel between the run's normal, unprojected, and
+/// the clean route's, projected exactly; all of the first where no structure stands past the
+/// noise (a huge σ), all of the second where all does (a tiny one). Bands make the whole
+/// run's maps: their context covers the blend's window and its projection. The blend runs on
+/// the host, so the device upsampler's host calls are not counted here.
+#[test]
+fn a_noisy_materials_normals_blend_the_two_routes_and_bands_make_the_whole_runs() {
+    let lr = material(128);
+    let normals = |back_project: bool, blend_noise: f32, limit| {
+        let mut config = Config::default();
+        config.filter.back_project = back_project;
+        config.filter.normal_blend_noise = blend_noise;
+        run_with(&lr, false, 4, true, limit, config).normal
+    };
+    let (unprojected, exact) = (normals(false, 0.0, None), normals(true, 0.0, None));
+    let close = |a: &Map, b: &Map, what: &str, within: f32| {
+        let worst = common::max_abs_diff(a, b);
+        println!("{what}: {worst:.1e}");
+        assert!(worst <= within, "{what}: {worst}");
+    };
+    close(
+        &normals(false, 1e4, None),
+        &unprojected,
+        "no structure past the noise",
+        1e-6,
+    );
+    close(
+        &normals(false, 1e-3, None),
+        &exact,
+        "all of it past the noise",
+        1e-5,
+    );
+    let blended = normals(false, 3.0, None);
+    let (mut from_clean, mut between) = (0usize, true);
+    for c in 0..2 {
+        let planes = blended
+            .plane(c)
+            .iter()
+            .zip(unprojected.plane(c))
+            .zip(exact.plane(c));
+        for ((b, u), e) in planes {
+            between &= (u.min(*e) - 1e-4..=u.max(*e) + 1e-4).contains(b);
+            from_clean += usize::from((b - u).abs() > 1e-4);
+        }
+    }
+    let share = from_clean as f64 / (2 * blended.width() * blended.height()) as f64;
+    println!(
+        "σ 3: {:.1}% of the normals' values from the clean route",
+        100.0 * share
+    );
+    assert!(between);
+    assert!((0.05..0.95).contains(&share), "{share}");
+    close(
+        &normals(false, 3.0, Some(24 << 20)),
+        &blended,
+        "bands",
+        1e-5,
+    );
+}

@@ -378,6 +378,39 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
             && said.ends_with("under all 5 maps, found in their texels"),
         "{said}"
     );
+    // Its normals are blended with the clean route's, made by the material network, past the
+    // noise read; the other maps are left unprojected.
+    let noisy_plan = plan(&noisy, InputQuality::Auto);
+    let (sigma, _) = by_noise.noise.clone().expect("the noise read");
+    let filter = &noisy_plan.setup.settings.filter;
+    assert_eq!(filter.normal_blend_noise, sigma);
+    assert!((2.0..3.5).contains(&sigma), "{sigma}");
+    assert!(!filter.back_project);
+    assert_eq!(noisy_plan.setup.upsampler_name, DEGRADED_NETWORK);
+    let clean_normals = noisy_plan
+        .setup
+        .clean_normals
+        .as_ref()
+        .expect("a second network");
+    assert_eq!(clean_normals.name, MATERIAL_NETWORK);
+    assert!(
+        (noisy_plan.setup.upsamplers_used())
+            .ends_with("; normal, blended in past the noise: onnx:span_x4_materials"),
+        "{}",
+        noisy_plan.setup.upsamplers_used()
+    );
+    assert!(
+        by_noise.describe().contains(&format!(
+            "the normals blended with the clean route's where they vary far past the noise (σ \
+             {sigma:.1} levels)"
+        )),
+        "{}",
+        by_noise.describe()
+    );
+    // Said degraded by hand, no noise is read and nothing is blended.
+    let by_hand = plan(&noisy, InputQuality::Degraded);
+    assert_eq!(by_hand.setup.settings.filter.normal_blend_noise, 0.0);
+    assert!(by_hand.setup.clean_normals.is_none());
     // A named upsampler stays; the route still decides the projection.
     let named = Config {
         upsampler: "lanczos3".into(),

@@ -39,6 +39,9 @@ pub(crate) struct Context<'a> {
     pub(crate) upsampler: &'a (dyn RgbUpsampler + 'a),
     /// The maps routed apart whose upsampler is another (`crate::plan::Setup::apart`).
     pub(crate) apart: Vec<(MapKind, &'a (dyn RgbUpsampler + 'a))>,
+    /// The clean route's upsampler for a noisy material's normals
+    /// (`crate::plan::Setup::clean_normals`).
+    pub(crate) clean_normals: Option<&'a (dyn RgbUpsampler + 'a)>,
     /// The upsamplers' names, as the run reports them.
     pub(crate) upsampler_name: &'a str,
     pub(crate) lights: Vec<Light>,
@@ -53,6 +56,7 @@ impl<'a> Context<'a> {
         MapUpsamplers {
             run: self.upsampler,
             apart: self.apart.clone(),
+            clean_normals: self.clean_normals,
         }
     }
 }

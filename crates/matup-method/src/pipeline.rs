@@ -21,7 +21,7 @@ use crate::height::{band_margin, detail_scale, rebuild_height};
 use crate::per_map::LEFT_OUT;
 use crate::plan::{Plan, Setup, Tiling, TilingGrounds};
 use crate::report::{peak_memory_mib, timed, LevelReport, RunReport};
-use crate::residual::{self, project_onto_input, upsampled_base};
+use crate::residual::{self, blend_clean_normals, project_onto_input, upsampled_base};
 use crate::select::{choose_candidate, Candidate, SelectionReport};
 use crate::train::TrainStats;
 use matup_core::candle_core::Tensor;
@@ -160,6 +160,10 @@ fn run_levels(
             (apart.kind, StopsOnRequest { inner, progress })
         })
         .collect();
+    let stopping_clean_normals = (setup.clean_normals.as_ref()).map(|c| StopsOnRequest {
+        inner: c.upsampler.as_ref(),
+        progress,
+    });
     let ctx = Context {
         config: &setup.settings,
         model: plan.shading.clone(),
@@ -167,6 +171,7 @@ fn run_levels(
         apart: (stopping_apart.iter())
             .map(|(kind, u)| (*kind, u as &dyn RgbUpsampler))
             .collect(),
+        clean_normals: (stopping_clean_normals.as_ref()).map(|u| u as &dyn RgbUpsampler),
         upsampler_name: &upsampler_used,
         lights: plan.lights.clone(),
         border: plan.tiling.border(),
@@ -613,6 +618,19 @@ fn host_residual_base(
         project_onto_input(&mut base, lr_band, &config.filter, scale, ctx.border);
         Ok(())
     })?;
+    if config.filter.normal_blend_noise > 0.0 {
+        timed(timings, tag("normal blend"), || {
+            let upsamplers = ctx.map_upsamplers();
+            blend_clean_normals(
+                &mut base,
+                lr_band,
+                &config.filter,
+                &upsamplers,
+                scale,
+                ctx.border,
+            )
+        })?;
+    }
     Ok(base)
 }
 

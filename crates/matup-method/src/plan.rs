@@ -54,6 +54,10 @@ pub struct Setup {
     /// With `auto`, the maps routed apart (`settings.map_input_quality`) whose upsampler is
     /// another.
     pub apart: Vec<MapUpsampler>,
+    /// Where a noisy material's normals are blended with the clean route's
+    /// (`filter.normal_blend_noise`), the clean route's upsampler: `auto`'s choice for a clean
+    /// input, else the run's own.
+    pub clean_normals: Option<MapUpsampler>,
 }
 
 /// A map routed apart and the upsampler that makes it.
@@ -115,11 +119,12 @@ impl Tiling {
 /// Whether a run reads its input as clean, as JPEG or as otherwise degraded by lossy storage,
 /// map by map, and on what grounds. A degraded map runs [`DEGRADED_NETWORK`] (where the
 /// upsampler is `auto`) and is not back-projected: projection makes the output box-filter back
-/// to the input, which puts its blocks and noise back. A JPEG one runs [`JPEG_NETWORK`], a
-/// JPEG base colour brought back to the input's low frequencies alone
-/// ([`JPEG_PROJECTION_BLUR`]), the other JPEG maps unprojected
-/// (docs/experiments/2026-11-29-degraded-inputs.md). A clean map beside them runs as in a
-/// clean material: the material network, projected exactly.
+/// to the input, which puts its blocks and noise back. Where the trace is noise read under
+/// every map, the normal map is blended with the clean route's where the input's normals vary
+/// far past the noise (`filter.normal_blend_noise`). A JPEG one runs [`JPEG_NETWORK`], a JPEG base colour brought
+/// back to the input's low frequencies alone ([`JPEG_PROJECTION_BLUR`]), the other JPEG maps
+/// unprojected (docs/experiments/2026-11-29-degraded-inputs.md). A clean map beside them runs
+/// as in a clean material: the material network, projected exactly.
 #[derive(Clone, Debug, PartialEq)]
 pub struct InputRoute {
     /// What the material is taken to be, from its filter's maps: clean where all are, JPEG
@@ -134,6 +139,9 @@ pub struct InputRoute {
     /// (`Material::lossy`), or BC blocks, a JPEG's grid or noise under every map in its texels
     /// (`matup_core::texel_trace`).
     pub lossy: Vec<String>,
+    /// The noise read under every map, where the route reads it: its σ in 8-bit levels, and
+    /// the maps it routes as degraded.
+    pub noise: Option<(f32, Vec<MapKind>)>,
 }
 
 /// How far, in LR texels, a JPEG input's mismatch is blurred (kept to its edges) before the
@@ -166,18 +174,31 @@ impl InputRoute {
             .map(|kind| (kind, quality_of(kind).unwrap_or(quality)))
             .collect();
         let given = FEATURE_MAPS.iter().all(|&k| *word(k) != InputQuality::Auto);
-        let mut lossy: Vec<String> = (stored.into_iter())
+        let mut lossy: Vec<String> = (stored.iter())
             .filter(|m| word(m.kind) == &InputQuality::Auto)
-            .map(|m| m.what)
+            .map(|m| m.what.clone())
             .collect();
         // Noise under every map is said once.
         lossy.dedup();
+        let noisy: Vec<&LossyMap> = (stored.iter())
+            .filter(|m| m.noise.is_some() && word(m.kind) == &InputQuality::Auto)
+            .collect();
+        let noise = (noisy.first()).and_then(|m| m.noise).map(|sigma| {
+            let kinds = noisy.iter().map(|m| m.kind).collect();
+            (sigma as f32, kinds)
+        });
         InputRoute {
             quality,
             maps,
             given,
             lossy,
+            noise,
         }
+    }
+
+    /// Whether the map of `kind` is routed as degraded for the noise read under it.
+    fn noisy(&self, kind: MapKind) -> bool {
+        (self.noise.as_ref()).is_some_and(|(_, kinds)| kinds.contains(&kind))
     }
 
     /// Whether any map is read as lossily stored, JPEG or otherwise.
@@ -188,7 +209,7 @@ impl InputRoute {
     /// `settings` as this route runs them: `input_quality` decided, each map apart from the
     /// material's in `map_input_quality`, degraded maps and JPEG maps other than the base
     /// colour not back-projected (none at all where no map is), a JPEG base colour projected
-    /// onto its low frequencies.
+    /// onto its low frequencies, a normal map read as noisy blended with the clean route's.
     pub fn settings(&self, settings: &Config) -> Config {
         let mut config = settings.clone();
         config.input_quality = self.quality;
@@ -216,20 +237,34 @@ impl InputRoute {
             filter.back_project = false;
             filter.unprojected_maps.clear();
         }
+        if let Some((sigma, _)) = self.noise.as_ref().filter(|_| self.noisy(MapKind::Normal)) {
+            filter.normal_blend_noise = *sigma;
+        }
         config
     }
 
     /// The route taken, why, and how to decide otherwise, in words.
     pub fn describe(&self) -> String {
-        let how = |quality| match quality {
+        let how = |quality, kinds: &Vec<String>| match quality {
             InputQuality::Jpeg => format!(
                 "the base colour projected onto its low frequencies alone (σ \
                  {JPEG_PROJECTION_BLUR} texels), other JPEG maps not projected, run by the \
                  network for JPEG maps where the upsampler is auto"
             ),
-            InputQuality::Degraded => "not back-projected, run by the network for degraded maps \
-                                       where the upsampler is auto"
-                .to_string(),
+            InputQuality::Degraded => {
+                let degraded = "not back-projected, run by the network for degraded maps where \
+                                the upsampler is auto";
+                let normal = MapKind::Normal.to_string();
+                match &self.noise {
+                    Some((sigma, _)) if self.noisy(MapKind::Normal) && kinds.contains(&normal) => {
+                        format!(
+                            "{degraded}, the normals blended with the clean route's where they \
+                             vary far past the noise (σ {sigma:.1} levels)"
+                        )
+                    }
+                    _ => degraded.to_string(),
+                }
+            }
             _ => "projected exactly, run by the material network where the upsampler is auto"
                 .to_string(),
         };
@@ -243,10 +278,15 @@ impl InputRoute {
         let given = if self.given { " (as given)" } else { "" };
         let route = match by_quality.as_slice() {
             [(InputQuality::Clean, _)] => format!("clean{given}"),
-            [(quality, _)] => format!("{}{given}: {}", name(*quality), how(*quality)),
+            [(quality, kinds)] => format!("{}{given}: {}", name(*quality), how(*quality, kinds)),
             _ => {
                 let each = (by_quality.iter()).map(|(quality, kinds)| {
-                    format!("{} {}: {}", name(*quality), kinds.join(", "), how(*quality))
+                    format!(
+                        "{} {}: {}",
+                        name(*quality),
+                        kinds.join(", "),
+                        how(*quality, kinds)
+                    )
                 });
                 format!("{}{given}", each.collect::<Vec<_>>().join("; "))
             }
@@ -285,6 +325,8 @@ struct LossyMap {
     jpeg: bool,
     /// Whether its texels lie on few levels a channel (dithered or posterised).
     few_levels: bool,
+    /// The σ of the noise read under every map, where that is its trace.
+    noise: Option<f64>,
 }
 
 /// The filter's maps of `material` stored lossily: those its files' formats say
@@ -309,6 +351,7 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
             what: format!("{kind} from {storage}"),
             jpeg: FileFormat::is_jpeg_storage(storage),
             few_levels: false,
+            noise: None,
         })
         .collect();
     let stand_ins = material.stand_ins();
@@ -321,6 +364,7 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
                 what: format!("{trace} found in {}'s texels", file_name(material, kind)),
                 jpeg: trace.is_jpeg(),
                 few_levels: matches!(trace, TexelTrace::Quantised(_)),
+                noise: None,
             })
         })
         .collect();
@@ -337,6 +381,7 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
             ),
             jpeg: false,
             few_levels: true,
+            noise: None,
         });
     let beside_what = if by_texels.iter().any(|m| m.jpeg) {
         Some(("a JPEG, as a JPEG of the same set", true))
@@ -357,6 +402,7 @@ fn lossy_maps(material: &Material, tileable: bool) -> Vec<LossyMap> {
                 what: format!("{kind} saved losslessly beside {what}"),
                 jpeg,
                 few_levels: false,
+                noise: None,
             })
             .collect(),
         None => Vec::new(),
@@ -401,6 +447,7 @@ fn noisy_maps(material: &Material, tileable: bool, lossy: &[LossyMap]) -> Vec<Lo
             what: format!("{floor}, found in their texels"),
             jpeg: false,
             few_levels: false,
+            noise: Some(floor.sigma),
         })
         .collect()
 }
@@ -480,6 +527,25 @@ impl Setup {
     fn new(settings: Config) -> Result<Setup> {
         let (upsampler_name, upsampler) = choose_upsampler(&settings)?;
         let apart = upsamplers_apart(&settings, &upsampler_name)?;
+        let clean_normals = match settings.filter.normal_blend_noise > 0.0 {
+            false => None,
+            true if settings.upsampler != "auto" => None,
+            true => {
+                // As the clean route runs: back-projected.
+                let mut clean = Config {
+                    input_quality: InputQuality::Clean,
+                    map_input_quality: Default::default(),
+                    ..settings.clone()
+                };
+                clean.filter.back_project = true;
+                let (name, upsampler) = choose_upsampler(&clean)?;
+                Some(MapUpsampler {
+                    kind: MapKind::Normal,
+                    name,
+                    upsampler: Arc::from(upsampler),
+                })
+            }
+        };
         let levels = (levels_of(settings.scale).into_iter().enumerate())
             .map(|(level, scale)| Level {
                 scale,
@@ -492,6 +558,7 @@ impl Setup {
             upsampler: Arc::from(upsampler),
             upsampler_name,
             apart,
+            clean_normals,
         })
     }
 
@@ -500,7 +567,8 @@ impl Setup {
     pub fn placements(&self) -> Vec<String> {
         let mut lines: Vec<String> = Vec::new();
         let chosen = std::iter::once((&self.upsampler_name, &self.upsampler))
-            .chain(self.apart.iter().map(|a| (&a.name, &a.upsampler)));
+            .chain(self.apart.iter().map(|a| (&a.name, &a.upsampler)))
+            .chain(self.clean_normals.iter().map(|c| (&c.name, &c.upsampler)));
         for (name, upsampler) in chosen {
             if let Some(placement) = upsampler.placement() {
                 let line = format!("{name}: {placement}");
@@ -513,11 +581,15 @@ impl Setup {
     }
 
     /// The upsamplers that make the maps, in words: the run's, then each other one with the
-    /// maps it makes (`onnx:span_x4_jpeg; normal, metallic: onnx:span_x4_materials`).
+    /// maps it makes (`onnx:span_x4_jpeg; normal, metallic: onnx:span_x4_materials`), then the
+    /// clean route's for a noisy material's normals.
     pub fn upsamplers_used(&self) -> String {
         let mut words = self.upsampler_name.clone();
         for (name, kinds) in maps_by(self.apart.iter().map(|a| (a.name.as_str(), a.kind))) {
             words += &format!("; {}: {name}", kinds.join(", "));
+        }
+        if let Some(clean) = &self.clean_normals {
+            words += &format!("; normal, blended in past the noise: {}", clean.name);
         }
         words
     }

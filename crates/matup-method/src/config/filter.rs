@@ -60,6 +60,14 @@ pub struct FilterConfig {
     /// luma alone; 0 projects it exactly. A JPEG's noise and blocks are its input's high
     /// frequencies, while its regions' colours hold.
     pub projection_blur: f32,
+    /// Above 0: noise of this σ (8-bit levels of the files' values) lies under the input, and
+    /// the normal map is blended from two upsamplings of it: this run's where the input's
+    /// normals are flat within the noise, the clean route's (the clean route's upsampler,
+    /// projected exactly) where they vary far past it ([`NormalBlend`]). A network for
+    /// degraded maps takes the noise away but softens bevels and grout, which carry a tiled
+    /// material's shading; the clean route keeps them. The route sets it to the noise it
+    /// reads under a material's maps (`crate::plan::InputRoute`).
+    pub normal_blend_noise: f32,
     /// With `back_project`: the maps left as the upsampler made them, by file stem
     /// (`baseColor`, `normal`, `roughness`, `metallic`). The route of lossy maps adds them
     /// (`crate::plan::InputRoute`): projecting a JPEG's normals or a BC block's colour would
@@ -148,8 +156,30 @@ impl Default for FilterConfig {
             // clean inputs it cost Tiles012 0.34 dB and a partly metallic facade 1.66 dB.
             neighbourhood_margin: NEIGHBOURHOOD_MARGIN,
             projection_blur: 0.0,
+            normal_blend_noise: 0.0,
             unprojected_maps: Vec::new(),
         }
+    }
+}
+
+/// How [`FilterConfig::normal_blend_noise`] weighs the clean route's normals in, from the
+/// local variance of the input's normals (x and y as the file stores them, the larger, in a
+/// Gaussian window of [`NormalBlend::WINDOW`] LR texels) over the noise's: none up to
+/// [`NormalBlend::FROM`] times it, all from [`NormalBlend::TO`] times it, a ramp between.
+/// Tuned on the shared materials with σ 3 of noise, checked on the val sets
+/// (docs/experiments/2026-12-02-texel-traces.md).
+pub struct NormalBlend;
+
+impl NormalBlend {
+    pub const WINDOW: f32 = 1.5;
+    pub const FROM: f32 = 20.0;
+    pub const TO: f32 = 80.0;
+
+    /// The clean route's weight where the input's normals vary by `variance` (levels²) under
+    /// noise of `sigma` levels.
+    pub fn weight(variance: f32, sigma: f32) -> f32 {
+        let ratio = variance / (sigma * sigma);
+        ((ratio - Self::FROM) / (Self::TO - Self::FROM)).clamp(0.0, 1.0)
     }
 }
 

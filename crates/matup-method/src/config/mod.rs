@@ -15,7 +15,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::features::FEATURE_MAPS;
 pub use crate::per_map::{EnsembleMaps, MapPasses, SelfEnsemble, UpsampledMaps};
-pub use filter::{FilterConfig, NEIGHBOURHOOD_MARGIN};
+pub use filter::{FilterConfig, NormalBlend, NEIGHBOURHOOD_MARGIN};
 pub use lights::LightsConfig;
 use matup_core::material::MapKind;
 use matup_core::resample::Kernel;
@@ -219,6 +219,12 @@ impl Config {
             return bad(format!(
                 "filter.projection_blur must be ≥ 0 (LR texels), not {}",
                 f.projection_blur
+            ));
+        }
+        if !(f.normal_blend_noise >= 0.0 && f.normal_blend_noise.is_finite()) {
+            return bad(format!(
+                "filter.normal_blend_noise must be ≥ 0 (8-bit levels), not {}",
+                f.normal_blend_noise
             ));
         }
         let routed = (self.map_input_quality.keys()).chain(&f.unprojected_maps);

@@ -79,6 +79,9 @@ pub struct MapUpsamplers<'a> {
     pub run: &'a dyn RgbUpsampler,
     /// The maps routed apart, each with its upsampler.
     pub apart: Vec<(MapKind, &'a dyn RgbUpsampler)>,
+    /// The clean route's upsampler, whose normals are blended in where the input's stand past
+    /// its noise (`FilterConfig::normal_blend_noise`).
+    pub clean_normals: Option<&'a dyn RgbUpsampler>,
 }
 
 impl<'a> MapUpsamplers<'a> {
@@ -87,6 +90,7 @@ impl<'a> MapUpsamplers<'a> {
         MapUpsamplers {
             run: upsampler,
             apart: Vec::new(),
+            clean_normals: None,
         }
     }
 
@@ -99,7 +103,8 @@ impl<'a> MapUpsamplers<'a> {
 
     /// Every upsampler, the run's first.
     pub fn all(&self) -> impl Iterator<Item = &'a dyn RgbUpsampler> + '_ {
-        std::iter::once(self.run).chain(self.apart.iter().map(|(_, u)| *u))
+        (std::iter::once(self.run).chain(self.apart.iter().map(|(_, u)| *u)))
+            .chain(self.clean_normals)
     }
 }
 

@@ -27,6 +27,9 @@ use matup_core::resample::{
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
 
+mod normal_blend;
+pub use normal_blend::blend_clean_normals;
+
 /// The grey features, metallic and alpha (as the roughness r), kept near their input after
 /// back-projection ([`back_project`]).
 const GREY_FEATURES: [std::ops::Range<usize>; 2] = [3..4, ALPHA..ALPHA + 1];
@@ -54,6 +57,7 @@ pub fn residual_base(
     }
     let mut base = upsampled_base(lr, config, upsamplers, scale, border)?;
     project_onto_input(&mut base, lr, config, scale, border);
+    blend_clean_normals(&mut base, lr, config, upsamplers, scale, border)?;
     Ok(base)
 }
 
@@ -231,10 +235,12 @@ impl NearInput {
 
 /// The device to make the residual base on: the upsampler's, where it leaves its outputs on
 /// one (a GPU's network) and the base is the per-map one, its colour's chroma its own.
-/// `None`: the host's path.
+/// `None`: the host's path, which a noisy material's blend of normals takes too
+/// ([`normal_blend`]: the networks still run on their device).
 pub fn device_for(config: &FilterConfig, upsamplers: &MapUpsamplers) -> Option<Device> {
     let per_map = config.residual_base == ResidualBase::Upsampler
-        && config.base_color_chroma == Chroma::Upsampler;
+        && config.base_color_chroma == Chroma::Upsampler
+        && config.normal_blend_noise == 0.0;
     let device = per_map.then(|| upsamplers.run.device()).flatten()?;
     // Every map's upsampler there, or the host's path for all.
     let same = |u: &dyn RgbUpsampler| u.device().is_some_and(|d| d.same_device(&device));
@@ -431,8 +437,8 @@ fn settle_blocks_on_device(
 
 /// LR texels of context around a region that change its residual base: the upsampler's (or
 /// the kernel's) own, the low-pass projection's blur (its target's colour reads that far),
-/// and two per round of back-projection (a box cell, then a bilinear spread over the
-/// neighbouring cells).
+/// two per round of back-projection (a box cell, then a bilinear spread over the
+/// neighbouring cells), and the blend of a noisy material's normals.
 pub fn context(config: &FilterConfig, upsamplers: &MapUpsamplers) -> usize {
     let upsampled = match config.residual_base {
         ResidualBase::Kernel(kernel) => kernel.radius().ceil() as usize,
@@ -447,7 +453,7 @@ pub fn context(config: &FilterConfig, upsamplers: &MapUpsamplers) -> usize {
         true if config.clamp_chroma && config.clamp_back_project => 1 + LATER_CLAMPS,
         true => 1,
     };
-    upsampled + low_pass + 2 * BACK_PROJECTIONS * projections
+    upsampled + low_pass + 2 * BACK_PROJECTIONS * projections + normal_blend::context(config)
 }
 
 /// Iterative back-projection (Irani & Peleg 1991): corrects output-size features `hr` so that
