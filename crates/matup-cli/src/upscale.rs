@@ -74,9 +74,11 @@ pub struct SettingsArgs {
     /// its texels, few levels (dithered or posterised) or noise under every map by its
     /// texels, clean otherwise), or every map clean, jpeg, or degraded (maps once compressed,
     /// resized and saved again losslessly). Degraded maps run the network trained on degraded
-    /// inputs and are not back-projected; JPEG maps run the one trained on JPEG inputs, a JPEG
-    /// base colour projected onto the input's low frequencies alone; clean maps beside them
-    /// run as in a clean material. A settings file's [map_input_quality] decides map by map.
+    /// inputs and are not back-projected (a noisy material's normals blended with the clean
+    /// route's where they vary far past the noise); JPEG maps run the one trained on JPEG
+    /// inputs, a JPEG base colour projected onto the input's low frequencies alone; clean maps
+    /// beside them run as in a clean material. A settings file's [map_input_quality] decides
+    /// map by map.
     #[arg(long, value_name = "auto|clean|jpeg|degraded")]
     pub input_quality: Option<InputQuality>,
     /// Shading model (see `matup list`).

@@ -7,8 +7,9 @@
 //!   `plan`: the settings and a material made, once, into what a run carries out.
 //! - `pipeline`, `context`, `bands`, `report`: the stages' order, what every level shares,
 //!   output in bands within a memory limit, the run's report.
-//! - `per_map`, `residual`, `chroma`, `carried`, `height`: the defaults' per-map path with
-//!   its self-ensemble, back-projection, the base colour's chroma, maps carried unrendered.
+//! - `per_map`, `residual`, `normal_blend`, `chroma`, `carried`, `height`: the defaults'
+//!   per-map path with its self-ensemble, back-projection, a noisy material's normals from
+//!   two routes, the base colour's chroma, maps carried unrendered.
 //! - `fit`, `targets`, `features`, `filter`, `train`, `texel_loss_op`: the paper's
 //!   per-material filter, its targets and training (two backends, one Adam).
 //! - `select`, `preview`: self-validation among candidate settings; `preview.png`.
@@ -22,6 +23,7 @@ pub mod features;
 pub mod filter;
 mod fit;
 pub mod height;
+pub mod normal_blend;
 pub mod per_map;
 pub mod pipeline;
 pub mod plan;

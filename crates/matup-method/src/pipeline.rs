@@ -18,10 +18,11 @@ use crate::fit::{
     decoded_maps_on_device, infer_material, learn_level, upsample_anisotropy, TrainedFilter,
 };
 use crate::height::{band_margin, detail_scale, rebuild_height};
+use crate::normal_blend::{self, blend_clean_normals};
 use crate::per_map::LEFT_OUT;
 use crate::plan::{Plan, Setup, Tiling, TilingGrounds};
 use crate::report::{peak_memory_mib, timed, LevelReport, RunReport};
-use crate::residual::{self, blend_clean_normals, project_onto_input, upsampled_base};
+use crate::residual::{self, project_onto_input, upsampled_base};
 use crate::select::{choose_candidate, Candidate, SelectionReport};
 use crate::train::TrainStats;
 use matup_core::candle_core::Tensor;
@@ -396,6 +397,7 @@ fn run_level(
     };
 
     let context = residual::context(&config.filter, &ctx.map_upsamplers())
+        + normal_blend::context(&config.filter)
         + band_margin(scale).div_ceil(scale)
         + if filter.filter.is_some() {
             config.filter.window.div_ceil(2 * scale) + 2

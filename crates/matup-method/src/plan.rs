@@ -121,10 +121,10 @@ impl Tiling {
 /// upsampler is `auto`) and is not back-projected: projection makes the output box-filter back
 /// to the input, which puts its blocks and noise back. Where the trace is noise read under
 /// every map, the normal map is blended with the clean route's where the input's normals vary
-/// far past the noise (`filter.normal_blend_noise`). A JPEG one runs [`JPEG_NETWORK`], a JPEG base colour brought
-/// back to the input's low frequencies alone ([`JPEG_PROJECTION_BLUR`]), the other JPEG maps
-/// unprojected (docs/experiments/2026-11-29-degraded-inputs.md). A clean map beside them runs
-/// as in a clean material: the material network, projected exactly.
+/// far past the noise (`filter.normal_blend_noise`). A JPEG one runs [`JPEG_NETWORK`], a JPEG
+/// base colour brought back to the input's low frequencies alone ([`JPEG_PROJECTION_BLUR`]),
+/// the other JPEG maps unprojected (docs/experiments/2026-11-29-degraded-inputs.md). A clean
+/// map beside them runs as in a clean material: the material network, projected exactly.
 #[derive(Clone, Debug, PartialEq)]
 pub struct InputRoute {
     /// What the material is taken to be, from its filter's maps: clean where all are, JPEG

@@ -27,16 +27,13 @@ use matup_core::resample::{
 use matup_core::upsample::RgbUpsampler;
 use matup_core::Result;
 
-mod normal_blend;
-pub use normal_blend::blend_clean_normals;
-
 /// The grey features, metallic and alpha (as the roughness r), kept near their input after
 /// back-projection ([`back_project`]).
 const GREY_FEATURES: [std::ops::Range<usize>; 2] = [3..4, ALPHA..ALPHA + 1];
 
 /// Rounds of back-projection: each removes most of the mismatch that remains (a bilinear
 /// spread does not invert the box filter in one round), so three leave little.
-const BACK_PROJECTIONS: usize = 3;
+pub const BACK_PROJECTIONS: usize = 3;
 
 /// The chroma clamps that follow the first, each after the colours are brought back to their
 /// input ([`project_onto_input`]).
@@ -57,7 +54,6 @@ pub fn residual_base(
     }
     let mut base = upsampled_base(lr, config, upsamplers, scale, border)?;
     project_onto_input(&mut base, lr, config, scale, border);
-    blend_clean_normals(&mut base, lr, config, upsamplers, scale, border)?;
     Ok(base)
 }
 
@@ -236,7 +232,7 @@ impl NearInput {
 /// The device to make the residual base on: the upsampler's, where it leaves its outputs on
 /// one (a GPU's network) and the base is the per-map one, its colour's chroma its own.
 /// `None`: the host's path, which a noisy material's blend of normals takes too
-/// ([`normal_blend`]: the networks still run on their device).
+/// (`crate::normal_blend`: the networks still run on their device).
 pub fn device_for(config: &FilterConfig, upsamplers: &MapUpsamplers) -> Option<Device> {
     let per_map = config.residual_base == ResidualBase::Upsampler
         && config.base_color_chroma == Chroma::Upsampler
@@ -437,8 +433,9 @@ fn settle_blocks_on_device(
 
 /// LR texels of context around a region that change its residual base: the upsampler's (or
 /// the kernel's) own, the low-pass projection's blur (its target's colour reads that far),
-/// two per round of back-projection (a box cell, then a bilinear spread over the
-/// neighbouring cells), and the blend of a noisy material's normals.
+/// and two per round of back-projection (a box cell, then a bilinear spread over the
+/// neighbouring cells). A noisy material's blend of normals reads further
+/// (`crate::normal_blend::context`).
 pub fn context(config: &FilterConfig, upsamplers: &MapUpsamplers) -> usize {
     let upsampled = match config.residual_base {
         ResidualBase::Kernel(kernel) => kernel.radius().ceil() as usize,
@@ -453,7 +450,7 @@ pub fn context(config: &FilterConfig, upsamplers: &MapUpsamplers) -> usize {
         true if config.clamp_chroma && config.clamp_back_project => 1 + LATER_CLAMPS,
         true => 1,
     };
-    upsampled + low_pass + 2 * BACK_PROJECTIONS * projections + normal_blend::context(config)
+    upsampled + low_pass + 2 * BACK_PROJECTIONS * projections
 }
 
 /// Iterative back-projection (Irani & Peleg 1991): corrects output-size features `hr` so that

@@ -4,7 +4,8 @@
 //! softens bevels and grout, which carry a tiled material's shading (Tiles036 with σ 3 of
 //! noise: 1.1 dB below the clean route in render PSNR, its flat tiles cleaner); the clean
 //! route keeps edges and puts noise back only where the structure outweighs it
-//! (docs/experiments/2026-12-02-texel-traces.md).
+//! (docs/experiments/2026-12-02-texel-traces.md). The pipeline blends them into the residual
+//! base once it is projected as the route says.
 
 use crate::config::{FilterConfig, NormalBlend};
 use crate::features::feature_range;
@@ -14,13 +15,13 @@ use matup_core::material::{MapKind, Material};
 use matup_core::resample::{gaussian_blur, gaussian_radius, upsample, Border, Kernel};
 use matup_core::Result;
 
-use super::back_project_within;
+use crate::residual::{back_project_within, BACK_PROJECTIONS};
 
 /// LR texels of context the blend reads around a region: the variance's window, the
 /// weights' bilinear spread, and the clean normals' back-projection (two per round).
-pub(super) fn context(config: &FilterConfig) -> usize {
+pub fn context(config: &FilterConfig) -> usize {
     match config.normal_blend_noise > 0.0 {
-        true => gaussian_radius(NormalBlend::WINDOW) + 1 + 2 * super::BACK_PROJECTIONS,
+        true => gaussian_radius(NormalBlend::WINDOW) + 1 + 2 * BACK_PROJECTIONS,
         false => 0,
     }
 }
