@@ -7,7 +7,7 @@
 //! (docs/experiments/2026-12-02-texel-traces.md). The pipeline blends them into the residual
 //! base once it is projected as the route says.
 
-use crate::config::{FilterConfig, NormalBlend};
+use crate::config::FilterConfig;
 use crate::features::feature_range;
 use crate::per_map::{upscale_one_map, MapUpsamplers};
 use matup_core::map::Map;
@@ -16,6 +16,27 @@ use matup_core::resample::{gaussian_blur, gaussian_radius, upsample, Border, Ker
 use matup_core::Result;
 
 use crate::residual::{back_project_within, BACK_PROJECTIONS};
+
+/// How `FilterConfig::normal_blend_noise` weighs the clean route's normals in, from the
+/// local variance of the input's normals (x and y as the file stores them, the larger, in a
+/// Gaussian window of [`NormalBlend::WINDOW`] LR texels) over the noise's: none up to
+/// [`NormalBlend::FROM`] times it, all from [`NormalBlend::TO`] times it, a ramp between.
+/// Tuned on the shared materials with σ 3 of noise, checked on the val sets
+/// (docs/experiments/2026-12-02-texel-traces.md).
+pub struct NormalBlend;
+
+impl NormalBlend {
+    pub const WINDOW: f32 = 1.5;
+    pub const FROM: f32 = 20.0;
+    pub const TO: f32 = 80.0;
+
+    /// The clean route's weight where the input's normals vary by `variance` (levels²) under
+    /// noise of `sigma` levels.
+    pub fn weight(variance: f32, sigma: f32) -> f32 {
+        let ratio = variance / (sigma * sigma);
+        ((ratio - Self::FROM) / (Self::TO - Self::FROM)).clamp(0.0, 1.0)
+    }
+}
 
 /// LR texels of context the blend reads around a region: the variance's window, the
 /// weights' bilinear spread, and the clean normals' back-projection (two per round).

@@ -63,7 +63,7 @@ pub struct FilterConfig {
     /// Above 0: noise of this σ (8-bit levels of the files' values) lies under the input, and
     /// the normal map is blended from two upsamplings of it: this run's where the input's
     /// normals are flat within the noise, the clean route's (the clean route's upsampler,
-    /// projected exactly) where they vary far past it ([`NormalBlend`]). A network for
+    /// projected exactly) where they vary far past it (`crate::normal_blend::NormalBlend`). A network for
     /// degraded maps takes the noise away but softens bevels and grout, which carry a tiled
     /// material's shading; the clean route keeps them. The route sets it to the noise it
     /// reads under a material's maps (`crate::plan::InputRoute`).
@@ -159,27 +159,6 @@ impl Default for FilterConfig {
             normal_blend_noise: 0.0,
             unprojected_maps: Vec::new(),
         }
-    }
-}
-
-/// How [`FilterConfig::normal_blend_noise`] weighs the clean route's normals in, from the
-/// local variance of the input's normals (x and y as the file stores them, the larger, in a
-/// Gaussian window of [`NormalBlend::WINDOW`] LR texels) over the noise's: none up to
-/// [`NormalBlend::FROM`] times it, all from [`NormalBlend::TO`] times it, a ramp between.
-/// Tuned on the shared materials with σ 3 of noise, checked on the val sets
-/// (docs/experiments/2026-12-02-texel-traces.md).
-pub struct NormalBlend;
-
-impl NormalBlend {
-    pub const WINDOW: f32 = 1.5;
-    pub const FROM: f32 = 20.0;
-    pub const TO: f32 = 80.0;
-
-    /// The clean route's weight where the input's normals vary by `variance` (levels²) under
-    /// noise of `sigma` levels.
-    pub fn weight(variance: f32, sigma: f32) -> f32 {
-        let ratio = variance / (sigma * sigma);
-        ((ratio - Self::FROM) / (Self::TO - Self::FROM)).clamp(0.0, 1.0)
     }
 }
 

@@ -15,7 +15,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::features::FEATURE_MAPS;
 pub use crate::per_map::{EnsembleMaps, MapPasses, SelfEnsemble, UpsampledMaps};
-pub use filter::{FilterConfig, NormalBlend, NEIGHBOURHOOD_MARGIN};
+pub use filter::{FilterConfig, NEIGHBOURHOOD_MARGIN};
 pub use lights::LightsConfig;
 use matup_core::material::MapKind;
 use matup_core::resample::Kernel;
