@@ -381,7 +381,9 @@ fn a_lossily_stored_input_runs_the_network_for_its_storage() {
     // Its normals are blended with the clean route's, made by the material network, past the
     // noise read; the other maps are left unprojected.
     let noisy_plan = plan(&noisy, InputQuality::Auto);
-    let (sigma, _) = by_noise.noise.clone().expect("the noise read");
+    let sigma = by_noise
+        .normal_noise
+        .expect("the noise read under the normals");
     let filter = &noisy_plan.setup.settings.filter;
     assert_eq!(filter.normal_blend_noise, sigma);
     assert!((2.0..3.5).contains(&sigma), "{sigma}");

@@ -139,9 +139,9 @@ pub struct InputRoute {
     /// (`Material::lossy`), or BC blocks, a JPEG's grid or noise under every map in its texels
     /// (`matup_core::texel_trace`).
     pub lossy: Vec<String>,
-    /// The noise read under every map, where the route reads it: its σ in 8-bit levels, and
-    /// the maps it routes as degraded.
-    pub noise: Option<(f32, Vec<MapKind>)>,
+    /// The σ (8-bit levels) of the noise read under every map, where the route takes the
+    /// normal map as degraded for it: its normals are then blended with the clean route's.
+    pub normal_noise: Option<f32>,
 }
 
 /// How far, in LR texels, a JPEG input's mismatch is blurred (kept to its edges) before the
@@ -180,25 +180,17 @@ impl InputRoute {
             .collect();
         // Noise under every map is said once.
         lossy.dedup();
-        let noisy: Vec<&LossyMap> = (stored.iter())
-            .filter(|m| m.noise.is_some() && word(m.kind) == &InputQuality::Auto)
-            .collect();
-        let noise = (noisy.first()).and_then(|m| m.noise).map(|sigma| {
-            let kinds = noisy.iter().map(|m| m.kind).collect();
-            (sigma as f32, kinds)
-        });
+        let normal_noise = (stored.iter())
+            .filter(|m| m.kind == MapKind::Normal && word(m.kind) == &InputQuality::Auto)
+            .find_map(|m| m.noise)
+            .map(|sigma| sigma as f32);
         InputRoute {
             quality,
             maps,
             given,
             lossy,
-            noise,
+            normal_noise,
         }
-    }
-
-    /// Whether the map of `kind` is routed as degraded for the noise read under it.
-    fn noisy(&self, kind: MapKind) -> bool {
-        (self.noise.as_ref()).is_some_and(|(_, kinds)| kinds.contains(&kind))
     }
 
     /// Whether any map is read as lossily stored, JPEG or otherwise.
@@ -237,8 +229,8 @@ impl InputRoute {
             filter.back_project = false;
             filter.unprojected_maps.clear();
         }
-        if let Some((sigma, _)) = self.noise.as_ref().filter(|_| self.noisy(MapKind::Normal)) {
-            filter.normal_blend_noise = *sigma;
+        if let Some(sigma) = self.normal_noise {
+            filter.normal_blend_noise = sigma;
         }
         config
     }
@@ -255,8 +247,8 @@ impl InputRoute {
                 let degraded = "not back-projected, run by the network for degraded maps where \
                                 the upsampler is auto";
                 let normal = MapKind::Normal.to_string();
-                match &self.noise {
-                    Some((sigma, _)) if self.noisy(MapKind::Normal) && kinds.contains(&normal) => {
+                match self.normal_noise {
+                    Some(sigma) if kinds.contains(&normal) => {
                         format!(
                             "{degraded}, the normals blended with the clean route's where they \
                              vary far past the noise (σ {sigma:.1} levels)"
